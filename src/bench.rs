@@ -1,0 +1,129 @@
+//! The reference benchmark workload (issue: "the MPM engine"): a solid ball of radius 8 cells
+//! centred in a 32^3 grid (dx 1), 2x2x2 particles per cell, density 40, lam 58333,
+//! mu 38888.9, drag 0.5, f64. The body is deforming: it starts with a swirl and expansion
+//! velocity and receives control deformation gradients every 10 steps.
+
+use crate::loss::{MassLoss, MassLossKind};
+use crate::material::svd::svd3;
+use crate::mpm::{KernelKind, SimError, Simulator, State, StateGrad, Tape};
+use crate::scene::{SceneConfig, ball_particles};
+use nalgebra::{Matrix3, Vector3};
+use serde_json::json;
+use std::time::Instant;
+
+/// The reference scene, its deforming initial state and per-step controls.
+pub struct Workload {
+    pub sim: Simulator,
+    pub initial: State,
+    pub controls: Vec<Option<Vec<Matrix3<f64>>>>,
+    pub loss: MassLoss,
+}
+
+/// Builds the reference workload for `steps` steps with the given kernel.
+pub fn reference_workload(kernel: KernelKind, steps: usize) -> Result<Workload, SimError> {
+    let mut scene = SceneConfig::reference();
+    scene.kernel = kernel;
+    let (x, vol) = ball_particles(&scene.grid, Vector3::zeros(), 8.0, 2);
+    let sim = scene.build(vol)?;
+    let mut initial = State::at_rest(x);
+    for p in 0..initial.len() {
+        let r = initial.x[p];
+        initial.v[p] = Vector3::new(-r[1], r[0], 0.3 * r[2]) * 0.5 + Vector3::new(0.5, 0.0, 0.0);
+    }
+    let controls = (0..steps)
+        .map(|s| {
+            (s % 10 == 0).then(|| {
+                initial
+                    .x
+                    .iter()
+                    .map(|x| {
+                        let a = 0.02 * (0.4 * x[0] + 0.3 * x[1]).sin();
+                        Matrix3::new(a, 0.01, 0.0, -0.01, -a, 0.005, 0.0, 0.002, 0.5 * a)
+                    })
+                    .collect()
+            })
+        })
+        .collect();
+    // Target: the ball shifted by two cells, as a morph would ask.
+    let shifted: Vec<Vector3<f64>> = initial.x.iter().map(|x| x + Vector3::new(2.0, 0.0, 0.0)).collect();
+    let target = sim.mass_grid(&shifted)?;
+    Ok(Workload { sim, initial, controls, loss: MassLoss::new(MassLossKind::Log, target) })
+}
+
+impl Workload {
+    /// Forward only.
+    pub fn run_forward(&self, steps: usize) -> Result<State, SimError> {
+        let mut s = self.initial.clone();
+        self.sim.forward(&mut s, &self.controls, 0, steps, None)?;
+        Ok(s)
+    }
+
+    /// Forward with tape, loss on the final mass grid, reverse pass. Returns (loss, gradients).
+    pub fn run_forward_reverse(&self, steps: usize) -> Result<(f64, crate::mpm::Gradients), SimError> {
+        let mut s = self.initial.clone();
+        let mut tape = Tape::default();
+        self.sim.forward(&mut s, &self.controls, 0, steps, Some(&mut tape))?;
+        let mass = self.sim.mass_grid(&s.x)?;
+        let (loss, gm) = self.loss.value_and_grad(&mass);
+        let mut seed = StateGrad::zeros(s.len());
+        seed.x = self.sim.mass_grid_reverse(&s.x, &gm);
+        Ok((loss, self.sim.backward(&tape, &self.controls, seed)))
+    }
+}
+
+/// Runs the benchmark and prints one JSON line per configuration.
+pub fn run(steps: usize, repeats: usize, threads: &[usize], kernels: &[KernelKind]) -> anyhow::Result<()> {
+    // SVD: ours against nalgebra's general SVD, single thread.
+    let mats: Vec<Matrix3<f64>> = (0..200_000)
+        .map(|i| {
+            let t = i as f64 * 0.001;
+            Matrix3::new(1.0 + 0.3 * t.sin(), 0.2 * t.cos(), 0.1, 0.05 * t, 0.9, 0.3 * (2.0 * t).sin(), -0.1, 0.2, 1.1 + 0.1 * t.cos())
+        })
+        .collect();
+    let time_it = |f: &dyn Fn(&Matrix3<f64>) -> f64| {
+        let mut best = f64::INFINITY;
+        for _ in 0..repeats.max(1) {
+            let t0 = Instant::now();
+            let acc: f64 = mats.iter().map(f).sum();
+            std::hint::black_box(acc);
+            best = best.min(t0.elapsed().as_secs_f64());
+        }
+        best / mats.len() as f64 * 1e9
+    };
+    let ours = time_it(&|m| svd3(m).sigma[0]);
+    let theirs = time_it(&|m| m.svd(true, true).singular_values[0]);
+    println!("{}", json!({"bench": "svd3", "ns_per_call_morph": ours, "ns_per_call_nalgebra": theirs}));
+
+    for &kernel in kernels {
+        let w = reference_workload(kernel, steps)?;
+        for &t in threads {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build()?;
+            let (fwd, fwdrev) = pool.install(|| -> Result<(f64, f64), SimError> {
+                let mut best_f = f64::INFINITY;
+                let mut best_fr = f64::INFINITY;
+                for _ in 0..repeats.max(1) {
+                    let t0 = Instant::now();
+                    std::hint::black_box(w.run_forward(steps)?);
+                    best_f = best_f.min(t0.elapsed().as_secs_f64());
+                    let t0 = Instant::now();
+                    std::hint::black_box(w.run_forward_reverse(steps)?);
+                    best_fr = best_fr.min(t0.elapsed().as_secs_f64());
+                }
+                Ok((best_f, best_fr))
+            })?;
+            let n = w.sim.num_particles();
+            for (mode, secs) in [("forward", fwd), ("forward_reverse", fwdrev)] {
+                println!(
+                    "{}",
+                    json!({
+                        "bench": mode, "particles": n, "kernel": kernel.name(), "threads": t,
+                        "steps": steps, "seconds": secs,
+                        "particle_steps_per_s": (n * steps) as f64 / secs,
+                        "ms_per_step": secs / steps as f64 * 1e3,
+                    })
+                );
+            }
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,96 @@
+//! Boundary walls on the grid's faces: nodes within `thickness` cells of a face are
+//! sticky (velocity set to zero) or slip (the velocity component into the wall is removed;
+//! motion along the wall and away from it is kept).
+
+use super::{Effect, GridContext};
+use nalgebra::Vector3;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum WallMode {
+    Sticky,
+    Slip,
+}
+
+#[derive(Clone, Copy, Debug)]
+pub struct Walls {
+    pub mode: WallMode,
+    /// Boundary layer width in cells.
+    pub thickness: usize,
+}
+
+impl Walls {
+    /// For each axis, -1 if node index `i` is in the low wall layer, +1 in the high one, else 0.
+    #[inline]
+    fn sides(&self, ctx: &GridContext, node: usize) -> [i8; 3] {
+        let n = ctx.spec.nodes();
+        let s = ctx.spec.strides();
+        let idx = [node / s[0], (node / s[1]) % n[1], node % n[2]];
+        let t = self.thickness;
+        let mut out = [0i8; 3];
+        for a in 0..3 {
+            if idx[a] < t {
+                out[a] = -1;
+            } else if idx[a] + t >= n[a] {
+                out[a] = 1;
+            }
+        }
+        out
+    }
+
+    /// Per-axis mask (1 keep, 0 zero) that the wall applies to velocity `v` at `node`.
+    #[inline]
+    fn mask(&self, ctx: &GridContext, node: usize, v: &Vector3<f64>) -> Option<[bool; 3]> {
+        let sides = self.sides(ctx, node);
+        if sides == [0, 0, 0] {
+            return None;
+        }
+        Some(match self.mode {
+            WallMode::Sticky => [false; 3],
+            // Moving into the wall means v . outward normal > 0 on that face.
+            WallMode::Slip => [0, 1, 2].map(|a| !(sides[a] != 0 && v[a] * sides[a] as f64 > 0.0)),
+        })
+    }
+}
+
+impl Effect for Walls {
+    fn name(&self) -> &'static str {
+        "walls"
+    }
+
+    fn acts_on_grid(&self) -> bool {
+        true
+    }
+
+    fn apply_grid(&self, ctx: &GridContext, v: &mut [Vector3<f64>]) {
+        v.par_iter_mut().enumerate().for_each(|(node, v)| {
+            if let Some(keep) = self.mask(ctx, node, v) {
+                for a in 0..3 {
+                    if !keep[a] {
+                        v[a] = 0.0;
+                    }
+                }
+            }
+        });
+    }
+
+    fn reverse_grid(
+        &self,
+        ctx: &GridContext,
+        v_in: &[Vector3<f64>],
+        grad_v: &mut [Vector3<f64>],
+        _grad_params: &mut [f64],
+    ) {
+        grad_v.par_iter_mut().enumerate().for_each(|(node, g)| {
+            if let Some(keep) = self.mask(ctx, node, &v_in[node]) {
+                for a in 0..3 {
+                    if !keep[a] {
+                        g[a] = 0.0;
+                    }
+                }
+            }
+        });
+    }
+}

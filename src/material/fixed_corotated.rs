@@ -1,0 +1,201 @@
+//! Fixed-corotated elasticity (Stomakhin et al. 2012):
+//! `Psi = mu sum_k (sigma_k - 1)^2 + lambda/2 (J - 1)^2`,
+//! `P = 2 mu (F - R) + lambda (J - 1) cof F`, with `cof F = J F^-T`.
+
+use super::svd::svd3;
+use super::{ConstitutiveModel, cofactor, cofactor_differential};
+use nalgebra::Matrix3;
+use serde::{Deserialize, Serialize};
+
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq)]
+pub struct FixedCorotated {
+    pub mu: f64,
+    pub lambda: f64,
+}
+
+/// Smallest |sigma_i + sigma_j| allowed in the rotation differential. The sum only vanishes for
+/// an inverted F with two singular values of opposite sign and equal size, a measure-zero set
+/// where R itself is not differentiable; clamping keeps the gradient finite there.
+const MIN_SIGMA_SUM: f64 = 1e-10;
+
+impl FixedCorotated {
+    pub fn new(mu: f64, lambda: f64) -> Self {
+        Self { mu, lambda }
+    }
+
+    /// From Young's modulus and Poisson's ratio.
+    pub fn from_young_poisson(e: f64, nu: f64) -> Self {
+        Self {
+            mu: e / (2.0 * (1.0 + nu)),
+            lambda: e * nu / ((1.0 + nu) * (1.0 - 2.0 * nu)),
+        }
+    }
+}
+
+impl ConstitutiveModel for FixedCorotated {
+    fn energy_density(&self, f: &Matrix3<f64>) -> f64 {
+        let s = svd3(f);
+        let j = f.determinant();
+        self.mu * (s.sigma.add_scalar(-1.0)).norm_squared() + 0.5 * self.lambda * (j - 1.0).powi(2)
+    }
+
+    fn stress(&self, f: &Matrix3<f64>) -> Matrix3<f64> {
+        let r = svd3(f).rotation();
+        let cof = cofactor(f);
+        let j = f.column(0).dot(&cof.column(0));
+        2.0 * self.mu * (f - r) + self.lambda * (j - 1.0) * cof
+    }
+
+    fn stress_and_differential(
+        &self,
+        f: &Matrix3<f64>,
+        df: &Matrix3<f64>,
+    ) -> (Matrix3<f64>, Matrix3<f64>) {
+        let s = svd3(f);
+        let r = s.rotation();
+        let cof = cofactor(f);
+        let j = f.column(0).dot(&cof.column(0));
+        let p = 2.0 * self.mu * (f - r) + self.lambda * (j - 1.0) * cof;
+
+        // dR = U W V^T with W skew: W_ij = (G_ij - G_ji) / (sigma_i + sigma_j), G = U^T dF V.
+        // This follows from F = R S: R^T dF - dF^T R = W' S + S W' (W' = R^T dR skew), solved in
+        // the singular basis. It stays finite at repeated singular values (F near a rotation,
+        // where the naive SVD derivative divides by sigma_i - sigma_j = 0).
+        let g = s.u.transpose() * df * s.v;
+        let mut w = Matrix3::zeros();
+        for (i, jj) in [(0usize, 1usize), (0, 2), (1, 2)] {
+            let sum = s.sigma[i] + s.sigma[jj];
+            let denom = if sum.abs() < MIN_SIGMA_SUM {
+                MIN_SIGMA_SUM.copysign(sum)
+            } else {
+                sum
+            };
+            let wij = (g[(i, jj)] - g[(jj, i)]) / denom;
+            w[(i, jj)] = wij;
+            w[(jj, i)] = -wij;
+        }
+        let dr = s.u * w * s.v.transpose();
+        let dj = cof.component_mul(df).sum();
+        let dp = 2.0 * self.mu * (df - dr)
+            + self.lambda * (dj * cof + (j - 1.0) * cofactor_differential(f, df));
+        (p, dp)
+    }
+
+    fn wave_modulus(&self) -> f64 {
+        self.lambda + 2.0 * self.mu
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Rotation3, Vector3};
+    use rand::{RngExt, SeedableRng};
+
+    fn model() -> FixedCorotated {
+        FixedCorotated::new(38888.9, 58333.0)
+    }
+
+    fn random_matrix(rng: &mut impl rand::Rng, scale: f64) -> Matrix3<f64> {
+        Matrix3::from_fn(|_, _| rng.random_range(-scale..scale))
+    }
+
+    /// Relative error of dP[dF] against central differences of P, at step h.
+    fn fd_error(m: &FixedCorotated, f: &Matrix3<f64>, df: &Matrix3<f64>) -> f64 {
+        let h = 1e-6;
+        let fd = (m.stress(&(f + h * df)) - m.stress(&(f - h * df))) / (2.0 * h);
+        let an = m.stress_differential(f, df);
+        (fd - an).norm() / an.norm().max(1e-30)
+    }
+
+    fn assert_differential_matches(f: &Matrix3<f64>, label: &str) {
+        let m = model();
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(11);
+        for _ in 0..20 {
+            let df = random_matrix(&mut rng, 1.0);
+            let err = fd_error(&m, f, &df);
+            assert!(err < 1e-6, "{label}: relative error {err:e}");
+        }
+    }
+
+    #[test]
+    fn stress_is_energy_gradient() {
+        let m = model();
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(3);
+        for _ in 0..50 {
+            let f = Matrix3::identity() + random_matrix(&mut rng, 0.4);
+            let p = m.stress(&f);
+            let h = 1e-6;
+            for i in 0..3 {
+                for j in 0..3 {
+                    let mut e = Matrix3::zeros();
+                    e[(i, j)] = h;
+                    let fd = (m.energy_density(&(f + e)) - m.energy_density(&(f - e))) / (2.0 * h);
+                    assert!((fd - p[(i, j)]).abs() < 1e-5 * p.norm().max(1.0));
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn differential_at_random_f() {
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(5);
+        for _ in 0..50 {
+            let f = Matrix3::identity() + random_matrix(&mut rng, 0.6);
+            if f.determinant() > 0.05 {
+                assert_differential_matches(&f, "random F");
+            }
+        }
+    }
+
+    #[test]
+    fn differential_near_rotation_repeated_singular_values() {
+        let rot = Rotation3::from_euler_angles(0.4, 1.2, -0.7).into_inner();
+        assert_differential_matches(&Matrix3::identity(), "F = I");
+        assert_differential_matches(&rot, "F = rotation");
+        let s = Matrix3::from_diagonal(&Vector3::new(1.1, 1.1, 0.9));
+        assert_differential_matches(&(rot * s), "two equal singular values");
+        let s = Matrix3::from_diagonal(&Vector3::new(1.0 + 1e-9, 1.0, 1.0 - 1e-9));
+        assert_differential_matches(&(rot * s), "nearly equal singular values");
+    }
+
+    #[test]
+    fn differential_at_inverted_f() {
+        let rot = Rotation3::from_euler_angles(-0.3, 0.5, 2.2).into_inner();
+        for diag in [[1.2, 0.8, -0.3], [1.0, 1.0, -1.0 + 0.3], [0.9, 0.6, -0.1]] {
+            let f = rot * Matrix3::from_diagonal(&Vector3::from(diag));
+            assert!(f.determinant() < 0.0);
+            assert_differential_matches(&f, "inverted F");
+        }
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(9);
+        let mut tested = 0;
+        while tested < 30 {
+            let f = random_matrix(&mut rng, 1.5);
+            if f.determinant() < -0.05 {
+                assert_differential_matches(&f, "random inverted F");
+                tested += 1;
+            }
+        }
+    }
+
+    #[test]
+    fn differential_is_self_adjoint() {
+        let m = model();
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(13);
+        for _ in 0..100 {
+            let f = random_matrix(&mut rng, 1.5);
+            let (a, b) = (random_matrix(&mut rng, 1.0), random_matrix(&mut rng, 1.0));
+            let lhs = m.stress_differential(&f, &a).dot(&b);
+            let rhs = a.dot(&m.stress_differential(&f, &b));
+            assert!((lhs - rhs).abs() <= 1e-10 * lhs.abs().max(1.0), "{lhs} vs {rhs}");
+        }
+    }
+
+    #[test]
+    fn rest_and_rotations_are_stress_free() {
+        let m = model();
+        let rot = Rotation3::from_euler_angles(0.1, -0.2, 0.9).into_inner();
+        assert!(m.stress(&Matrix3::identity()).norm() < 1e-9);
+        assert!(m.stress(&rot).norm() < 1e-9);
+    }
+}

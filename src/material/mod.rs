@@ -1,0 +1,54 @@
+//! Constitutive models: strain energy density, first Piola-Kirchhoff stress and its
+//! differential, behind one trait so the MPM stages never depend on a particular material.
+
+mod fixed_corotated;
+pub mod svd;
+
+pub use fixed_corotated::FixedCorotated;
+
+use nalgebra::Matrix3;
+
+/// A hyperelastic constitutive model `Psi(F)`.
+///
+/// Because the stress is the gradient of an energy, `dP/dF` is a symmetric linear map on 3x3
+/// matrices; the reverse pass relies on this and applies [`Self::stress_differential`] to the
+/// stress adjoint (tests check the symmetry `<dP[A], B> = <A, dP[B]>`).
+pub trait ConstitutiveModel: Send + Sync + std::fmt::Debug {
+    /// Strain energy per unit rest volume.
+    fn energy_density(&self, f: &Matrix3<f64>) -> f64;
+    /// First Piola-Kirchhoff stress `P = dPsi/dF`.
+    fn stress(&self, f: &Matrix3<f64>) -> Matrix3<f64>;
+    /// Stress and its differential in one call: `(P(F), dP(F)[dF])` (shares the SVD).
+    fn stress_and_differential(
+        &self,
+        f: &Matrix3<f64>,
+        df: &Matrix3<f64>,
+    ) -> (Matrix3<f64>, Matrix3<f64>);
+    /// The differential `dP(F)[dF]` alone.
+    fn stress_differential(&self, f: &Matrix3<f64>, df: &Matrix3<f64>) -> Matrix3<f64> {
+        self.stress_and_differential(f, df).1
+    }
+    /// P-wave modulus at rest (`lambda + 2 mu` for isotropic models); with the density it gives
+    /// the elastic wave speed that bounds the stable time step.
+    fn wave_modulus(&self) -> f64;
+}
+
+/// Cofactor matrix `cof F = det(F) F^-T`, columns `f1 x f2, f2 x f0, f0 x f1`; defined (and
+/// smooth) for singular and inverted F, unlike `F^-T`.
+#[inline]
+pub(crate) fn cofactor(f: &Matrix3<f64>) -> Matrix3<f64> {
+    let (f0, f1, f2) = (f.column(0), f.column(1), f.column(2));
+    Matrix3::from_columns(&[f1.cross(&f2), f2.cross(&f0), f0.cross(&f1)])
+}
+
+/// Differential of the cofactor matrix: `d cof(F)[dF]` (bilinear in F and dF).
+#[inline]
+pub(crate) fn cofactor_differential(f: &Matrix3<f64>, df: &Matrix3<f64>) -> Matrix3<f64> {
+    let (f0, f1, f2) = (f.column(0), f.column(1), f.column(2));
+    let (d0, d1, d2) = (df.column(0), df.column(1), df.column(2));
+    Matrix3::from_columns(&[
+        d1.cross(&f2) + f1.cross(&d2),
+        d2.cross(&f0) + f2.cross(&d0),
+        d0.cross(&f1) + f0.cross(&d1),
+    ])
+}

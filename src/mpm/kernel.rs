@@ -1,0 +1,158 @@
+//! Quadratic and cubic B-spline interpolation kernels.
+//!
+//! A particle at `x` touches an `N x N x N` stencil of grid nodes starting at `base`
+//! (N = 3 for quadratic, 4 for cubic). Weights are tensor products of 1D B-splines and are
+//! differentiable in `x`, which the reverse pass needs because every transfer moves with the
+//! particle.
+
+use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+
+/// Which B-spline the transfers use.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum KernelKind {
+    Quadratic,
+    Cubic,
+}
+
+impl KernelKind {
+    /// Nodes per axis in the stencil.
+    pub fn support(self) -> usize {
+        match self {
+            KernelKind::Quadratic => 3,
+            KernelKind::Cubic => 4,
+        }
+    }
+
+    /// `D^-1` of MLS-MPM / APIC, `(sum_i w_ip (x_i - x_p)(x_i - x_p)^T)^-1`, a multiple of I.
+    pub fn inv_d(self, dx: f64) -> f64 {
+        match self {
+            KernelKind::Quadratic => 4.0 / (dx * dx),
+            KernelKind::Cubic => 3.0 / (dx * dx),
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            KernelKind::Quadratic => "quadratic",
+            KernelKind::Cubic => "cubic",
+        }
+    }
+}
+
+/// Weights of one particle on its `N^3` stencil, per axis.
+#[derive(Clone, Copy, Debug)]
+pub struct Stencil<const N: usize> {
+    /// Grid index of the stencil's first node on each axis (may be out of range: the caller
+    /// checks it against the grid).
+    pub base: [i64; 3],
+    /// 1D weights `w[axis][k]` for node `base + k`.
+    pub w: [[f64; N]; 3],
+    /// 1D weight derivatives with respect to the particle position (already divided by dx).
+    pub dw: [[f64; N]; 3],
+    /// `(x_node - x_p)` per axis and node, in world units.
+    pub dpos: [[f64; N]; 3],
+}
+
+impl<const N: usize> Stencil<N> {
+    /// Stencil of a particle at world position `x` on a grid with node 0 at `origin`.
+    #[inline]
+    pub fn new(x: &Vector3<f64>, origin: &Vector3<f64>, dx: f64) -> Self {
+        let inv_dx = 1.0 / dx;
+        let mut base = [0i64; 3];
+        let mut w = [[0.0; N]; 3];
+        let mut dw = [[0.0; N]; 3];
+        let mut dpos = [[0.0; N]; 3];
+        for a in 0..3 {
+            let xg = (x[a] - origin[a]) * inv_dx;
+            // Quadratic: fx in [0.5, 1.5); cubic: fx in [1, 2).
+            let b = if N == 3 { (xg - 0.5).floor() } else { xg.floor() - 1.0 };
+            let fx = xg - b;
+            base[a] = b as i64;
+            for k in 0..N {
+                let d = fx - k as f64; // distance particle - node in cells
+                let (wk, dwk) = if N == 3 { quadratic(d) } else { cubic(d) };
+                w[a][k] = wk;
+                dw[a][k] = dwk * inv_dx;
+                dpos[a][k] = -d * dx;
+            }
+        }
+        Stencil { base, w, dw, dpos }
+    }
+}
+
+/// Quadratic B-spline N(d) and N'(d) for the distance d (in cells) from node to particle.
+#[inline(always)]
+fn quadratic(d: f64) -> (f64, f64) {
+    let a = d.abs();
+    if a < 0.5 {
+        (0.75 - d * d, -2.0 * d)
+    } else if a < 1.5 {
+        let t = 1.5 - a;
+        (0.5 * t * t, -t * d.signum())
+    } else {
+        (0.0, 0.0)
+    }
+}
+
+/// Cubic B-spline N(d) and N'(d).
+#[inline(always)]
+fn cubic(d: f64) -> (f64, f64) {
+    let a = d.abs();
+    if a < 1.0 {
+        (0.5 * a * a * a - a * a + 2.0 / 3.0, (1.5 * a - 2.0) * d)
+    } else if a < 2.0 {
+        let t = 2.0 - a;
+        (t * t * t / 6.0, -0.5 * t * t * d.signum())
+    } else {
+        (0.0, 0.0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn check<const N: usize>(kind: KernelKind) {
+        let origin = Vector3::new(-3.0, -3.0, -3.0);
+        let dx = 0.7;
+        for x in [0.013, 0.49, 0.5, 0.77, 1.0, 1.31] {
+            let p = Vector3::new(x, -x, 0.3 * x);
+            let s = Stencil::<N>::new(&p, &origin, dx);
+            for a in 0..3 {
+                // Partition of unity, linear reproduction, and the second moment behind D^-1.
+                let sum: f64 = s.w[a].iter().sum();
+                let first: f64 = (0..N).map(|k| s.w[a][k] * s.dpos[a][k]).sum();
+                let second: f64 = (0..N).map(|k| s.w[a][k] * s.dpos[a][k].powi(2)).sum();
+                assert!((sum - 1.0).abs() < 1e-14);
+                assert!(first.abs() < 1e-14);
+                assert!((second * kind.inv_d(dx) - 1.0).abs() < 1e-13);
+                // Derivative against central differences.
+                let h = 1e-7;
+                let mut pp = p;
+                pp[a] += h;
+                let mut pm = p;
+                pm[a] -= h;
+                let sp = Stencil::<N>::new(&pp, &origin, dx);
+                let sm = Stencil::<N>::new(&pm, &origin, dx);
+                if sp.base == s.base && sm.base == s.base {
+                    for k in 0..N {
+                        let fd = (sp.w[a][k] - sm.w[a][k]) / (2.0 * h);
+                        assert!((fd - s.dw[a][k]).abs() < 1e-6);
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn quadratic_moments_and_derivatives() {
+        check::<3>(KernelKind::Quadratic);
+    }
+
+    #[test]
+    fn cubic_moments_and_derivatives() {
+        check::<4>(KernelKind::Cubic);
+    }
+}

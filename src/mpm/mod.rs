@@ -1,0 +1,23 @@
+//! The differentiable MLS-MPM engine.
+//!
+//! One step runs the stages P1 (stress) -> P2G -> G (grid velocity + effects) -> G2P -> P2
+//! (particle update); the reverse pass runs their adjoints in the opposite order. Each stage
+//! has its own file with the forward and reverse pass side by side; [`step`] strings them
+//! together and records what the reverse pass needs.
+
+pub mod advance;
+pub mod error;
+pub mod g2p;
+pub mod grid;
+pub mod grid_update;
+pub mod kernel;
+pub mod p2g;
+pub mod state;
+pub mod step;
+pub mod stress;
+
+pub use error::SimError;
+pub use grid::GridSpec;
+pub use kernel::KernelKind;
+pub use state::{State, StateGrad};
+pub use step::{Gradients, Simulator, StepTape, Tape, Workspace};

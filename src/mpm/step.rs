@@ -1,0 +1,457 @@
+//! The simulator: a scene's fixed data plus the step, its tape and its reverse pass.
+
+use super::advance::{advance, advance_reverse};
+use super::error::SimError;
+use super::g2p::{g2p_particle, g2p_particle_reverse};
+use super::grid::{Bins, GridSpec, SharedMut};
+use super::grid_update::{grid_velocity, grid_velocity_reverse};
+use super::kernel::{KernelKind, Stencil};
+use super::p2g::{mass_particle, mass_particle_reverse, p2g_particle, p2g_particle_reverse};
+use super::state::{State, StateGrad};
+use super::stress::StressInputs;
+use crate::effects::{Effect, GridContext};
+use crate::material::ConstitutiveModel;
+use nalgebra::{Matrix3, Vector3};
+use rayon::prelude::*;
+use std::sync::Arc;
+
+/// Everything fixed during a simulation: grid, time step, kernel, material, effects and the
+/// particles' masses and rest volumes.
+#[derive(Debug)]
+pub struct Simulator {
+    pub grid: GridSpec,
+    pub dt: f64,
+    pub kernel: KernelKind,
+    pub material: Arc<dyn ConstitutiveModel>,
+    pub effects: Vec<Box<dyn Effect>>,
+    pub mass: Vec<f64>,
+    pub volume: Vec<f64>,
+    /// Largest allowed particle displacement per step, in cells.
+    pub max_cfl: f64,
+}
+
+/// Scratch buffers reused across steps.
+#[derive(Default)]
+pub struct Workspace {
+    bins: Bins,
+    nodes: Vec<[f64; 4]>,
+    grid_v: Vec<Vector3<f64>>,
+    fe: Vec<Matrix3<f64>>,
+    affine: Vec<Matrix3<f64>>,
+}
+
+/// What the reverse pass needs from one forward step.
+#[derive(Clone, Debug)]
+pub struct StepTape {
+    /// Particle state at the start of the step.
+    pub pre: State,
+    bins: Bins,
+    grid_mass: Vec<f64>,
+    /// Grid velocity `p / m`, before grid effects.
+    grid_v: Vec<Vector3<f64>>,
+}
+
+/// Recorded forward steps of a rollout, and the state after the last one.
+#[derive(Clone, Debug, Default)]
+pub struct Tape {
+    pub steps: Vec<StepTape>,
+    pub last: State,
+}
+
+/// Result of [`Simulator::backward`].
+#[derive(Clone, Debug)]
+pub struct Gradients {
+    /// dL/d(initial state).
+    pub initial: StateGrad,
+    /// dL/dFc per step, for the steps whose control was given.
+    pub controls: Vec<Option<Vec<Matrix3<f64>>>>,
+    /// dL/d(parameters) of each effect, in scene order.
+    pub effect_params: Vec<Vec<f64>>,
+}
+
+/// Control `Fc` for local step `s`, if any.
+fn control_at(controls: &[Option<Vec<Matrix3<f64>>>], s: usize) -> Option<&[Matrix3<f64>]> {
+    controls.get(s).and_then(|c| c.as_deref())
+}
+
+impl Simulator {
+    /// Validates the scene: positive finite dt, masses and volumes, a sane grid, and a time
+    /// step within the elastic stability bound `dt <= dx / c`, `c = sqrt(modulus / density)`.
+    pub fn new(
+        grid: GridSpec,
+        dt: f64,
+        kernel: KernelKind,
+        material: Arc<dyn ConstitutiveModel>,
+        effects: Vec<Box<dyn Effect>>,
+        mass: Vec<f64>,
+        volume: Vec<f64>,
+    ) -> Result<Simulator, SimError> {
+        grid.validate()?;
+        if !(dt.is_finite() && dt > 0.0) {
+            return Err(SimError::InvalidScene(format!("dt must be positive and finite, got {dt}")));
+        }
+        if mass.len() != volume.len() {
+            return Err(SimError::InvalidScene("mass and volume lengths differ".into()));
+        }
+        if let Some(p) = (0..mass.len())
+            .find(|&p| !(mass[p].is_finite() && mass[p] > 0.0 && volume[p].is_finite() && volume[p] > 0.0))
+        {
+            return Err(SimError::InvalidScene(format!(
+                "particle {p} has mass {} and volume {}; both must be positive and finite",
+                mass[p], volume[p]
+            )));
+        }
+        let modulus = material.wave_modulus();
+        if !(modulus.is_finite() && modulus >= 0.0) {
+            return Err(SimError::InvalidScene(format!("material modulus {modulus} is invalid")));
+        }
+        let sim = Simulator { grid, dt, kernel, material, effects, mass, volume, max_cfl: 1.0 };
+        let (limit, wave_speed) = sim.stable_dt();
+        if dt > limit {
+            return Err(SimError::UnstableTimeStep { dt, limit, wave_speed, dx: sim.grid.dx });
+        }
+        Ok(sim)
+    }
+
+    /// The largest stable time step `dx / c` and the elastic wave speed `c` it comes from.
+    pub fn stable_dt(&self) -> (f64, f64) {
+        let max_density =
+            self.mass.iter().zip(&self.volume).map(|(m, v)| m / v).fold(0.0f64, f64::max);
+        let c = if max_density > 0.0 { (self.material.wave_modulus() / max_density).sqrt() } else { 0.0 };
+        (if c > 0.0 { self.grid.dx / c } else { f64::INFINITY }, c)
+    }
+
+    pub fn num_particles(&self) -> usize {
+        self.mass.len()
+    }
+
+    pub fn inv_d(&self) -> f64 {
+        self.kernel.inv_d(self.grid.dx)
+    }
+
+    fn stress_inputs(&self, p: usize) -> StressInputs<'_> {
+        StressInputs {
+            model: self.material.as_ref(),
+            mass: self.mass[p],
+            volume: self.volume[p],
+            dt: self.dt,
+            inv_d: self.inv_d(),
+        }
+    }
+
+    /// Product of the effects' momentum factors (1 when no drag is on).
+    fn momentum_retention(&self) -> f64 {
+        self.effects.iter().map(|e| e.momentum_retention(self.dt)).product()
+    }
+
+    fn check_state(&self, state: &State, step: usize) -> Result<(), SimError> {
+        if state.len() != self.num_particles() {
+            return Err(SimError::InvalidScene(format!(
+                "state has {} particles, the scene {}",
+                state.len(),
+                self.num_particles()
+            )));
+        }
+        if let Some((particle, field)) = state.first_non_finite() {
+            return Err(SimError::NonFinite { step, particle, field });
+        }
+        Ok(())
+    }
+
+    /// Advances `state` by one step with optional controls `fc` (per particle, added to F).
+    /// `step` is only used to label errors.
+    pub fn step(
+        &self,
+        state: &mut State,
+        fc: Option<&[Matrix3<f64>]>,
+        step: usize,
+        ws: &mut Workspace,
+    ) -> Result<(), SimError> {
+        match self.kernel {
+            KernelKind::Quadratic => self.step_impl::<3>(state, fc, step, ws, None),
+            KernelKind::Cubic => self.step_impl::<4>(state, fc, step, ws, None),
+        }
+    }
+
+    /// Runs `controls.len()` steps (or `n_steps`, whichever given below) from `state`,
+    /// recording a tape for [`Simulator::backward`] when `tape` is given.
+    pub fn forward(
+        &self,
+        state: &mut State,
+        controls: &[Option<Vec<Matrix3<f64>>>],
+        first_step: usize,
+        n_steps: usize,
+        mut tape: Option<&mut Tape>,
+    ) -> Result<(), SimError> {
+        let mut ws = Workspace::default();
+        if let Some(t) = tape.as_deref_mut() {
+            t.steps.clear();
+        }
+        self.check_state(state, first_step)?;
+        for s in 0..n_steps {
+            let fc = control_at(controls, s);
+            if let Some(fc) = fc {
+                if fc.len() != state.len() {
+                    return Err(SimError::InvalidScene(format!(
+                        "control at step {} has {} entries for {} particles",
+                        first_step + s,
+                        fc.len(),
+                        state.len()
+                    )));
+                }
+            }
+            let rec = tape.as_deref_mut().map(|t| &mut t.steps);
+            match self.kernel {
+                KernelKind::Quadratic => self.step_impl::<3>(state, fc, first_step + s, &mut ws, rec)?,
+                KernelKind::Cubic => self.step_impl::<4>(state, fc, first_step + s, &mut ws, rec)?,
+            }
+        }
+        if let Some(t) = tape {
+            t.last = state.clone();
+        }
+        Ok(())
+    }
+
+    fn step_impl<const N: usize>(
+        &self,
+        state: &mut State,
+        fc: Option<&[Matrix3<f64>]>,
+        step: usize,
+        ws: &mut Workspace,
+        tape: Option<&mut Vec<StepTape>>,
+    ) -> Result<(), SimError> {
+        let n = state.len();
+        let dt = self.dt;
+        let inv_d = self.inv_d();
+        let strides = self.grid.strides();
+        let origin = self.grid.origin_vec();
+        let dx = self.grid.dx;
+        ws.bins = Bins::build(&self.grid, &state.x, N, step)?;
+
+        // P1: elastic gradient and affine momentum.
+        ws.fe.resize(n, Matrix3::zeros());
+        ws.affine.resize(n, Matrix3::zeros());
+        ws.fe.par_iter_mut().zip(ws.affine.par_iter_mut()).enumerate().for_each(|(p, (fe, a))| {
+            *fe = match fc {
+                Some(fc) => state.f[p] + fc[p],
+                None => state.f[p],
+            };
+            *a = self.stress_inputs(p).affine_momentum(&state.c[p], fe);
+        });
+
+        // P2G (coloured scatter).
+        ws.nodes.clear();
+        ws.nodes.resize(self.grid.node_count(), [0.0; 4]);
+        let retention = self.momentum_retention();
+        {
+            let nodes = SharedMut::new(&mut ws.nodes);
+            let (affine, mass) = (&ws.affine, &self.mass);
+            ws.bins.for_each_coloured(|p| {
+                let s = Stencil::<N>::new(&state.x[p], &origin, dx);
+                let momentum = (retention * mass[p]) * state.v[p];
+                p2g_particle(&s, &strides, mass[p], &momentum, &affine[p], &nodes);
+            });
+        }
+
+        // G: grid velocity, then effects.
+        ws.grid_v.resize(self.grid.node_count(), Vector3::zeros());
+        grid_velocity(&ws.nodes, &mut ws.grid_v);
+        let mut grid_mass = Vec::new();
+        let mut grid_v_pre = Vec::new();
+        if tape.is_some() {
+            grid_mass = ws.nodes.par_iter().map(|n| n[0]).collect();
+            grid_v_pre = ws.grid_v.clone();
+        }
+        if self.effects.iter().any(|e| e.acts_on_grid()) {
+            let mass_only: Vec<f64> =
+                if tape.is_some() { grid_mass.clone() } else { ws.nodes.par_iter().map(|n| n[0]).collect() };
+            let ctx = GridContext { spec: &self.grid, mass: &mass_only, dt, step };
+            for e in self.effects.iter().filter(|e| e.acts_on_grid()) {
+                e.apply_grid(&ctx, &mut ws.grid_v);
+            }
+        }
+        if let Some(tape) = tape {
+            tape.push(StepTape { pre: state.clone(), bins: ws.bins.clone(), grid_mass, grid_v: grid_v_pre });
+        }
+
+        // G2P and P2 (per-particle gather, in place).
+        let grid_v = &ws.grid_v;
+        let fe = &ws.fe;
+        let State { x, v, c, f } = state;
+        x.par_iter_mut()
+            .zip(v.par_iter_mut())
+            .zip(c.par_iter_mut().zip(f.par_iter_mut()))
+            .enumerate()
+            .for_each(|(p, ((x, v), (c, f)))| {
+                let s = Stencil::<N>::new(x, &origin, dx);
+                let (vel, cn) = g2p_particle(&s, &strides, grid_v, inv_d);
+                let (xn, fnew) = advance(x, &fe[p], &vel, &cn, dt);
+                *x = xn;
+                *v = vel;
+                *c = cn;
+                *f = fnew;
+            });
+
+        if let Some((particle, field)) = state.first_non_finite() {
+            return Err(SimError::NonFinite { step, particle, field });
+        }
+        let limit = self.max_cfl * dx / dt;
+        if let Some(p) = state.v.par_iter().position_first(|v| v.norm() > limit) {
+            let cells = state.v[p].norm() * dt / dx;
+            return Err(SimError::CflExceeded { step, particle: p, cells, limit: self.max_cfl });
+        }
+        Ok(())
+    }
+
+    /// Reverse pass over a taped rollout. `grad_last` is dL/d(state after the last step);
+    /// `controls` must be the ones the forward pass used.
+    pub fn backward(
+        &self,
+        tape: &Tape,
+        controls: &[Option<Vec<Matrix3<f64>>>],
+        grad_last: StateGrad,
+    ) -> Gradients {
+        let mut adj = grad_last;
+        let mut grad_controls = vec![None; tape.steps.len()];
+        let mut effect_params: Vec<Vec<f64>> = self.effects.iter().map(|e| vec![0.0; e.num_params()]).collect();
+        for s in (0..tape.steps.len()).rev() {
+            let post = if s + 1 < tape.steps.len() { &tape.steps[s + 1].pre } else { &tape.last };
+            let fc = control_at(controls, s);
+            let g = match self.kernel {
+                KernelKind::Quadratic => self.reverse_impl::<3>(&tape.steps[s], post, fc, &mut adj, &mut effect_params),
+                KernelKind::Cubic => self.reverse_impl::<4>(&tape.steps[s], post, fc, &mut adj, &mut effect_params),
+            };
+            if fc.is_some() {
+                grad_controls[s] = Some(g);
+            }
+        }
+        Gradients { initial: adj, controls: grad_controls, effect_params }
+    }
+
+    /// Reverse of one step: turns `adj` from dL/d(post) into dL/d(pre) and returns dL/dFc.
+    fn reverse_impl<const N: usize>(
+        &self,
+        tape: &StepTape,
+        post: &State,
+        fc: Option<&[Matrix3<f64>]>,
+        adj: &mut StateGrad,
+        effect_params: &mut [Vec<f64>],
+    ) -> Vec<Matrix3<f64>> {
+        let pre = &tape.pre;
+        let n = pre.len();
+        let dt = self.dt;
+        let inv_d = self.inv_d();
+        let strides = self.grid.strides();
+        let origin = self.grid.origin_vec();
+        let dx = self.grid.dx;
+        let fe: Vec<Matrix3<f64>> = (0..n)
+            .into_par_iter()
+            .map(|p| match fc {
+                Some(fc) => pre.f[p] + fc[p],
+                None => pre.f[p],
+            })
+            .collect();
+
+        // Replay the grid effects to recover each one's input velocity.
+        let ctx = GridContext { spec: &self.grid, mass: &tape.grid_mass, dt, step: 0 };
+        let grid_effects: Vec<usize> = (0..self.effects.len()).filter(|&e| self.effects[e].acts_on_grid()).collect();
+        let mut effect_inputs = Vec::with_capacity(grid_effects.len());
+        let mut grid_v = tape.grid_v.clone();
+        for &e in &grid_effects {
+            effect_inputs.push(grid_v.clone());
+            self.effects[e].apply_grid(&ctx, &mut grid_v);
+        }
+
+        // P2 reverse.
+        let mut grad_fe = vec![Matrix3::zeros(); n];
+        let mut grad_vel = vec![Vector3::zeros(); n];
+        let mut grad_cn = vec![Matrix3::zeros(); n];
+        (grad_fe.par_iter_mut(), grad_vel.par_iter_mut(), grad_cn.par_iter_mut()).into_par_iter().enumerate().for_each(
+            |(p, (gfe, gv, gc))| {
+                let g = advance_reverse(&fe[p], &post.c[p], dt, &adj.x[p], &adj.v[p], &adj.c[p], &adj.f[p]);
+                *gfe = g.fe;
+                *gv = g.vel;
+                *gc = g.c;
+            },
+        );
+
+        // G2P reverse (coloured scatter into the grid velocity adjoint).
+        let mut grad_grid_v = vec![Vector3::zeros(); self.grid.node_count()];
+        {
+            let ggv = SharedMut::new(&mut grad_grid_v);
+            let gx = SharedMut::new(&mut adj.x);
+            tape.bins.for_each_coloured(|p| {
+                let s = Stencil::<N>::new(&pre.x[p], &origin, dx);
+                let d = g2p_particle_reverse(&s, &strides, &grid_v, inv_d, &grad_vel[p], &grad_cn[p], &post.v[p], &ggv);
+                // SAFETY: each particle is visited exactly once.
+                unsafe { *gx.get(p) += d };
+            });
+        }
+
+        // G reverse: effects backwards, then v = p / m.
+        for (k, &e) in grid_effects.iter().enumerate().rev() {
+            self.effects[e].reverse_grid(&ctx, &effect_inputs[k], &mut grad_grid_v, &mut effect_params[e]);
+        }
+        let mut grad_nodes = vec![[0.0; 4]; self.grid.node_count()];
+        grid_velocity_reverse(&tape.grid_mass, &tape.grid_v, &grad_grid_v, &mut grad_nodes);
+
+        // P2G reverse (gather) and P1 reverse.
+        let retention = self.momentum_retention();
+        let mut grad_fc = vec![Matrix3::zeros(); n];
+        let StateGrad { x: ax, v: av, c: ac, f: af } = adj;
+        (ax.par_iter_mut(), av.par_iter_mut(), ac.par_iter_mut(), af.par_iter_mut(), grad_fc.par_iter_mut())
+            .into_par_iter()
+            .enumerate()
+            .for_each(|(p, (gx, gv, gc, gf, gfc))| {
+                let inputs = self.stress_inputs(p);
+                let affine = inputs.affine_momentum(&pre.c[p], &fe[p]);
+                let s = Stencil::<N>::new(&pre.x[p], &origin, dx);
+                let m = self.mass[p];
+                let momentum = (retention * m) * pre.v[p];
+                let (g_mom, g_affine, g_x) = p2g_particle_reverse(&s, &strides, m, &momentum, &affine, &grad_nodes);
+                let (g_c, g_fe) = inputs.affine_momentum_reverse(&fe[p], &g_affine);
+                *gx += g_x;
+                *gv = (retention * m) * g_mom;
+                *gc = g_c;
+                let total_fe = grad_fe[p] + g_fe;
+                *gf = total_fe;
+                *gfc = total_fe;
+            });
+        grad_fc
+    }
+
+    /// Nodal masses `m_i = sum_p w_ip m_p` of particles at `positions` (for losses).
+    pub fn mass_grid(&self, positions: &[Vector3<f64>]) -> Result<Vec<f64>, SimError> {
+        match self.kernel {
+            KernelKind::Quadratic => self.mass_grid_impl::<3>(positions),
+            KernelKind::Cubic => self.mass_grid_impl::<4>(positions),
+        }
+    }
+
+    fn mass_grid_impl<const N: usize>(&self, positions: &[Vector3<f64>]) -> Result<Vec<f64>, SimError> {
+        let bins = Bins::build(&self.grid, positions, N, 0)?;
+        let mut grid = vec![0.0; self.grid.node_count()];
+        let (strides, origin, dx) = (self.grid.strides(), self.grid.origin_vec(), self.grid.dx);
+        {
+            let g = SharedMut::new(&mut grid);
+            bins.for_each_coloured(|p| {
+                let s = Stencil::<N>::new(&positions[p], &origin, dx);
+                mass_particle(&s, &strides, self.mass[p], &g);
+            });
+        }
+        Ok(grid)
+    }
+
+    /// Reverse of [`Simulator::mass_grid`]: dL/dx_p from dL/dm_i.
+    pub fn mass_grid_reverse(&self, positions: &[Vector3<f64>], grad_mass: &[f64]) -> Vec<Vector3<f64>> {
+        let (strides, origin, dx) = (self.grid.strides(), self.grid.origin_vec(), self.grid.dx);
+        positions
+            .par_iter()
+            .zip(self.mass.par_iter())
+            .map(|(x, &m)| match self.kernel {
+                KernelKind::Quadratic => mass_particle_reverse(&Stencil::<3>::new(x, &origin, dx), &strides, m, grad_mass),
+                KernelKind::Cubic => mass_particle_reverse(&Stencil::<4>::new(x, &origin, dx), &strides, m, grad_mass),
+            })
+            .collect()
+    }
+}

@@ -1,0 +1,46 @@
+//! Stage P1: elastic stress and the affine momentum each particle hands to the grid.
+//!
+//! Forward: `Fe = F + Fc`, `A = m C - dt V D^-1 P(Fe) Fe^T` (MLS-MPM fuses the APIC affine
+//! momentum and the stress force into one matrix that P2G spreads as `A (x_i - x_p)`).
+
+use crate::material::ConstitutiveModel;
+use nalgebra::Matrix3;
+
+/// Constants of the stress stage for one particle.
+pub struct StressInputs<'a> {
+    pub model: &'a dyn ConstitutiveModel,
+    pub mass: f64,
+    pub volume: f64,
+    pub dt: f64,
+    pub inv_d: f64,
+}
+
+impl StressInputs<'_> {
+    /// Scale of the stress term, `-dt V D^-1`.
+    #[inline]
+    fn k(&self) -> f64 {
+        -self.dt * self.volume * self.inv_d
+    }
+
+    /// Forward: the affine momentum `A` for affine velocity `c` and elastic gradient `fe`.
+    #[inline]
+    pub fn affine_momentum(&self, c: &Matrix3<f64>, fe: &Matrix3<f64>) -> Matrix3<f64> {
+        let p = self.model.stress(fe);
+        self.mass * c + self.k() * p * fe.transpose()
+    }
+
+    /// Reverse: from dL/dA, returns (dL/dC, dL/dFe).
+    /// `A = m C + k P Fe^T` gives `dL/dC = m gA`, `gP = k gA Fe`,
+    /// `dL/dFe = k gA^T P + dP(Fe)[gP]` (dP/dF is self-adjoint for a hyperelastic model).
+    #[inline]
+    pub fn affine_momentum_reverse(
+        &self,
+        fe: &Matrix3<f64>,
+        grad_a: &Matrix3<f64>,
+    ) -> (Matrix3<f64>, Matrix3<f64>) {
+        let k = self.k();
+        let grad_p = k * grad_a * fe;
+        let (p, dp) = self.model.stress_and_differential(fe, &grad_p);
+        (self.mass * grad_a, k * grad_a.transpose() * p + dp)
+    }
+}

@@ -1,0 +1,121 @@
+//! Scene description (serde JSON): grid, time step, kernel, material, particles' density and
+//! the list of effects that are on. Only listed effects run.
+
+use crate::effects::{Drag, Effect, Gravity, WallMode, Walls};
+use crate::material::FixedCorotated;
+use crate::mpm::{GridSpec, KernelKind, SimError, Simulator};
+use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+use std::sync::Arc;
+
+/// One effect and its parameters.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "type", rename_all = "lowercase")]
+pub enum EffectConfig {
+    Drag { coefficient: f64 },
+    Gravity { acceleration: [f64; 3] },
+    Walls { mode: WallMode, thickness: usize },
+}
+
+impl EffectConfig {
+    pub fn build(&self) -> Result<Box<dyn Effect>, SimError> {
+        let bad = |why: String| Err(SimError::InvalidScene(why));
+        Ok(match *self {
+            EffectConfig::Drag { coefficient } => {
+                if !(coefficient.is_finite() && coefficient >= 0.0) {
+                    return bad(format!("drag coefficient must be finite and >= 0, got {coefficient}"));
+                }
+                Box::new(Drag { coefficient })
+            }
+            EffectConfig::Gravity { acceleration } => {
+                if acceleration.iter().any(|a| !a.is_finite()) {
+                    return bad(format!("gravity must be finite, got {acceleration:?}"));
+                }
+                Box::new(Gravity { acceleration: Vector3::from(acceleration) })
+            }
+            EffectConfig::Walls { mode, thickness } => {
+                if thickness == 0 {
+                    return bad("wall thickness must be at least 1 cell".into());
+                }
+                Box::new(Walls { mode, thickness })
+            }
+        })
+    }
+}
+
+/// Material parameters (fixed-corotated).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MaterialConfig {
+    pub mu: f64,
+    pub lambda: f64,
+    pub density: f64,
+}
+
+/// A complete scene without its particles.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SceneConfig {
+    pub grid: GridSpec,
+    pub dt: f64,
+    pub kernel: KernelKind,
+    pub material: MaterialConfig,
+    #[serde(default)]
+    pub effects: Vec<EffectConfig>,
+}
+
+impl SceneConfig {
+    /// The reference settings of the published morphing code (design.md section 6).
+    pub fn reference() -> Self {
+        SceneConfig {
+            grid: GridSpec::centred_cube(32, 1.0),
+            dt: 1.0 / 120.0,
+            kernel: KernelKind::Cubic,
+            material: MaterialConfig { mu: 38888.9, lambda: 58333.0, density: 40.0 },
+            effects: vec![EffectConfig::Drag { coefficient: 0.5 }],
+        }
+    }
+
+    /// Builds the simulator for particles of the given rest volumes (mass = density x volume).
+    pub fn build(&self, volumes: Vec<f64>) -> Result<Simulator, SimError> {
+        let m = &self.material;
+        for (name, val) in [("mu", m.mu), ("lambda", m.lambda), ("density", m.density)] {
+            if !val.is_finite() || val < 0.0 || (name == "density" && val == 0.0) {
+                return Err(SimError::InvalidScene(format!("material {name} must be finite and positive, got {val}")));
+            }
+        }
+        let effects = self.effects.iter().map(EffectConfig::build).collect::<Result<Vec<_>, _>>()?;
+        let mass = volumes.iter().map(|v| v * m.density).collect();
+        Simulator::new(
+            self.grid.clone(),
+            self.dt,
+            self.kernel,
+            Arc::new(FixedCorotated::new(m.mu, m.lambda)),
+            effects,
+            mass,
+            volumes,
+        )
+    }
+}
+
+/// Particles on a lattice of `per_cell^3` per cell inside a ball, with their rest volumes.
+pub fn ball_particles(
+    grid: &GridSpec,
+    centre: Vector3<f64>,
+    radius: f64,
+    per_cell: usize,
+) -> (Vec<Vector3<f64>>, Vec<f64>) {
+    let h = grid.dx / per_cell as f64;
+    let o = grid.origin_vec();
+    let mut pts = Vec::new();
+    for i in 0..grid.cells[0] * per_cell {
+        for j in 0..grid.cells[1] * per_cell {
+            for k in 0..grid.cells[2] * per_cell {
+                let x = o + h * Vector3::new(i as f64 + 0.5, j as f64 + 0.5, k as f64 + 0.5);
+                if (x - centre).norm() < radius {
+                    pts.push(x);
+                }
+            }
+        }
+    }
+    let vol = vec![h * h * h; pts.len()];
+    (pts, vol)
+}
