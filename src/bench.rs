@@ -45,9 +45,18 @@ pub fn reference_workload(kernel: KernelKind, steps: usize) -> Result<Workload, 
         })
         .collect();
     // Target: the ball shifted by two cells, as a morph would ask.
-    let shifted: Vec<Vector3<f64>> = initial.x.iter().map(|x| x + Vector3::new(2.0, 0.0, 0.0)).collect();
+    let shifted: Vec<Vector3<f64>> = initial
+        .x
+        .iter()
+        .map(|x| x + Vector3::new(2.0, 0.0, 0.0))
+        .collect();
     let target = sim.mass_grid(&shifted)?;
-    Ok(Workload { sim, initial, controls, loss: MassLoss::new(MassLossKind::Log, target) })
+    Ok(Workload {
+        sim,
+        initial,
+        controls,
+        loss: MassLoss::new(MassLossKind::Log, target),
+    })
 }
 
 impl Workload {
@@ -59,10 +68,14 @@ impl Workload {
     }
 
     /// Forward with tape, loss on the final mass grid, reverse pass. Returns (loss, gradients).
-    pub fn run_forward_reverse(&self, steps: usize) -> Result<(f64, crate::mpm::Gradients), SimError> {
+    pub fn run_forward_reverse(
+        &self,
+        steps: usize,
+    ) -> Result<(f64, crate::mpm::Gradients), SimError> {
         let mut s = self.initial.clone();
         let mut tape = Tape::default();
-        self.sim.forward(&mut s, &self.controls, 0, steps, Some(&mut tape))?;
+        self.sim
+            .forward(&mut s, &self.controls, 0, steps, Some(&mut tape))?;
         let mass = self.sim.mass_grid(&s.x)?;
         let (loss, gm) = self.loss.value_and_grad(&mass);
         let mut seed = StateGrad::zeros(s.len());
@@ -72,12 +85,27 @@ impl Workload {
 }
 
 /// Runs the benchmark and prints one JSON line per configuration.
-pub fn run(steps: usize, repeats: usize, threads: &[usize], kernels: &[KernelKind]) -> anyhow::Result<()> {
+pub fn run(
+    steps: usize,
+    repeats: usize,
+    threads: &[usize],
+    kernels: &[KernelKind],
+) -> anyhow::Result<()> {
     // SVD: ours against nalgebra's general SVD, single thread.
     let mats: Vec<Matrix3<f64>> = (0..200_000)
         .map(|i| {
             let t = i as f64 * 0.001;
-            Matrix3::new(1.0 + 0.3 * t.sin(), 0.2 * t.cos(), 0.1, 0.05 * t, 0.9, 0.3 * (2.0 * t).sin(), -0.1, 0.2, 1.1 + 0.1 * t.cos())
+            Matrix3::new(
+                1.0 + 0.3 * t.sin(),
+                0.2 * t.cos(),
+                0.1,
+                0.05 * t,
+                0.9,
+                0.3 * (2.0 * t).sin(),
+                -0.1,
+                0.2,
+                1.1 + 0.1 * t.cos(),
+            )
         })
         .collect();
     let time_it = |f: &dyn Fn(&Matrix3<f64>) -> f64| {
@@ -92,7 +120,10 @@ pub fn run(steps: usize, repeats: usize, threads: &[usize], kernels: &[KernelKin
     };
     let ours = time_it(&|m| svd3(m).sigma[0]);
     let theirs = time_it(&|m| m.svd(true, true).singular_values[0]);
-    println!("{}", json!({"bench": "svd3", "ns_per_call_morph": ours, "ns_per_call_nalgebra": theirs}));
+    println!(
+        "{}",
+        json!({"bench": "svd3", "ns_per_call_morph": ours, "ns_per_call_nalgebra": theirs})
+    );
 
     for &kernel in kernels {
         let w = reference_workload(kernel, steps)?;

@@ -29,7 +29,11 @@ impl MassLoss {
     /// Loss value and dL/dm_i. Summed sequentially (the same for any thread count) with
     /// Neumaier compensation, so the value is accurate to a few ulps even over millions of nodes.
     pub fn value_and_grad(&self, mass: &[f64]) -> (f64, Vec<f64>) {
-        assert_eq!(mass.len(), self.target.len(), "mass grid and target differ in size");
+        assert_eq!(
+            mass.len(),
+            self.target.len(),
+            "mass grid and target differ in size"
+        );
         let mut loss = CompensatedSum::default();
         let grad = mass
             .iter()
@@ -92,7 +96,11 @@ mod tests {
                 let mut mm = mass.clone();
                 mm[i] -= h;
                 let fd = (loss.value_and_grad(&mp).0 - loss.value_and_grad(&mm).0) / (2.0 * h);
-                assert!((fd - g[i]).abs() < 1e-8, "{kind:?} node {i}: {fd} vs {}", g[i]);
+                assert!(
+                    (fd - g[i]).abs() < 1e-8,
+                    "{kind:?} node {i}: {fd} vs {}",
+                    g[i]
+                );
             }
         }
     }

@@ -46,13 +46,21 @@ fn main() -> ExitCode {
             eprintln!("morph: error: --threads must be between 1 and 1024, got {t}");
             return ExitCode::from(2);
         }
-        if let Err(e) = rayon::ThreadPoolBuilder::new().num_threads(t).build_global() {
+        if let Err(e) = rayon::ThreadPoolBuilder::new()
+            .num_threads(t)
+            .build_global()
+        {
             eprintln!("morph: error: cannot start {t} threads: {e}");
             return ExitCode::from(2);
         }
     }
     let result = match cli.command {
-        Command::Bench { steps, repeats, thread_counts, kernels } => {
+        Command::Bench {
+            steps,
+            repeats,
+            thread_counts,
+            kernels,
+        } => {
             if steps == 0 || thread_counts.iter().any(|&t| t == 0) {
                 eprintln!("morph: error: --steps and --thread-counts must be positive");
                 return ExitCode::from(2);

@@ -5,10 +5,10 @@
 mod common;
 
 use common::*;
+use morph::effects::WallMode;
 use morph::loss::MassLossKind;
 use morph::mpm::{KernelKind, State, Tape};
 use morph::scene::EffectConfig;
-use morph::effects::WallMode;
 use nalgebra::{Matrix3, Vector3};
 
 const STEPS: usize = 12;
@@ -61,12 +61,16 @@ fn check_case_with(
     let (l0, last) = rollout_loss(&sim, &init, &ctrl, steps, &loss, Some(&mut tape));
     assert!(l0 > 0.0 && l0.is_finite());
     // The body must really deform: F changes noticeably over the rollout.
-    let max_df = (0..n).map(|p| (last.f[p] - init.f[p]).norm()).fold(0.0, f64::max);
+    let max_df = (0..n)
+        .map(|p| (last.f[p] - init.f[p]).norm())
+        .fold(0.0, f64::max);
     assert!(max_df > 0.05, "body barely deforms: max |dF| = {max_df}");
     let grads = sim.backward(&tape, &ctrl, loss_seed(&sim, &last, &loss));
 
     let label = format!("{kernel:?}/{kind:?}");
-    let eval = |init: &State, ctrl: &[Option<Vec<Matrix3<f64>>>]| rollout_loss(&sim, init, ctrl, steps, &loss, None).0;
+    let eval = |init: &State, ctrl: &[Option<Vec<Matrix3<f64>>>]| {
+        rollout_loss(&sim, init, ctrl, steps, &loss, None).0
+    };
 
     for trial in 0..2 {
         // dL/dFc at each control layer (steps 0, 4, 8).
@@ -83,7 +87,10 @@ fn check_case_with(
                 eval(&init, &c)
             });
             let e = rel_err(an, fd);
-            assert!(e < TOL, "{label} dL/dFc step {s} trial {trial}: analytic {an:e} fd {fd:e} rel {e:e}");
+            assert!(
+                e < TOL,
+                "{label} dL/dFc step {s} trial {trial}: analytic {an:e} fd {fd:e} rel {e:e}"
+            );
         }
         // Initial state: x, v, F, C.
         // Direction: the normalised gradient plus a random part. Along the gradient the
@@ -104,10 +111,26 @@ fn check_case_with(
             d
         };
         let fields: [(&str, fn(&State, &State) -> f64, fn(&mut State, &State, f64)); 4] = [
-            ("x0", |g, d| g.x.iter().zip(&d.x).map(|(a, b)| a.dot(b)).sum(), |s, d, e| s.x.iter_mut().zip(&d.x).for_each(|(a, b)| *a += e * b)),
-            ("v0", |g, d| g.v.iter().zip(&d.v).map(|(a, b)| a.dot(b)).sum(), |s, d, e| s.v.iter_mut().zip(&d.v).for_each(|(a, b)| *a += e * b)),
-            ("F0", |g, d| g.f.iter().zip(&d.f).map(|(a, b)| a.dot(b)).sum(), |s, d, e| s.f.iter_mut().zip(&d.f).for_each(|(a, b)| *a += e * b)),
-            ("C0", |g, d| g.c.iter().zip(&d.c).map(|(a, b)| a.dot(b)).sum(), |s, d, e| s.c.iter_mut().zip(&d.c).for_each(|(a, b)| *a += e * b)),
+            (
+                "x0",
+                |g, d| g.x.iter().zip(&d.x).map(|(a, b)| a.dot(b)).sum(),
+                |s, d, e| s.x.iter_mut().zip(&d.x).for_each(|(a, b)| *a += e * b),
+            ),
+            (
+                "v0",
+                |g, d| g.v.iter().zip(&d.v).map(|(a, b)| a.dot(b)).sum(),
+                |s, d, e| s.v.iter_mut().zip(&d.v).for_each(|(a, b)| *a += e * b),
+            ),
+            (
+                "F0",
+                |g, d| g.f.iter().zip(&d.f).map(|(a, b)| a.dot(b)).sum(),
+                |s, d, e| s.f.iter_mut().zip(&d.f).for_each(|(a, b)| *a += e * b),
+            ),
+            (
+                "C0",
+                |g, d| g.c.iter().zip(&d.c).map(|(a, b)| a.dot(b)).sum(),
+                |s, d, e| s.c.iter_mut().zip(&d.c).for_each(|(a, b)| *a += e * b),
+            ),
         ];
         for (name, dot, perturb) in fields {
             let an = dot(&grads.initial, &dir);
@@ -117,13 +140,24 @@ fn check_case_with(
                 eval(&s, &ctrl)
             });
             let e = rel_err(an, fd);
-            assert!(e < TOL, "{label} dL/d{name} trial {trial}: analytic {an:e} fd {fd:e} rel {e:e}");
+            assert!(
+                e < TOL,
+                "{label} dL/d{name} trial {trial}: analytic {an:e} fd {fd:e} rel {e:e}"
+            );
         }
     }
 
     // Single components: the largest entry of dL/dx0 (one particle moved: the default step).
     let fd = |f: &dyn Fn(f64) -> f64| fd_step(f, H);
-    let (p_max, _) = grads.initial.x.iter().enumerate().fold((0, 0.0), |acc, (p, g)| if g.norm() > acc.1 { (p, g.norm()) } else { acc });
+    let (p_max, _) = grads
+        .initial
+        .x
+        .iter()
+        .enumerate()
+        .fold(
+            (0, 0.0),
+            |acc, (p, g)| if g.norm() > acc.1 { (p, g.norm()) } else { acc },
+        );
     for a in 0..3 {
         let fd = fd(&|eps| {
             let mut s = init.clone();
@@ -131,35 +165,59 @@ fn check_case_with(
             eval(&s, &ctrl)
         });
         let an = grads.initial.x[p_max][a];
-        assert!(rel_err(an, fd) < TOL || (an - fd).abs() < 1e-9 * l0, "{label} dL/dx0[{p_max}][{a}]: {an:e} vs {fd:e}");
+        assert!(
+            rel_err(an, fd) < TOL || (an - fd).abs() < 1e-9 * l0,
+            "{label} dL/dx0[{p_max}][{a}]: {an:e} vs {fd:e}"
+        );
     }
 }
 
 #[test]
 fn reverse_pass_matches_fd_quadratic_log() {
-    check_case(KernelKind::Quadratic, MassLossKind::Log, vec![EffectConfig::Drag { coefficient: 0.5 }]);
+    check_case(
+        KernelKind::Quadratic,
+        MassLossKind::Log,
+        vec![EffectConfig::Drag { coefficient: 0.5 }],
+    );
 }
 
 #[test]
 fn reverse_pass_matches_fd_quadratic_l2() {
-    check_case(KernelKind::Quadratic, MassLossKind::L2, vec![EffectConfig::Drag { coefficient: 0.5 }]);
+    check_case(
+        KernelKind::Quadratic,
+        MassLossKind::L2,
+        vec![EffectConfig::Drag { coefficient: 0.5 }],
+    );
 }
 
 #[test]
 fn reverse_pass_matches_fd_cubic_log() {
-    check_case(KernelKind::Cubic, MassLossKind::Log, vec![EffectConfig::Drag { coefficient: 0.5 }]);
+    check_case(
+        KernelKind::Cubic,
+        MassLossKind::Log,
+        vec![EffectConfig::Drag { coefficient: 0.5 }],
+    );
 }
 
 #[test]
 fn reverse_pass_matches_fd_cubic_l2() {
-    check_case(KernelKind::Cubic, MassLossKind::L2, vec![EffectConfig::Drag { coefficient: 0.5 }]);
+    check_case(
+        KernelKind::Cubic,
+        MassLossKind::L2,
+        vec![EffectConfig::Drag { coefficient: 0.5 }],
+    );
 }
 
 #[test]
 fn reverse_pass_matches_fd_with_gravity_and_walls() {
     let effects = vec![
-        EffectConfig::Gravity { acceleration: [0.0, -30.0, 5.0] },
-        EffectConfig::Walls { mode: WallMode::Sticky, thickness: 6 },
+        EffectConfig::Gravity {
+            acceleration: [0.0, -30.0, 5.0],
+        },
+        EffectConfig::Walls {
+            mode: WallMode::Sticky,
+            thickness: 6,
+        },
     ];
     check_case(KernelKind::Cubic, MassLossKind::Log, effects.clone());
 }
@@ -172,7 +230,10 @@ fn reverse_pass_matches_fd_with_gravity_and_walls() {
 /// 1e-9 relative as h shrinks, and straddles switches for h >= 1e-5).
 #[test]
 fn reverse_pass_matches_fd_with_slip_walls() {
-    let slip = vec![EffectConfig::Walls { mode: WallMode::Slip, thickness: 3 }];
+    let slip = vec![EffectConfig::Walls {
+        mode: WallMode::Slip,
+        thickness: 3,
+    }];
     let into_wall = |s: &mut State| {
         for p in 0..s.len() {
             s.x[p][0] -= 4.0;
@@ -181,15 +242,34 @@ fn reverse_pass_matches_fd_with_slip_walls() {
             s.f[p] = Matrix3::identity();
         }
     };
-    check_case_with(KernelKind::Quadratic, MassLossKind::L2, slip.clone(), STEPS, 1e-7, into_wall);
-    check_case_with(KernelKind::Cubic, MassLossKind::Log, slip, STEPS, 1e-7, into_wall);
+    check_case_with(
+        KernelKind::Quadratic,
+        MassLossKind::L2,
+        slip.clone(),
+        STEPS,
+        1e-7,
+        into_wall,
+    );
+    check_case_with(
+        KernelKind::Cubic,
+        MassLossKind::Log,
+        slip,
+        STEPS,
+        1e-7,
+        into_wall,
+    );
 }
 
 /// dL/dg for the gravity effect's parameter.
 #[test]
 fn gravity_parameter_gradient_matches_fd() {
     let g0 = [0.0, -30.0, 5.0];
-    let build = |g: [f64; 3]| small_scene(KernelKind::Cubic, vec![EffectConfig::Gravity { acceleration: g }]);
+    let build = |g: [f64; 3]| {
+        small_scene(
+            KernelKind::Cubic,
+            vec![EffectConfig::Gravity { acceleration: g }],
+        )
+    };
     let (sim, mut init) = ball(&build(g0), 3.0);
     let mut rng = Lcg(5);
     deform(&mut init, &mut rng);

@@ -20,11 +20,13 @@ impl Effect for Gravity {
 
     fn apply_grid(&self, ctx: &GridContext, v: &mut [Vector3<f64>]) {
         let dv = ctx.dt * self.acceleration;
-        v.par_iter_mut().zip(ctx.mass.par_iter()).for_each(|(v, &m)| {
-            if m > 0.0 {
-                *v += dv;
-            }
-        });
+        v.par_iter_mut()
+            .zip(ctx.mass.par_iter())
+            .for_each(|(v, &m)| {
+                if m > 0.0 {
+                    *v += dv;
+                }
+            });
     }
 
     /// The velocity passes through unchanged; dL/dg = dt * sum of dL/dv over nodes with mass

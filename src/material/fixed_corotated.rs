@@ -187,7 +187,10 @@ mod tests {
             let (a, b) = (random_matrix(&mut rng, 1.0), random_matrix(&mut rng, 1.0));
             let lhs = m.stress_differential(&f, &a).dot(&b);
             let rhs = a.dot(&m.stress_differential(&f, &b));
-            assert!((lhs - rhs).abs() <= 1e-10 * lhs.abs().max(1.0), "{lhs} vs {rhs}");
+            assert!(
+                (lhs - rhs).abs() <= 1e-10 * lhs.abs().max(1.0),
+                "{lhs} vs {rhs}"
+            );
         }
     }
 

@@ -152,13 +152,21 @@ mod tests {
         let s = svd3(f);
         let rec = s.u * Matrix3::from_diagonal(&s.sigma) * s.v.transpose();
         let scale = f.norm().max(1.0);
-        assert!((rec - f).norm() <= 1e-13 * scale, "reconstruction {}", (rec - f).norm());
+        assert!(
+            (rec - f).norm() <= 1e-13 * scale,
+            "reconstruction {}",
+            (rec - f).norm()
+        );
         assert!((s.u.transpose() * s.u - Matrix3::identity()).norm() < 1e-13);
         assert!((s.v.transpose() * s.v - Matrix3::identity()).norm() < 1e-13);
         assert!((s.u.determinant() - 1.0).abs() < 1e-12);
         assert!((s.v.determinant() - 1.0).abs() < 1e-12);
         assert!(s.sigma[0] >= s.sigma[1].abs() - 1e-12 && s.sigma[1] >= s.sigma[2].abs() - 1e-12);
-        assert_eq!(s.sigma[2] < 0.0, f.determinant() < 0.0, "sign carried by sigma[2]");
+        assert_eq!(
+            s.sigma[2] < 0.0,
+            f.determinant() < 0.0,
+            "sign carried by sigma[2]"
+        );
     }
 
     #[test]

@@ -8,20 +8,38 @@ pub enum SimError {
         "step {step}: particle {particle} at ({:.4}, {:.4}, {:.4}) is outside the grid (its kernel stencil leaves the domain); enlarge the domain or reduce the motion",
         position[0], position[1], position[2]
     )]
-    OutsideGrid { step: usize, particle: usize, position: [f64; 3] },
+    OutsideGrid {
+        step: usize,
+        particle: usize,
+        position: [f64; 3],
+    },
 
     #[error("step {step}: particle {particle} has a non-finite {field}")]
-    NonFinite { step: usize, particle: usize, field: &'static str },
+    NonFinite {
+        step: usize,
+        particle: usize,
+        field: &'static str,
+    },
 
     #[error(
         "time step {dt} exceeds the stable bound {limit:.6} (elastic wave speed {wave_speed:.3} over dx {dx}); use dt <= {limit:.6}"
     )]
-    UnstableTimeStep { dt: f64, limit: f64, wave_speed: f64, dx: f64 },
+    UnstableTimeStep {
+        dt: f64,
+        limit: f64,
+        wave_speed: f64,
+        dx: f64,
+    },
 
     #[error(
         "step {step}: particle {particle} moved {cells:.3} cells in one step (CFL limit {limit}); the simulation is unstable, reduce dt or the controls"
     )]
-    CflExceeded { step: usize, particle: usize, cells: f64, limit: f64 },
+    CflExceeded {
+        step: usize,
+        particle: usize,
+        cells: f64,
+        limit: f64,
+    },
 
     #[error("invalid scene: {0}")]
     InvalidScene(String),

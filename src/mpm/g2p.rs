@@ -38,7 +38,9 @@ pub fn g2p_particle<const N: usize>(
             b_mat.column_mut(2).axpy(wb, &sum_cz, 1.0);
         }
         vel.axpy(s.w[0][a], &sum_a, 1.0);
-        b_mat.column_mut(0).axpy(s.w[0][a] * s.dpos[0][a], &sum_a, 1.0);
+        b_mat
+            .column_mut(0)
+            .axpy(s.w[0][a] * s.dpos[0][a], &sum_a, 1.0);
     }
     (vel, inv_d * b_mat)
 }

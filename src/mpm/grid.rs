@@ -30,7 +30,11 @@ impl GridSpec {
     /// A cube of `cells^3` cells of size `dx` centred on the origin.
     pub fn centred_cube(cells: usize, dx: f64) -> Self {
         let half = 0.5 * cells as f64 * dx;
-        GridSpec { origin: [-half; 3], dx, cells: [cells; 3] }
+        GridSpec {
+            origin: [-half; 3],
+            dx,
+            cells: [cells; 3],
+        }
     }
 
     pub fn nodes(&self) -> [usize; 3] {
@@ -64,13 +68,19 @@ impl GridSpec {
     pub fn validate(&self) -> Result<(), SimError> {
         let bad = |why: &str| Err(SimError::InvalidScene(format!("grid: {why}")));
         if !(self.dx.is_finite() && self.dx > 0.0) {
-            return bad(&format!("dx must be a positive finite number, got {}", self.dx));
+            return bad(&format!(
+                "dx must be a positive finite number, got {}",
+                self.dx
+            ));
         }
         if self.origin.iter().any(|o| !o.is_finite()) {
             return bad("origin must be finite");
         }
         if self.cells.iter().any(|&c| !(4..=1024).contains(&c)) {
-            return bad(&format!("cells per axis must be in 4..=1024, got {:?}", self.cells));
+            return bad(&format!(
+                "cells per axis must be in 4..=1024, got {:?}",
+                self.cells
+            ));
         }
         Ok(())
     }
@@ -108,7 +118,11 @@ impl Bins {
         // Stencil base node per axis, as in `Stencil::new`.
         let base_of = |x: f64, a: usize| -> f64 {
             let xg = (x - origin[a]) * inv_dx;
-            if support == 3 { (xg - 0.5).floor() } else { xg.floor() - 1.0 }
+            if support == 3 {
+                (xg - 0.5).floor()
+            } else {
+                xg.floor() - 1.0
+            }
         };
         let block_of: Vec<u32> = positions
             .par_iter()
@@ -128,9 +142,17 @@ impl Bins {
         if let Some(p) = block_of.par_iter().position_first(|&b| b == u32::MAX) {
             let x = positions[p];
             return Err(if x.iter().all(|c| c.is_finite()) {
-                SimError::OutsideGrid { step, particle: p, position: [x[0], x[1], x[2]] }
+                SimError::OutsideGrid {
+                    step,
+                    particle: p,
+                    position: [x[0], x[1], x[2]],
+                }
             } else {
-                SimError::NonFinite { step, particle: p, field: "position" }
+                SimError::NonFinite {
+                    step,
+                    particle: p,
+                    field: "position",
+                }
             });
         }
         // Stable counting sort by block.
@@ -155,7 +177,10 @@ impl Bins {
                     let b = (bx * bdims[1] + by) * bdims[2] + bz;
                     if start[b] < start[b + 1] {
                         let colour = (bx % 2) * 4 + (by % 2) * 2 + bz % 2;
-                        colours[colour].push(BlockRange { start: start[b], end: start[b + 1] });
+                        colours[colour].push(BlockRange {
+                            start: start[b],
+                            end: start[b + 1],
+                        });
                     }
                 }
             }
@@ -192,7 +217,11 @@ unsafe impl<T: Send> Send for SharedMut<'_, T> {}
 
 impl<'a, T> SharedMut<'a, T> {
     pub fn new(slice: &'a mut [T]) -> Self {
-        SharedMut { ptr: slice.as_mut_ptr(), len: slice.len(), _life: std::marker::PhantomData }
+        SharedMut {
+            ptr: slice.as_mut_ptr(),
+            len: slice.len(),
+            _life: std::marker::PhantomData,
+        }
     }
 
     /// # Safety

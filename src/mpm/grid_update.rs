@@ -7,7 +7,11 @@ use rayon::prelude::*;
 /// Forward: `v_i = p_i / m_i` (zero on empty nodes).
 pub fn grid_velocity(nodes: &[[f64; 4]], v: &mut [Vector3<f64>]) {
     v.par_iter_mut().zip(nodes.par_iter()).for_each(|(v, n)| {
-        *v = if n[0] > 0.0 { Vector3::new(n[1], n[2], n[3]) / n[0] } else { Vector3::zeros() };
+        *v = if n[0] > 0.0 {
+            Vector3::new(n[1], n[2], n[3]) / n[0]
+        } else {
+            Vector3::zeros()
+        };
     });
 }
 

@@ -67,7 +67,11 @@ impl<const N: usize> Stencil<N> {
         for a in 0..3 {
             let xg = (x[a] - origin[a]) * inv_dx;
             // Quadratic: fx in [0.5, 1.5); cubic: fx in [1, 2).
-            let b = if N == 3 { (xg - 0.5).floor() } else { xg.floor() - 1.0 };
+            let b = if N == 3 {
+                (xg - 0.5).floor()
+            } else {
+                xg.floor() - 1.0
+            };
             let fx = xg - b;
             base[a] = b as i64;
             for k in 0..N {

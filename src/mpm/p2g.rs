@@ -134,4 +134,3 @@ pub fn mass_particle_reverse<const N: usize>(
     }
     mass * grad_x
 }
-

@@ -66,7 +66,10 @@ impl State {
 
     /// Total linear momentum for per-particle masses `m`.
     pub fn linear_momentum(&self, m: &[f64]) -> Vector3<f64> {
-        self.v.iter().zip(m).fold(Vector3::zeros(), |acc, (v, &m)| acc + m * v)
+        self.v
+            .iter()
+            .zip(m)
+            .fold(Vector3::zeros(), |acc, (v, &m)| acc + m * v)
     }
 
     /// Total angular momentum about the origin, including the APIC affine (spin) part
@@ -76,7 +79,11 @@ impl State {
         let mut l = Vector3::zeros();
         for p in 0..self.len() {
             let b = self.c[p] * d;
-            let spin = Vector3::new(b[(2, 1)] - b[(1, 2)], b[(0, 2)] - b[(2, 0)], b[(1, 0)] - b[(0, 1)]);
+            let spin = Vector3::new(
+                b[(2, 1)] - b[(1, 2)],
+                b[(0, 2)] - b[(2, 0)],
+                b[(1, 0)] - b[(0, 1)],
+            );
             l += m[p] * (self.x[p].cross(&self.v[p]) + spin);
         }
         l
@@ -84,7 +91,11 @@ impl State {
 
     /// Kinetic energy `1/2 sum m |v|^2` (translational part).
     pub fn kinetic_energy(&self, m: &[f64]) -> f64 {
-        self.v.iter().zip(m).map(|(v, &m)| 0.5 * m * v.norm_squared()).sum()
+        self.v
+            .iter()
+            .zip(m)
+            .map(|(v, &m)| 0.5 * m * v.norm_squared())
+            .sum()
     }
 
     /// Sum of squares of all entries, used to scale adjoint tests.

@@ -88,14 +88,18 @@ impl Simulator {
     ) -> Result<Simulator, SimError> {
         grid.validate()?;
         if !(dt.is_finite() && dt > 0.0) {
-            return Err(SimError::InvalidScene(format!("dt must be positive and finite, got {dt}")));
+            return Err(SimError::InvalidScene(format!(
+                "dt must be positive and finite, got {dt}"
+            )));
         }
         if mass.len() != volume.len() {
-            return Err(SimError::InvalidScene("mass and volume lengths differ".into()));
+            return Err(SimError::InvalidScene(
+                "mass and volume lengths differ".into(),
+            ));
         }
-        if let Some(p) = (0..mass.len())
-            .find(|&p| !(mass[p].is_finite() && mass[p] > 0.0 && volume[p].is_finite() && volume[p] > 0.0))
-        {
+        if let Some(p) = (0..mass.len()).find(|&p| {
+            !(mass[p].is_finite() && mass[p] > 0.0 && volume[p].is_finite() && volume[p] > 0.0)
+        }) {
             return Err(SimError::InvalidScene(format!(
                 "particle {p} has mass {} and volume {}; both must be positive and finite",
                 mass[p], volume[p]
@@ -103,22 +107,53 @@ impl Simulator {
         }
         let modulus = material.wave_modulus();
         if !(modulus.is_finite() && modulus >= 0.0) {
-            return Err(SimError::InvalidScene(format!("material modulus {modulus} is invalid")));
+            return Err(SimError::InvalidScene(format!(
+                "material modulus {modulus} is invalid"
+            )));
         }
-        let sim = Simulator { grid, dt, kernel, material, effects, mass, volume, max_cfl: 1.0 };
+        let sim = Simulator {
+            grid,
+            dt,
+            kernel,
+            material,
+            effects,
+            mass,
+            volume,
+            max_cfl: 1.0,
+        };
         let (limit, wave_speed) = sim.stable_dt();
         if dt > limit {
-            return Err(SimError::UnstableTimeStep { dt, limit, wave_speed, dx: sim.grid.dx });
+            return Err(SimError::UnstableTimeStep {
+                dt,
+                limit,
+                wave_speed,
+                dx: sim.grid.dx,
+            });
         }
         Ok(sim)
     }
 
     /// The largest stable time step `dx / c` and the elastic wave speed `c` it comes from.
     pub fn stable_dt(&self) -> (f64, f64) {
-        let max_density =
-            self.mass.iter().zip(&self.volume).map(|(m, v)| m / v).fold(0.0f64, f64::max);
-        let c = if max_density > 0.0 { (self.material.wave_modulus() / max_density).sqrt() } else { 0.0 };
-        (if c > 0.0 { self.grid.dx / c } else { f64::INFINITY }, c)
+        let max_density = self
+            .mass
+            .iter()
+            .zip(&self.volume)
+            .map(|(m, v)| m / v)
+            .fold(0.0f64, f64::max);
+        let c = if max_density > 0.0 {
+            (self.material.wave_modulus() / max_density).sqrt()
+        } else {
+            0.0
+        };
+        (
+            if c > 0.0 {
+                self.grid.dx / c
+            } else {
+                f64::INFINITY
+            },
+            c,
+        )
     }
 
     pub fn num_particles(&self) -> usize {
@@ -141,7 +176,10 @@ impl Simulator {
 
     /// Product of the effects' momentum factors (1 when no drag is on).
     fn momentum_retention(&self) -> f64 {
-        self.effects.iter().map(|e| e.momentum_retention(self.dt)).product()
+        self.effects
+            .iter()
+            .map(|e| e.momentum_retention(self.dt))
+            .product()
     }
 
     fn check_state(&self, state: &State, step: usize) -> Result<(), SimError> {
@@ -153,7 +191,26 @@ impl Simulator {
             )));
         }
         if let Some((particle, field)) = state.first_non_finite() {
-            return Err(SimError::NonFinite { step, particle, field });
+            return Err(SimError::NonFinite {
+                step,
+                particle,
+                field,
+            });
+        }
+        self.check_cfl(state, step)
+    }
+
+    /// No particle may move more than `max_cfl` cells in one step.
+    fn check_cfl(&self, state: &State, step: usize) -> Result<(), SimError> {
+        let limit = self.max_cfl * self.grid.dx / self.dt;
+        if let Some(p) = state.v.par_iter().position_first(|v| v.norm() > limit) {
+            let cells = state.v[p].norm() * self.dt / self.grid.dx;
+            return Err(SimError::CflExceeded {
+                step,
+                particle: p,
+                cells,
+                limit: self.max_cfl,
+            });
         }
         Ok(())
     }
@@ -199,11 +256,25 @@ impl Simulator {
                         state.len()
                     )));
                 }
+                if let Some(p) = fc
+                    .par_iter()
+                    .position_first(|m| !m.iter().all(|a| a.is_finite()))
+                {
+                    return Err(SimError::NonFinite {
+                        step: first_step + s,
+                        particle: p,
+                        field: "control Fc",
+                    });
+                }
             }
             let rec = tape.as_deref_mut().map(|t| &mut t.steps);
             match self.kernel {
-                KernelKind::Quadratic => self.step_impl::<3>(state, fc, first_step + s, &mut ws, rec)?,
-                KernelKind::Cubic => self.step_impl::<4>(state, fc, first_step + s, &mut ws, rec)?,
+                KernelKind::Quadratic => {
+                    self.step_impl::<3>(state, fc, first_step + s, &mut ws, rec)?
+                }
+                KernelKind::Cubic => {
+                    self.step_impl::<4>(state, fc, first_step + s, &mut ws, rec)?
+                }
             }
         }
         if let Some(t) = tape {
@@ -231,13 +302,17 @@ impl Simulator {
         // P1: elastic gradient and affine momentum.
         ws.fe.resize(n, Matrix3::zeros());
         ws.affine.resize(n, Matrix3::zeros());
-        ws.fe.par_iter_mut().zip(ws.affine.par_iter_mut()).enumerate().for_each(|(p, (fe, a))| {
-            *fe = match fc {
-                Some(fc) => state.f[p] + fc[p],
-                None => state.f[p],
-            };
-            *a = self.stress_inputs(p).affine_momentum(&state.c[p], fe);
-        });
+        ws.fe
+            .par_iter_mut()
+            .zip(ws.affine.par_iter_mut())
+            .enumerate()
+            .for_each(|(p, (fe, a))| {
+                *fe = match fc {
+                    Some(fc) => state.f[p] + fc[p],
+                    None => state.f[p],
+                };
+                *a = self.stress_inputs(p).affine_momentum(&state.c[p], fe);
+            });
 
         // P2G (coloured scatter).
         ws.nodes.clear();
@@ -263,15 +338,28 @@ impl Simulator {
             grid_v_pre = ws.grid_v.clone();
         }
         if self.effects.iter().any(|e| e.acts_on_grid()) {
-            let mass_only: Vec<f64> =
-                if tape.is_some() { grid_mass.clone() } else { ws.nodes.par_iter().map(|n| n[0]).collect() };
-            let ctx = GridContext { spec: &self.grid, mass: &mass_only, dt, step };
+            let mass_only: Vec<f64> = if tape.is_some() {
+                grid_mass.clone()
+            } else {
+                ws.nodes.par_iter().map(|n| n[0]).collect()
+            };
+            let ctx = GridContext {
+                spec: &self.grid,
+                mass: &mass_only,
+                dt,
+                step,
+            };
             for e in self.effects.iter().filter(|e| e.acts_on_grid()) {
                 e.apply_grid(&ctx, &mut ws.grid_v);
             }
         }
         if let Some(tape) = tape {
-            tape.push(StepTape { pre: state.clone(), bins: ws.bins.clone(), grid_mass, grid_v: grid_v_pre });
+            tape.push(StepTape {
+                pre: state.clone(),
+                bins: ws.bins.clone(),
+                grid_mass,
+                grid_v: grid_v_pre,
+            });
         }
 
         // G2P and P2 (per-particle gather, in place).
@@ -293,14 +381,13 @@ impl Simulator {
             });
 
         if let Some((particle, field)) = state.first_non_finite() {
-            return Err(SimError::NonFinite { step, particle, field });
+            return Err(SimError::NonFinite {
+                step,
+                particle,
+                field,
+            });
         }
-        let limit = self.max_cfl * dx / dt;
-        if let Some(p) = state.v.par_iter().position_first(|v| v.norm() > limit) {
-            let cells = state.v[p].norm() * dt / dx;
-            return Err(SimError::CflExceeded { step, particle: p, cells, limit: self.max_cfl });
-        }
-        Ok(())
+        self.check_cfl(state, step)
     }
 
     /// Reverse pass over a taped rollout. `grad_last` is dL/d(state after the last step);
@@ -313,19 +400,35 @@ impl Simulator {
     ) -> Gradients {
         let mut adj = grad_last;
         let mut grad_controls = vec![None; tape.steps.len()];
-        let mut effect_params: Vec<Vec<f64>> = self.effects.iter().map(|e| vec![0.0; e.num_params()]).collect();
+        let mut effect_params: Vec<Vec<f64>> = self
+            .effects
+            .iter()
+            .map(|e| vec![0.0; e.num_params()])
+            .collect();
         for s in (0..tape.steps.len()).rev() {
-            let post = if s + 1 < tape.steps.len() { &tape.steps[s + 1].pre } else { &tape.last };
+            let post = if s + 1 < tape.steps.len() {
+                &tape.steps[s + 1].pre
+            } else {
+                &tape.last
+            };
             let fc = control_at(controls, s);
             let g = match self.kernel {
-                KernelKind::Quadratic => self.reverse_impl::<3>(&tape.steps[s], post, fc, &mut adj, &mut effect_params),
-                KernelKind::Cubic => self.reverse_impl::<4>(&tape.steps[s], post, fc, &mut adj, &mut effect_params),
+                KernelKind::Quadratic => {
+                    self.reverse_impl::<3>(&tape.steps[s], post, fc, &mut adj, &mut effect_params)
+                }
+                KernelKind::Cubic => {
+                    self.reverse_impl::<4>(&tape.steps[s], post, fc, &mut adj, &mut effect_params)
+                }
             };
             if fc.is_some() {
                 grad_controls[s] = Some(g);
             }
         }
-        Gradients { initial: adj, controls: grad_controls, effect_params }
+        Gradients {
+            initial: adj,
+            controls: grad_controls,
+            effect_params,
+        }
     }
 
     /// Reverse of one step: turns `adj` from dL/d(post) into dL/d(pre) and returns dL/dFc.
@@ -353,8 +456,15 @@ impl Simulator {
             .collect();
 
         // Replay the grid effects to recover each one's input velocity.
-        let ctx = GridContext { spec: &self.grid, mass: &tape.grid_mass, dt, step: 0 };
-        let grid_effects: Vec<usize> = (0..self.effects.len()).filter(|&e| self.effects[e].acts_on_grid()).collect();
+        let ctx = GridContext {
+            spec: &self.grid,
+            mass: &tape.grid_mass,
+            dt,
+            step: 0,
+        };
+        let grid_effects: Vec<usize> = (0..self.effects.len())
+            .filter(|&e| self.effects[e].acts_on_grid())
+            .collect();
         let mut effect_inputs = Vec::with_capacity(grid_effects.len());
         let mut grid_v = tape.grid_v.clone();
         for &e in &grid_effects {
@@ -366,14 +476,21 @@ impl Simulator {
         let mut grad_fe = vec![Matrix3::zeros(); n];
         let mut grad_vel = vec![Vector3::zeros(); n];
         let mut grad_cn = vec![Matrix3::zeros(); n];
-        (grad_fe.par_iter_mut(), grad_vel.par_iter_mut(), grad_cn.par_iter_mut()).into_par_iter().enumerate().for_each(
-            |(p, (gfe, gv, gc))| {
-                let g = advance_reverse(&fe[p], &post.c[p], dt, &adj.x[p], &adj.v[p], &adj.c[p], &adj.f[p]);
+        (
+            grad_fe.par_iter_mut(),
+            grad_vel.par_iter_mut(),
+            grad_cn.par_iter_mut(),
+        )
+            .into_par_iter()
+            .enumerate()
+            .for_each(|(p, (gfe, gv, gc))| {
+                let g = advance_reverse(
+                    &fe[p], &post.c[p], dt, &adj.x[p], &adj.v[p], &adj.c[p], &adj.f[p],
+                );
                 *gfe = g.fe;
                 *gv = g.vel;
                 *gc = g.c;
-            },
-        );
+            });
 
         // G2P reverse (coloured scatter into the grid velocity adjoint).
         let mut grad_grid_v = vec![Vector3::zeros(); self.grid.node_count()];
@@ -382,7 +499,16 @@ impl Simulator {
             let gx = SharedMut::new(&mut adj.x);
             tape.bins.for_each_coloured(|p| {
                 let s = Stencil::<N>::new(&pre.x[p], &origin, dx);
-                let d = g2p_particle_reverse(&s, &strides, &grid_v, inv_d, &grad_vel[p], &grad_cn[p], &post.v[p], &ggv);
+                let d = g2p_particle_reverse(
+                    &s,
+                    &strides,
+                    &grid_v,
+                    inv_d,
+                    &grad_vel[p],
+                    &grad_cn[p],
+                    &post.v[p],
+                    &ggv,
+                );
                 // SAFETY: each particle is visited exactly once.
                 unsafe { *gx.get(p) += d };
             });
@@ -390,7 +516,12 @@ impl Simulator {
 
         // G reverse: effects backwards, then v = p / m.
         for (k, &e) in grid_effects.iter().enumerate().rev() {
-            self.effects[e].reverse_grid(&ctx, &effect_inputs[k], &mut grad_grid_v, &mut effect_params[e]);
+            self.effects[e].reverse_grid(
+                &ctx,
+                &effect_inputs[k],
+                &mut grad_grid_v,
+                &mut effect_params[e],
+            );
         }
         let mut grad_nodes = vec![[0.0; 4]; self.grid.node_count()];
         grid_velocity_reverse(&tape.grid_mass, &tape.grid_v, &grad_grid_v, &mut grad_nodes);
@@ -398,8 +529,19 @@ impl Simulator {
         // P2G reverse (gather) and P1 reverse.
         let retention = self.momentum_retention();
         let mut grad_fc = vec![Matrix3::zeros(); n];
-        let StateGrad { x: ax, v: av, c: ac, f: af } = adj;
-        (ax.par_iter_mut(), av.par_iter_mut(), ac.par_iter_mut(), af.par_iter_mut(), grad_fc.par_iter_mut())
+        let StateGrad {
+            x: ax,
+            v: av,
+            c: ac,
+            f: af,
+        } = adj;
+        (
+            ax.par_iter_mut(),
+            av.par_iter_mut(),
+            ac.par_iter_mut(),
+            af.par_iter_mut(),
+            grad_fc.par_iter_mut(),
+        )
             .into_par_iter()
             .enumerate()
             .for_each(|(p, (gx, gv, gc, gf, gfc))| {
@@ -408,7 +550,8 @@ impl Simulator {
                 let s = Stencil::<N>::new(&pre.x[p], &origin, dx);
                 let m = self.mass[p];
                 let momentum = (retention * m) * pre.v[p];
-                let (g_mom, g_affine, g_x) = p2g_particle_reverse(&s, &strides, m, &momentum, &affine, &grad_nodes);
+                let (g_mom, g_affine, g_x) =
+                    p2g_particle_reverse(&s, &strides, m, &momentum, &affine, &grad_nodes);
                 let (g_c, g_fe) = inputs.affine_momentum_reverse(&fe[p], &g_affine);
                 *gx += g_x;
                 *gv = (retention * m) * g_mom;
@@ -428,7 +571,10 @@ impl Simulator {
         }
     }
 
-    fn mass_grid_impl<const N: usize>(&self, positions: &[Vector3<f64>]) -> Result<Vec<f64>, SimError> {
+    fn mass_grid_impl<const N: usize>(
+        &self,
+        positions: &[Vector3<f64>],
+    ) -> Result<Vec<f64>, SimError> {
         let bins = Bins::build(&self.grid, positions, N, 0)?;
         let mut grid = vec![0.0; self.grid.node_count()];
         let (strides, origin, dx) = (self.grid.strides(), self.grid.origin_vec(), self.grid.dx);
@@ -443,14 +589,28 @@ impl Simulator {
     }
 
     /// Reverse of [`Simulator::mass_grid`]: dL/dx_p from dL/dm_i.
-    pub fn mass_grid_reverse(&self, positions: &[Vector3<f64>], grad_mass: &[f64]) -> Vec<Vector3<f64>> {
+    pub fn mass_grid_reverse(
+        &self,
+        positions: &[Vector3<f64>],
+        grad_mass: &[f64],
+    ) -> Vec<Vector3<f64>> {
         let (strides, origin, dx) = (self.grid.strides(), self.grid.origin_vec(), self.grid.dx);
         positions
             .par_iter()
             .zip(self.mass.par_iter())
             .map(|(x, &m)| match self.kernel {
-                KernelKind::Quadratic => mass_particle_reverse(&Stencil::<3>::new(x, &origin, dx), &strides, m, grad_mass),
-                KernelKind::Cubic => mass_particle_reverse(&Stencil::<4>::new(x, &origin, dx), &strides, m, grad_mass),
+                KernelKind::Quadratic => mass_particle_reverse(
+                    &Stencil::<3>::new(x, &origin, dx),
+                    &strides,
+                    m,
+                    grad_mass,
+                ),
+                KernelKind::Cubic => mass_particle_reverse(
+                    &Stencil::<4>::new(x, &origin, dx),
+                    &strides,
+                    m,
+                    grad_mass,
+                ),
             })
             .collect()
     }

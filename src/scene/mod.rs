@@ -23,7 +23,9 @@ impl EffectConfig {
         Ok(match *self {
             EffectConfig::Drag { coefficient } => {
                 if !(coefficient.is_finite() && coefficient >= 0.0) {
-                    return bad(format!("drag coefficient must be finite and >= 0, got {coefficient}"));
+                    return bad(format!(
+                        "drag coefficient must be finite and >= 0, got {coefficient}"
+                    ));
                 }
                 Box::new(Drag { coefficient })
             }
@@ -31,7 +33,9 @@ impl EffectConfig {
                 if acceleration.iter().any(|a| !a.is_finite()) {
                     return bad(format!("gravity must be finite, got {acceleration:?}"));
                 }
-                Box::new(Gravity { acceleration: Vector3::from(acceleration) })
+                Box::new(Gravity {
+                    acceleration: Vector3::from(acceleration),
+                })
             }
             EffectConfig::Walls { mode, thickness } => {
                 if thickness == 0 {
@@ -69,7 +73,11 @@ impl SceneConfig {
             grid: GridSpec::centred_cube(32, 1.0),
             dt: 1.0 / 120.0,
             kernel: KernelKind::Cubic,
-            material: MaterialConfig { mu: 38888.9, lambda: 58333.0, density: 40.0 },
+            material: MaterialConfig {
+                mu: 38888.9,
+                lambda: 58333.0,
+                density: 40.0,
+            },
             effects: vec![EffectConfig::Drag { coefficient: 0.5 }],
         }
     }
@@ -79,10 +87,16 @@ impl SceneConfig {
         let m = &self.material;
         for (name, val) in [("mu", m.mu), ("lambda", m.lambda), ("density", m.density)] {
             if !val.is_finite() || val < 0.0 || (name == "density" && val == 0.0) {
-                return Err(SimError::InvalidScene(format!("material {name} must be finite and positive, got {val}")));
+                return Err(SimError::InvalidScene(format!(
+                    "material {name} must be finite and positive, got {val}"
+                )));
             }
         }
-        let effects = self.effects.iter().map(EffectConfig::build).collect::<Result<Vec<_>, _>>()?;
+        let effects = self
+            .effects
+            .iter()
+            .map(EffectConfig::build)
+            .collect::<Result<Vec<_>, _>>()?;
         let mass = volumes.iter().map(|v| v * m.density).collect();
         Simulator::new(
             self.grid.clone(),

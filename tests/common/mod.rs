@@ -12,7 +12,11 @@ pub fn small_scene(kernel: KernelKind, effects: Vec<EffectConfig>) -> SceneConfi
         grid: GridSpec::centred_cube(16, 1.0),
         dt: 1.0 / 120.0,
         kernel,
-        material: MaterialConfig { mu: 38888.9, lambda: 58333.0, density: 40.0 },
+        material: MaterialConfig {
+            mu: 38888.9,
+            lambda: 58333.0,
+            density: 40.0,
+        },
         effects,
     }
 }
@@ -30,7 +34,10 @@ pub fn ball(scene: &SceneConfig, radius: f64) -> (Simulator, State) {
 pub struct Lcg(pub u64);
 impl Lcg {
     pub fn next(&mut self) -> f64 {
-        self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        self.0 = self
+            .0
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
         ((self.0 >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0
     }
     pub fn vec3(&mut self) -> Vector3<f64> {
@@ -53,8 +60,16 @@ pub fn deform(state: &mut State, rng: &mut Lcg) {
 }
 
 /// Controls: non-zero Fc at every `stride`-th step (and None elsewhere).
-pub fn controls(n: usize, steps: usize, stride: usize, amp: f64, rng: &mut Lcg) -> Vec<Option<Vec<Matrix3<f64>>>> {
-    (0..steps).map(|s| (s % stride == 0).then(|| (0..n).map(|_| amp * rng.mat3()).collect())).collect()
+pub fn controls(
+    n: usize,
+    steps: usize,
+    stride: usize,
+    amp: f64,
+    rng: &mut Lcg,
+) -> Vec<Option<Vec<Matrix3<f64>>>> {
+    (0..steps)
+        .map(|s| (s % stride == 0).then(|| (0..n).map(|_| amp * rng.mat3()).collect()))
+        .collect()
 }
 
 /// Mass loss of the final state after `steps` steps (and the tape when asked).
@@ -73,7 +88,12 @@ pub fn rollout_loss(
 }
 
 /// Target masses: the initial body shifted by `shift`.
-pub fn shifted_target(sim: &Simulator, init: &State, shift: Vector3<f64>, kind: MassLossKind) -> MassLoss {
+pub fn shifted_target(
+    sim: &Simulator,
+    init: &State,
+    shift: Vector3<f64>,
+    kind: MassLossKind,
+) -> MassLoss {
     let x: Vec<_> = init.x.iter().map(|x| x + shift).collect();
     MassLoss::new(kind, sim.mass_grid(&x).unwrap())
 }
