@@ -46,6 +46,8 @@ pub struct StepTape {
     /// Particle state at the start of the step.
     pub pre: State,
     bins: Bins,
+    /// Affine momentum `A` of each particle (saves recomputing the stress in reverse).
+    affine: Vec<Matrix3<f64>>,
     grid_mass: Vec<f64>,
     /// Grid velocity `p / m`, before grid effects.
     grid_v: Vec<Vector3<f64>>,
@@ -357,6 +359,7 @@ impl Simulator {
             tape.push(StepTape {
                 pre: state.clone(),
                 bins: ws.bins.clone(),
+                affine: ws.affine.clone(),
                 grid_mass,
                 grid_v: grid_v_pre,
             });
@@ -546,7 +549,7 @@ impl Simulator {
             .enumerate()
             .for_each(|(p, (gx, gv, gc, gf, gfc))| {
                 let inputs = self.stress_inputs(p);
-                let affine = inputs.affine_momentum(&pre.c[p], &fe[p]);
+                let affine = tape.affine[p];
                 let s = Stencil::<N>::new(&pre.x[p], &origin, dx);
                 let m = self.mass[p];
                 let momentum = (retention * m) * pre.v[p];
