@@ -66,7 +66,8 @@ impl<const N: usize> Stencil<N> {
         let mut dpos = [[0.0; N]; 3];
         for a in 0..3 {
             let xg = (x[a] - origin[a]) * inv_dx;
-            // Quadratic: fx in [0.5, 1.5); cubic: fx in [1, 2).
+            // Quadratic: fx in [0.5, 1.5); cubic: fx in [1, 2). In that range each node's
+            // distance falls in a known piece of the B-spline, so the weights need no branches.
             let b = if N == 3 {
                 (xg - 0.5).floor()
             } else {
@@ -74,20 +75,56 @@ impl<const N: usize> Stencil<N> {
             };
             let fx = xg - b;
             base[a] = b as i64;
+            let (wk, dwk) = if N == 3 {
+                quadratic_pieces(fx)
+            } else {
+                cubic_pieces(fx)
+            };
             for k in 0..N {
-                let d = fx - k as f64; // distance particle - node in cells
-                let (wk, dwk) = if N == 3 { quadratic(d) } else { cubic(d) };
-                w[a][k] = wk;
-                dw[a][k] = dwk * inv_dx;
-                dpos[a][k] = -d * dx;
+                w[a][k] = wk[k];
+                dw[a][k] = dwk[k] * inv_dx;
+                dpos[a][k] = (k as f64 - fx) * dx;
             }
         }
         Stencil { base, w, dw, dpos }
     }
 }
 
-/// Quadratic B-spline N(d) and N'(d) for the distance d (in cells) from node to particle.
+/// Quadratic weights and derivatives (d/dfx) of the 3 nodes for `fx` in [0.5, 1.5).
 #[inline(always)]
+fn quadratic_pieces(fx: f64) -> ([f64; 4], [f64; 4]) {
+    let (a, c) = (1.5 - fx, fx - 0.5);
+    let d1 = fx - 1.0;
+    (
+        [0.5 * a * a, 0.75 - d1 * d1, 0.5 * c * c, 0.0],
+        [-a, -2.0 * d1, c, 0.0],
+    )
+}
+
+/// Cubic weights and derivatives (d/dfx) of the 4 nodes for `fx` in [1, 2).
+#[inline(always)]
+fn cubic_pieces(fx: f64) -> ([f64; 4], [f64; 4]) {
+    let t = fx - 1.0; // in [0, 1)
+    let u = 1.0 - t;
+    (
+        [
+            u * u * u / 6.0,
+            (0.5 * t - 1.0) * t * t + 2.0 / 3.0,
+            (0.5 * u - 1.0) * u * u + 2.0 / 3.0,
+            t * t * t / 6.0,
+        ],
+        [
+            -0.5 * u * u,
+            (1.5 * t - 2.0) * t,
+            -(1.5 * u - 2.0) * u,
+            0.5 * t * t,
+        ],
+    )
+}
+
+/// Quadratic B-spline N(d) and N'(d) for the distance d (in cells) from node to particle
+/// (reference for the tests of the branch-free pieces).
+#[cfg(test)]
 fn quadratic(d: f64) -> (f64, f64) {
     let a = d.abs();
     if a < 0.5 {
@@ -100,8 +137,8 @@ fn quadratic(d: f64) -> (f64, f64) {
     }
 }
 
-/// Cubic B-spline N(d) and N'(d).
-#[inline(always)]
+/// Cubic B-spline N(d) and N'(d) (reference for the tests).
+#[cfg(test)]
 fn cubic(d: f64) -> (f64, f64) {
     let a = d.abs();
     if a < 1.0 {
@@ -146,6 +183,27 @@ mod tests {
                         assert!((fd - s.dw[a][k]).abs() < 1e-6);
                     }
                 }
+            }
+        }
+    }
+
+    #[test]
+    fn pieces_match_the_b_spline_definition() {
+        for i in 0..100 {
+            let fq = 0.5 + i as f64 / 100.0;
+            let (w, dw) = quadratic_pieces(fq);
+            for k in 0..3 {
+                let (a, b) = quadratic(fq - k as f64);
+                assert!((w[k] - a).abs() < 1e-15 && (dw[k] - b).abs() < 1e-15);
+            }
+            let fc = 1.0 + i as f64 / 100.0;
+            let (w, dw) = cubic_pieces(fc);
+            for k in 0..4 {
+                let (a, b) = cubic(fc - k as f64);
+                assert!(
+                    (w[k] - a).abs() < 1e-15 && (dw[k] - b).abs() < 1e-15,
+                    "cubic k {k} fx {fc}"
+                );
             }
         }
     }
