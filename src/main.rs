@@ -61,7 +61,7 @@ fn main() -> ExitCode {
             thread_counts,
             kernels,
         } => {
-            if steps == 0 || thread_counts.iter().any(|&t| t == 0) {
+            if steps == 0 || thread_counts.contains(&0) {
                 eprintln!("morph: error: --steps and --thread-counts must be positive");
                 return ExitCode::from(2);
             }

@@ -77,14 +77,14 @@ impl State {
     pub fn angular_momentum(&self, m: &[f64], inv_d: f64) -> Vector3<f64> {
         let d = 1.0 / inv_d;
         let mut l = Vector3::zeros();
-        for p in 0..self.len() {
-            let b = self.c[p] * d;
+        for (((x, v), c), &mp) in self.x.iter().zip(&self.v).zip(&self.c).zip(m) {
+            let b = c * d;
             let spin = Vector3::new(
                 b[(2, 1)] - b[(1, 2)],
                 b[(0, 2)] - b[(2, 0)],
                 b[(1, 0)] - b[(0, 1)],
             );
-            l += m[p] * (self.x[p].cross(&self.v[p]) + spin);
+            l += mp * (x.cross(v) + spin);
         }
         l
     }
