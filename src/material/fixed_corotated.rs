@@ -2,7 +2,7 @@
 //! `Psi = mu sum_k (sigma_k - 1)^2 + lambda/2 (J - 1)^2`,
 //! `P = 2 mu (F - R) + lambda (J - 1) cof F`, with `cof F = J F^-T`.
 
-use super::svd::svd3;
+use super::svd::{svd3, svd3_x4};
 use super::{ConstitutiveModel, cofactor, cofactor_differential};
 use nalgebra::Matrix3;
 use serde::{Deserialize, Serialize};
@@ -32,6 +32,16 @@ impl FixedCorotated {
     }
 }
 
+impl FixedCorotated {
+    /// `P` given the polar rotation `R` of `F`.
+    #[inline]
+    fn stress_with_rotation(&self, f: &Matrix3<f64>, r: &Matrix3<f64>) -> Matrix3<f64> {
+        let cof = cofactor(f);
+        let j = f.column(0).dot(&cof.column(0));
+        2.0 * self.mu * (f - r) + self.lambda * (j - 1.0) * cof
+    }
+}
+
 impl ConstitutiveModel for FixedCorotated {
     fn energy_density(&self, f: &Matrix3<f64>) -> f64 {
         let s = svd3(f);
@@ -40,10 +50,22 @@ impl ConstitutiveModel for FixedCorotated {
     }
 
     fn stress(&self, f: &Matrix3<f64>) -> Matrix3<f64> {
-        let r = svd3(f).rotation();
-        let cof = cofactor(f);
-        let j = f.column(0).dot(&cof.column(0));
-        2.0 * self.mu * (f - r) + self.lambda * (j - 1.0) * cof
+        self.stress_with_rotation(f, &svd3(f).rotation())
+    }
+
+    fn stress_batch(&self, fe: &[Matrix3<f64>], out: &mut [Matrix3<f64>]) {
+        let mut chunks = fe.chunks_exact(4);
+        let mut outs = out.chunks_exact_mut(4);
+        for (f4, p4) in (&mut chunks).zip(&mut outs) {
+            let f4: &[Matrix3<f64>; 4] = f4.try_into().expect("chunk of 4");
+            let svd = svd3_x4(f4);
+            for l in 0..4 {
+                p4[l] = self.stress_with_rotation(&f4[l], &svd[l].rotation());
+            }
+        }
+        for (f, p) in chunks.remainder().iter().zip(outs.into_remainder()) {
+            *p = self.stress(f);
+        }
     }
 
     fn stress_and_differential(
@@ -191,6 +213,20 @@ mod tests {
                 (lhs - rhs).abs() <= 1e-10 * lhs.abs().max(1.0),
                 "{lhs} vs {rhs}"
             );
+        }
+    }
+
+    #[test]
+    fn batched_stress_equals_single() {
+        let m = model();
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(21);
+        let fe: Vec<Matrix3<f64>> = (0..11)
+            .map(|_| Matrix3::identity() + random_matrix(&mut rng, 0.5))
+            .collect();
+        let mut out = vec![Matrix3::zeros(); fe.len()];
+        m.stress_batch(&fe, &mut out);
+        for (f, p) in fe.iter().zip(&out) {
+            assert_eq!(*p, m.stress(f));
         }
     }
 

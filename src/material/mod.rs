@@ -18,6 +18,13 @@ pub trait ConstitutiveModel: Send + Sync + std::fmt::Debug {
     fn energy_density(&self, f: &Matrix3<f64>) -> f64;
     /// First Piola-Kirchhoff stress `P = dPsi/dF`.
     fn stress(&self, f: &Matrix3<f64>) -> Matrix3<f64>;
+    /// Stress of many elastic gradients at once, `out[i] = P(fe[i])`. Models may override it to
+    /// batch work across particles (fixed-corotated interleaves four SVDs).
+    fn stress_batch(&self, fe: &[Matrix3<f64>], out: &mut [Matrix3<f64>]) {
+        for (f, p) in fe.iter().zip(out) {
+            *p = self.stress(f);
+        }
+    }
     /// Stress and its differential in one call: `(P(F), dP(F)[dF])` (shares the SVD).
     fn stress_and_differential(
         &self,

@@ -301,19 +301,26 @@ impl Simulator {
         let dx = self.grid.dx;
         ws.bins = Bins::build(&self.grid, &state.x, N, step)?;
 
-        // P1: elastic gradient and affine momentum.
+        // P1: elastic gradient, stress (batched across particles) and affine momentum.
         ws.fe.resize(n, Matrix3::zeros());
         ws.affine.resize(n, Matrix3::zeros());
-        ws.fe
-            .par_iter_mut()
-            .zip(ws.affine.par_iter_mut())
+        ws.fe.par_iter_mut().enumerate().for_each(|(p, fe)| {
+            *fe = match fc {
+                Some(fc) => state.f[p] + fc[p],
+                None => state.f[p],
+            };
+        });
+        const CHUNK: usize = 64;
+        ws.affine
+            .par_chunks_mut(CHUNK)
+            .zip(ws.fe.par_chunks(CHUNK))
             .enumerate()
-            .for_each(|(p, (fe, a))| {
-                *fe = match fc {
-                    Some(fc) => state.f[p] + fc[p],
-                    None => state.f[p],
-                };
-                *a = self.stress_inputs(p).affine_momentum(&state.c[p], fe);
+            .for_each(|(k, (a, fe))| {
+                self.material.stress_batch(fe, a);
+                for (i, (a, fe)) in a.iter_mut().zip(fe).enumerate() {
+                    let p = k * CHUNK + i;
+                    *a = self.stress_inputs(p).affine_from_stress(&state.c[p], fe, a);
+                }
             });
 
         // P2G (coloured scatter).

@@ -25,7 +25,17 @@ impl StressInputs<'_> {
     /// Forward: the affine momentum `A` for affine velocity `c` and elastic gradient `fe`.
     #[inline]
     pub fn affine_momentum(&self, c: &Matrix3<f64>, fe: &Matrix3<f64>) -> Matrix3<f64> {
-        let p = self.model.stress(fe);
+        self.affine_from_stress(c, fe, &self.model.stress(fe))
+    }
+
+    /// The same, given the stress `P(fe)` already computed (e.g. by a batched call).
+    #[inline]
+    pub fn affine_from_stress(
+        &self,
+        c: &Matrix3<f64>,
+        fe: &Matrix3<f64>,
+        p: &Matrix3<f64>,
+    ) -> Matrix3<f64> {
         self.mass * c + self.k() * p * fe.transpose()
     }
 
