@@ -11,6 +11,13 @@ use morph::mpm::{KernelKind, State, Tape};
 use morph::scene::EffectConfig;
 use nalgebra::{Matrix3, Vector3};
 
+/// (name, <gradient, direction> for one field, perturb that field along the direction).
+type FieldCheck = (
+    &'static str,
+    fn(&State, &State) -> f64,
+    fn(&mut State, &State, f64),
+);
+
 const STEPS: usize = 12;
 /// Control layers every this many steps.
 const STRIDE: usize = 4;
@@ -110,7 +117,7 @@ fn check_case_with(
             }
             d
         };
-        let fields: [(&str, fn(&State, &State) -> f64, fn(&mut State, &State, f64)); 4] = [
+        let fields: [FieldCheck; 4] = [
             (
                 "x0",
                 |g, d| g.x.iter().zip(&d.x).map(|(a, b)| a.dot(b)).sum(),

@@ -97,16 +97,4 @@ impl State {
             .map(|(v, &m)| 0.5 * m * v.norm_squared())
             .sum()
     }
-
-    /// Sum of squares of all entries, used to scale adjoint tests.
-    pub fn dot(&self, other: &State) -> f64 {
-        let mut s = 0.0;
-        for p in 0..self.len() {
-            s += self.x[p].dot(&other.x[p])
-                + self.v[p].dot(&other.v[p])
-                + self.c[p].dot(&other.c[p])
-                + self.f[p].dot(&other.f[p]);
-        }
-        s
-    }
 }

@@ -232,8 +232,8 @@ impl Simulator {
         }
     }
 
-    /// Runs `controls.len()` steps (or `n_steps`, whichever given below) from `state`,
-    /// recording a tape for [`Simulator::backward`] when `tape` is given.
+    /// Runs `n_steps` steps from `state`; `controls[s]` (if present and `Some`) is the `Fc` of
+    /// local step `s`. Records a tape for [`Simulator::backward`] when `tape` is given.
     pub fn forward(
         &self,
         state: &mut State,
@@ -340,21 +340,22 @@ impl Simulator {
         // G: grid velocity, then effects.
         ws.grid_v.resize(self.grid.node_count(), Vector3::zeros());
         grid_velocity(&ws.nodes, &mut ws.grid_v);
-        let mut grid_mass = Vec::new();
-        let mut grid_v_pre = Vec::new();
-        if tape.is_some() {
-            grid_mass = ws.nodes.par_iter().map(|n| n[0]).collect();
-            grid_v_pre = ws.grid_v.clone();
-        }
-        if self.effects.iter().any(|e| e.acts_on_grid()) {
-            let mass_only: Vec<f64> = if tape.is_some() {
-                grid_mass.clone()
-            } else {
-                ws.nodes.par_iter().map(|n| n[0]).collect()
-            };
+        let has_grid_effects = self.effects.iter().any(|e| e.acts_on_grid());
+        // Nodal masses alone: the tape and the grid effects need them.
+        let grid_mass: Vec<f64> = if tape.is_some() || has_grid_effects {
+            ws.nodes.par_iter().map(|n| n[0]).collect()
+        } else {
+            Vec::new()
+        };
+        let grid_v_pre = if tape.is_some() {
+            ws.grid_v.clone()
+        } else {
+            Vec::new()
+        };
+        if has_grid_effects {
             let ctx = GridContext {
                 spec: &self.grid,
-                mass: &mass_only,
+                mass: &grid_mass,
                 dt,
                 step,
             };

@@ -22,13 +22,8 @@ impl StressInputs<'_> {
         -self.dt * self.volume * self.inv_d
     }
 
-    /// Forward: the affine momentum `A` for affine velocity `c` and elastic gradient `fe`.
-    #[inline]
-    pub fn affine_momentum(&self, c: &Matrix3<f64>, fe: &Matrix3<f64>) -> Matrix3<f64> {
-        self.affine_from_stress(c, fe, &self.model.stress(fe))
-    }
-
-    /// The same, given the stress `P(fe)` already computed (e.g. by a batched call).
+    /// Forward: the affine momentum `A` for affine velocity `c`, elastic gradient `fe` and its
+    /// stress `p = P(fe)` (computed beforehand, batched across particles).
     #[inline]
     pub fn affine_from_stress(
         &self,
