@@ -7,6 +7,7 @@
 
 pub mod bench;
 pub mod effects;
+pub mod geometry;
 pub mod loss;
 pub mod material;
 pub mod mpm;

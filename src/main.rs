@@ -37,6 +37,29 @@ enum Command {
         #[arg(long, value_delimiter = ',', default_values = ["quadratic", "cubic"])]
         kernels: Vec<KernelKind>,
     },
+    /// Time mesh loading, voxelization and surface extraction; one JSON line per case.
+    ///
+    /// Every .obj/.ply in --meshes is placed alone in a domain of each --resolutions cells
+    /// across and filled with 2x2x2 particles per cell; reports times, particle count and
+    /// the particle volume in the mesh's own units. Then times surface extraction of
+    /// particle balls of about 17k and 100k particles.
+    BenchGeometry {
+        /// Folder of meshes.
+        #[arg(long, default_value = "../shared/meshes")]
+        meshes: std::path::PathBuf,
+        /// Resolutions (cells across the domain), comma separated.
+        #[arg(long, value_delimiter = ',', default_values_t = [32usize, 64])]
+        resolutions: Vec<usize>,
+        /// Runs per case; the fastest is reported.
+        #[arg(long, default_value_t = 3)]
+        repeats: usize,
+    },
+    /// Write the built-in meshes (sphere, torus, cube, two lobes) as OBJ into a folder.
+    Assets {
+        /// Destination folder.
+        #[arg(short, long, default_value = "assets")]
+        output: std::path::PathBuf,
+    },
 }
 
 fn main() -> ExitCode {
@@ -67,6 +90,18 @@ fn main() -> ExitCode {
             }
             morph::bench::run(steps, repeats, &thread_counts, &kernels)
         }
+        Command::BenchGeometry {
+            meshes,
+            resolutions,
+            repeats,
+        } => morph::bench::geometry::run(&meshes, &resolutions, repeats),
+        Command::Assets { output } => morph::geometry::assets::write_builtin(&output)
+            .map(|paths| {
+                for p in paths {
+                    println!("{}", p.display());
+                }
+            })
+            .map_err(|e| anyhow::anyhow!("cannot write assets into '{}': {e}", output.display())),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

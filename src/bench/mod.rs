@@ -3,6 +3,8 @@
 //! mu 38888.9, drag 0.5, f64. The body is deforming: it starts with a swirl and expansion
 //! velocity and receives control deformation gradients every 10 steps.
 
+pub mod geometry;
+
 use crate::loss::{MassLoss, MassLossKind};
 use crate::material::svd::{svd3, svd3_x4};
 use crate::mpm::{KernelKind, SimError, Simulator, State, StateGrad, Tape};

@@ -1,0 +1,519 @@
+//! Triangle meshes: loading (OBJ through tobj, PLY through ply-rs-bw), validation, topology
+//! statistics, orientation repair and atomic OBJ writing.
+
+use super::error::MeshError;
+use nalgebra::Vector3;
+use std::collections::HashMap;
+use std::io::Write;
+use std::path::Path;
+
+/// An indexed triangle mesh in f64.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct TriMesh {
+    pub vertices: Vec<Vector3<f64>>,
+    pub triangles: Vec<[u32; 3]>,
+}
+
+/// Axis-aligned bounding box.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Aabb {
+    pub min: Vector3<f64>,
+    pub max: Vector3<f64>,
+}
+
+impl Aabb {
+    pub fn empty() -> Self {
+        Aabb {
+            min: Vector3::repeat(f64::INFINITY),
+            max: Vector3::repeat(f64::NEG_INFINITY),
+        }
+    }
+
+    pub fn of_points<'a>(points: impl IntoIterator<Item = &'a Vector3<f64>>) -> Self {
+        let mut b = Aabb::empty();
+        for p in points {
+            b.grow(p);
+        }
+        b
+    }
+
+    pub fn grow(&mut self, p: &Vector3<f64>) {
+        self.min = self.min.inf(p);
+        self.max = self.max.sup(p);
+    }
+
+    pub fn union(&self, o: &Aabb) -> Aabb {
+        Aabb {
+            min: self.min.inf(&o.min),
+            max: self.max.sup(&o.max),
+        }
+    }
+
+    pub fn extent(&self) -> Vector3<f64> {
+        self.max - self.min
+    }
+
+    pub fn centre(&self) -> Vector3<f64> {
+        0.5 * (self.min + self.max)
+    }
+
+    pub fn longest_side(&self) -> f64 {
+        self.extent().max()
+    }
+}
+
+/// Edge statistics of a mesh (edges are unordered vertex pairs).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Topology {
+    pub edges: usize,
+    /// Edges used by exactly one triangle (holes).
+    pub boundary_edges: usize,
+    /// Edges used by three or more triangles.
+    pub non_manifold_edges: usize,
+    /// Edges that two triangles traverse in the same direction (inconsistent orientation).
+    pub misoriented_edges: usize,
+}
+
+impl Topology {
+    /// Closed: every edge is shared by exactly two triangles.
+    pub fn is_closed(&self) -> bool {
+        self.boundary_edges == 0 && self.non_manifold_edges == 0
+    }
+}
+
+impl TriMesh {
+    pub fn bounds(&self) -> Aabb {
+        Aabb::of_points(&self.vertices)
+    }
+
+    pub fn corners(&self, t: &[u32; 3]) -> [Vector3<f64>; 3] {
+        t.map(|i| self.vertices[i as usize])
+    }
+
+    /// Signed enclosed volume by the divergence theorem, about the bounding-box centre (which
+    /// keeps round-off small for meshes far from the origin). Exact for closed meshes.
+    pub fn signed_volume(&self) -> f64 {
+        let c = self.bounds().centre();
+        let mut sum = crate::loss::CompensatedSum::default();
+        for t in &self.triangles {
+            let [a, b, d] = self.corners(t).map(|p| p - c);
+            sum.add(a.dot(&b.cross(&d)) / 6.0);
+        }
+        sum.value()
+    }
+
+    pub fn surface_area(&self) -> f64 {
+        self.triangles
+            .iter()
+            .map(|t| {
+                let [a, b, c] = self.corners(t);
+                0.5 * (b - a).cross(&(c - a)).norm()
+            })
+            .sum()
+    }
+
+    /// Counts boundary, non-manifold and misoriented edges.
+    pub fn topology(&self) -> Topology {
+        // Per unordered edge: (uses in the lo->hi direction, uses in the hi->lo direction).
+        let mut uses: HashMap<(u32, u32), (u32, u32)> =
+            HashMap::with_capacity(self.triangles.len() * 2);
+        for t in &self.triangles {
+            for e in 0..3 {
+                let (a, b) = (t[e], t[(e + 1) % 3]);
+                let u = uses.entry((a.min(b), a.max(b))).or_default();
+                if a < b {
+                    u.0 += 1;
+                } else {
+                    u.1 += 1;
+                }
+            }
+        }
+        let mut topo = Topology {
+            edges: uses.len(),
+            boundary_edges: 0,
+            non_manifold_edges: 0,
+            misoriented_edges: 0,
+        };
+        for &(f, b) in uses.values() {
+            match f + b {
+                1 => topo.boundary_edges += 1,
+                2 => {}
+                _ => topo.non_manifold_edges += 1,
+            }
+            if f > 1 || b > 1 {
+                topo.misoriented_edges += 1;
+            }
+        }
+        topo
+    }
+
+    /// Makes the orientation consistent across every manifold edge (flood fill per connected
+    /// component) and then points each component outward (positive signed volume).
+    /// Returns how many triangles were flipped.
+    pub fn repair_orientation(&mut self) -> usize {
+        let n = self.triangles.len();
+        let mut by_edge: HashMap<(u32, u32), Vec<u32>> = HashMap::with_capacity(n * 2);
+        for (ti, t) in self.triangles.iter().enumerate() {
+            for e in 0..3 {
+                let (a, b) = (t[e], t[(e + 1) % 3]);
+                by_edge
+                    .entry((a.min(b), a.max(b)))
+                    .or_default()
+                    .push(ti as u32);
+            }
+        }
+        let directed =
+            |t: &[u32; 3], a: u32, b: u32| (0..3).any(|e| t[e] == a && t[(e + 1) % 3] == b);
+        let mut component = vec![u32::MAX; n];
+        let mut flip = vec![false; n];
+        let mut components: Vec<Vec<u32>> = Vec::new();
+        for seed in 0..n {
+            if component[seed] != u32::MAX {
+                continue;
+            }
+            let id = components.len() as u32;
+            let mut members = vec![seed as u32];
+            component[seed] = id;
+            let mut head = 0;
+            while head < members.len() {
+                let ti = members[head] as usize;
+                head += 1;
+                let t = self.triangles[ti];
+                for e in 0..3 {
+                    // The edge as this triangle traverses it after its own flip.
+                    let (mut a, mut b) = (t[e], t[(e + 1) % 3]);
+                    if flip[ti] {
+                        std::mem::swap(&mut a, &mut b);
+                    }
+                    let shared = &by_edge[&(a.min(b), a.max(b))];
+                    if shared.len() != 2 {
+                        continue; // boundary or non-manifold: no orientation constraint
+                    }
+                    let other = if shared[0] as usize == ti {
+                        shared[1]
+                    } else {
+                        shared[0]
+                    } as usize;
+                    if component[other] != u32::MAX {
+                        continue;
+                    }
+                    component[other] = id;
+                    // A consistent neighbour traverses the shared edge as b -> a.
+                    flip[other] = directed(&self.triangles[other], a, b);
+                    members.push(other as u32);
+                }
+            }
+            components.push(members);
+        }
+        let centre = self.bounds().centre();
+        let mut flipped = 0;
+        for members in &components {
+            let mut vol = 0.0;
+            for &ti in members {
+                let t = self.triangles[ti as usize];
+                let [a, b, c] = self.corners(&t).map(|p| p - centre);
+                let v = a.dot(&b.cross(&c));
+                vol += if flip[ti as usize] { -v } else { v };
+            }
+            let outward = vol < 0.0;
+            for &ti in members {
+                let ti = ti as usize;
+                if flip[ti] != outward {
+                    self.triangles[ti].swap(1, 2);
+                    flipped += 1;
+                }
+            }
+        }
+        flipped
+    }
+
+    /// Applies `x -> scale * x + translation` to every vertex.
+    pub fn transformed(&self, scale: f64, translation: &Vector3<f64>) -> TriMesh {
+        TriMesh {
+            vertices: self
+                .vertices
+                .iter()
+                .map(|v| scale * v + translation)
+                .collect(),
+            triangles: self.triangles.clone(),
+        }
+    }
+
+    /// Writes a Wavefront OBJ (vertices and faces only) atomically: to a temporary name in
+    /// the same folder, then renamed over `path`.
+    pub fn write_obj(&self, path: &Path) -> std::io::Result<()> {
+        write_atomically(path, |w| {
+            writeln!(w, "# written by morph {}", env!("CARGO_PKG_VERSION"))?;
+            for v in &self.vertices {
+                writeln!(w, "v {} {} {}", v.x as f32, v.y as f32, v.z as f32)?;
+            }
+            for t in &self.triangles {
+                writeln!(w, "f {} {} {}", t[0] + 1, t[1] + 1, t[2] + 1)?;
+            }
+            Ok(())
+        })
+    }
+}
+
+/// Runs `write` into `path` + ".tmp" and renames the result over `path`, so readers never
+/// see a half-written file. The temporary file is removed on failure.
+pub fn write_atomically(
+    path: &Path,
+    write: impl FnOnce(&mut std::io::BufWriter<std::fs::File>) -> std::io::Result<()>,
+) -> std::io::Result<()> {
+    let mut tmp = path.as_os_str().to_owned();
+    tmp.push(".tmp");
+    let tmp = std::path::PathBuf::from(tmp);
+    let result = (|| {
+        let mut w = std::io::BufWriter::new(std::fs::File::create(&tmp)?);
+        write(&mut w)?;
+        w.into_inner().map_err(|e| e.into_error())?.sync_all()?;
+        std::fs::rename(&tmp, path)
+    })();
+    if result.is_err() {
+        let _ = std::fs::remove_file(&tmp);
+    }
+    result
+}
+
+/// A mesh read from disk, with the warnings its loading produced (e.g. a missing .mtl).
+#[derive(Clone, Debug)]
+pub struct LoadedMesh {
+    pub mesh: TriMesh,
+    pub warnings: Vec<String>,
+}
+
+/// File formats morph reads.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MeshFormat {
+    Obj,
+    Ply,
+}
+
+impl MeshFormat {
+    /// From the extension, or from the `ply` magic when the extension says nothing.
+    fn detect(path: &Path, bytes: &[u8]) -> Option<MeshFormat> {
+        let ext = path
+            .extension()
+            .map(|e| e.to_string_lossy().to_ascii_lowercase());
+        match ext.as_deref() {
+            Some("obj") => Some(MeshFormat::Obj),
+            Some("ply") => Some(MeshFormat::Ply),
+            _ if bytes.starts_with(b"ply") => Some(MeshFormat::Ply),
+            _ => None,
+        }
+    }
+}
+
+/// Reads and validates a mesh: the file exists and parses, has triangles, every vertex is
+/// finite, indices are in range, and the mesh is not flat. Polygons are fan-triangulated and
+/// the orientation is made consistent and outward (a warning says when faces were flipped).
+pub fn load_mesh(path: &Path) -> Result<LoadedMesh, MeshError> {
+    let bytes = std::fs::read(path).map_err(|e| MeshError::Unreadable {
+        path: path.into(),
+        reason: e.to_string(),
+    })?;
+    if bytes.is_empty() {
+        return Err(MeshError::Empty { path: path.into() });
+    }
+    let format = MeshFormat::detect(path, &bytes)
+        .ok_or_else(|| MeshError::UnknownFormat { path: path.into() })?;
+    let (mut mesh, mut warnings) = match format {
+        MeshFormat::Obj => parse_obj(path, &bytes)?,
+        MeshFormat::Ply => (parse_ply(path, &bytes)?, Vec::new()),
+    };
+    validate(path, &mesh)?;
+    let topo = mesh.topology();
+    if topo.boundary_edges > 0 {
+        warnings.push(format!(
+            "{}: mesh is open ({} boundary edges); inside is decided by winding number",
+            path.display(),
+            topo.boundary_edges
+        ));
+    }
+    let flipped = mesh.repair_orientation();
+    if flipped > 0 {
+        warnings.push(format!(
+            "{}: {flipped} of {} faces pointed inward and were flipped",
+            path.display(),
+            mesh.triangles.len()
+        ));
+    }
+    Ok(LoadedMesh { mesh, warnings })
+}
+
+/// Checks that apply to any mesh however it was made.
+pub fn validate(path: &Path, mesh: &TriMesh) -> Result<(), MeshError> {
+    let bad = |reason: String| {
+        Err(MeshError::Invalid {
+            path: path.into(),
+            reason,
+        })
+    };
+    if mesh.triangles.is_empty() {
+        return bad("has no faces (a solid needs at least 4 triangles)".into());
+    }
+    if let Some((i, v)) = mesh
+        .vertices
+        .iter()
+        .enumerate()
+        .find(|(_, v)| v.iter().any(|c| !c.is_finite()))
+    {
+        return bad(format!(
+            "vertex {} has a non-finite coordinate ({}, {}, {})",
+            i + 1,
+            v.x,
+            v.y,
+            v.z
+        ));
+    }
+    let nv = mesh.vertices.len() as u32;
+    if let Some((i, _)) = mesh
+        .triangles
+        .iter()
+        .enumerate()
+        .find(|(_, t)| t.iter().any(|&k| k >= nv))
+    {
+        return bad(format!(
+            "face {} refers to a vertex that does not exist",
+            i + 1
+        ));
+    }
+    if mesh.triangles.len() < 4 {
+        return bad(format!(
+            "has only {} triangle(s) and cannot enclose a volume (a solid needs at least 4)",
+            mesh.triangles.len()
+        ));
+    }
+    let ext = mesh.bounds().extent();
+    let longest = ext.max();
+    if longest <= 0.0 {
+        return bad("all vertices coincide".into());
+    }
+    if let Some(axis) = (0..3).find(|&a| ext[a] <= 1e-9 * longest) {
+        return bad(format!(
+            "is flat (zero thickness along {}) and encloses no volume",
+            ["x", "y", "z"][axis]
+        ));
+    }
+    Ok(())
+}
+
+fn parse_obj(path: &Path, bytes: &[u8]) -> Result<(TriMesh, Vec<String>), MeshError> {
+    let warnings = std::cell::RefCell::new(Vec::new());
+    let folder = path.parent().map(Path::to_path_buf).unwrap_or_default();
+    let options = tobj::LoadOptions {
+        triangulate: true,
+        single_index: false,
+        ignore_points: true,
+        ignore_lines: true,
+    };
+    let mut reader = std::io::Cursor::new(bytes);
+    let (models, _materials) = tobj::load_obj_buf(&mut reader, &options, |mtl| {
+        // Materials are not used; a missing library is only worth a warning.
+        let full = folder.join(mtl);
+        if !full.exists() {
+            warnings.borrow_mut().push(format!(
+                "{}: material library '{}' not found (materials are not used)",
+                path.display(),
+                mtl.display()
+            ));
+        }
+        Err(tobj::LoadError::OpenFileFailed)
+    })
+    .map_err(|e| MeshError::Malformed {
+        path: path.into(),
+        format: "OBJ",
+        reason: e.to_string(),
+    })?;
+    let mut mesh = TriMesh::default();
+    for model in &models {
+        let m = &model.mesh;
+        let offset = mesh.vertices.len() as u32;
+        mesh.vertices.extend(
+            m.positions
+                .chunks_exact(3)
+                .map(|p| Vector3::new(p[0], p[1], p[2])),
+        );
+        mesh.triangles.extend(
+            m.indices
+                .chunks_exact(3)
+                .map(|t| [t[0] + offset, t[1] + offset, t[2] + offset]),
+        );
+    }
+    Ok((mesh, warnings.into_inner()))
+}
+
+fn parse_ply(path: &Path, bytes: &[u8]) -> Result<TriMesh, MeshError> {
+    use ply_rs_bw::parser::Parser;
+    use ply_rs_bw::ply::{DefaultElement, Property};
+    let malformed = |reason: String| MeshError::Malformed {
+        path: path.into(),
+        format: "PLY",
+        reason,
+    };
+    let mut reader = std::io::Cursor::new(bytes);
+    let ply = Parser::<DefaultElement>::new()
+        .read_ply(&mut reader)
+        .map_err(|e| malformed(e.to_string()))?;
+    let scalar = |p: &Property| -> Option<f64> {
+        Some(match *p {
+            Property::Char(v) => v as f64,
+            Property::UChar(v) => v as f64,
+            Property::Short(v) => v as f64,
+            Property::UShort(v) => v as f64,
+            Property::Int(v) => v as f64,
+            Property::UInt(v) => v as f64,
+            Property::Float(v) => v as f64,
+            Property::Double(v) => v,
+            _ => return None,
+        })
+    };
+    let index_list = |p: &Property| -> Option<Vec<i64>> {
+        Some(match p {
+            Property::ListChar(v) => v.iter().map(|&i| i as i64).collect(),
+            Property::ListUChar(v) => v.iter().map(|&i| i as i64).collect(),
+            Property::ListShort(v) => v.iter().map(|&i| i as i64).collect(),
+            Property::ListUShort(v) => v.iter().map(|&i| i as i64).collect(),
+            Property::ListInt(v) => v.iter().map(|&i| i as i64).collect(),
+            Property::ListUInt(v) => v.iter().map(|&i| i as i64).collect(),
+            _ => return None,
+        })
+    };
+    let mut mesh = TriMesh::default();
+    let vertices = ply
+        .payload
+        .get("vertex")
+        .ok_or_else(|| malformed("no 'vertex' element".into()))?;
+    for (i, v) in vertices.iter().enumerate() {
+        let mut c = [0.0; 3];
+        for (a, name) in ["x", "y", "z"].iter().enumerate() {
+            c[a] = v
+                .get(*name)
+                .and_then(scalar)
+                .ok_or_else(|| malformed(format!("vertex {} has no numeric '{name}'", i + 1)))?;
+        }
+        mesh.vertices.push(Vector3::from(c));
+    }
+    let faces = ply.payload.get("face").map(Vec::as_slice).unwrap_or(&[]);
+    let nv = mesh.vertices.len() as i64;
+    for (fi, f) in faces.iter().enumerate() {
+        let list = f
+            .get("vertex_indices")
+            .or_else(|| f.get("vertex_index"))
+            .and_then(index_list)
+            .ok_or_else(|| malformed(format!("face {} has no vertex index list", fi + 1)))?;
+        if let Some(&bad) = list.iter().find(|&&i| i < 0 || i >= nv) {
+            return Err(malformed(format!(
+                "face {} refers to vertex {bad}, but there are {nv}",
+                fi + 1
+            )));
+        }
+        // Fan-triangulate polygons; lists of fewer than 3 indices are skipped.
+        for k in 1..list.len().saturating_sub(1) {
+            mesh.triangles
+                .push([list[0] as u32, list[k] as u32, list[k + 1] as u32]);
+        }
+    }
+    Ok(mesh)
+}

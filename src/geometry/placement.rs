@@ -1,0 +1,241 @@
+//! Bringing a source and a target mesh into one simulation domain.
+//!
+//! Frames: *world* is the source mesh's own coordinate system (what users get back);
+//! *target* is the target mesh's own; *sim* is the simulation frame, where the domain's
+//! longest side is [`DOMAIN_SIZE`] units whatever `--resolution` is (so the material and
+//! time settings mean the same at every resolution; only dx changes).
+
+use super::error::MeshError;
+use super::mesh::{Aabb, TriMesh};
+use super::voxelize::{Lattice, voxelize};
+use crate::mpm::GridSpec;
+use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+use std::path::Path;
+
+/// Longest side of the simulation domain, in sim units (the reference domain, 32 cells of
+/// dx = 1).
+pub const DOMAIN_SIZE: f64 = 32.0;
+
+/// Samples across the longest side when measuring a mesh's volume and centroid.
+const MEASURE_SAMPLES: usize = 96;
+
+/// `y = scale * x + translation`.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Similarity {
+    pub scale: f64,
+    pub translation: [f64; 3],
+}
+
+impl Similarity {
+    pub fn identity() -> Self {
+        Similarity {
+            scale: 1.0,
+            translation: [0.0; 3],
+        }
+    }
+
+    pub fn apply(&self, x: &Vector3<f64>) -> Vector3<f64> {
+        self.scale * x + Vector3::from(self.translation)
+    }
+
+    pub fn inverse(&self) -> Similarity {
+        let inv = 1.0 / self.scale;
+        Similarity {
+            scale: inv,
+            translation: (-inv * Vector3::from(self.translation)).into(),
+        }
+    }
+
+    /// `self` after `first`: x -> self(first(x)).
+    pub fn after(&self, first: &Similarity) -> Similarity {
+        Similarity {
+            scale: self.scale * first.scale,
+            translation: self.apply(&Vector3::from(first.translation)).into(),
+        }
+    }
+
+    pub fn apply_mesh(&self, mesh: &TriMesh) -> TriMesh {
+        mesh.transformed(self.scale, &Vector3::from(self.translation))
+    }
+}
+
+/// What a mesh encloses, measured by voxelization (valid for open meshes too).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Solid {
+    pub volume: f64,
+    pub centroid: [f64; 3],
+    pub bounds_min: [f64; 3],
+    pub bounds_max: [f64; 3],
+}
+
+impl Solid {
+    /// Measures the inside of `mesh` (named `path` in errors) on a lattice of
+    /// `MEASURE_SAMPLES` across its longest side. Fails when nothing is inside, or when the
+    /// winding number is near 1/2 for more samples than are inside (an open sheet, not a
+    /// solid).
+    pub fn measure(mesh: &TriMesh, path: &Path) -> Result<Solid, MeshError> {
+        let bounds = mesh.bounds();
+        let vox = voxelize(mesh, &Lattice::covering(&bounds, MEASURE_SAMPLES));
+        let s = vox.stats;
+        if s.inside == 0 {
+            return Err(MeshError::NoInside {
+                path: path.into(),
+                reason: "no point is enclosed by the surface (an open sheet or a flat shell?)"
+                    .into(),
+            });
+        }
+        if s.ambiguous > s.inside {
+            return Err(MeshError::NoInside {
+                path: path.into(),
+                reason: format!(
+                    "{} samples are half inside and only {} inside: an open surface, not a solid; close its holes",
+                    s.ambiguous, s.inside
+                ),
+            });
+        }
+        let points = vox.inside_points();
+        let centroid = points.iter().sum::<Vector3<f64>>() / points.len() as f64;
+        Ok(Solid {
+            volume: vox.volume(),
+            centroid: centroid.into(),
+            bounds_min: bounds.min.into(),
+            bounds_max: bounds.max.into(),
+        })
+    }
+
+    fn bounds(&self) -> Aabb {
+        Aabb {
+            min: self.bounds_min.into(),
+            max: self.bounds_max.into(),
+        }
+    }
+}
+
+/// How the target is placed relative to the source.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum TargetFit {
+    /// Scale the target uniformly to the source's volume and put its centroid on the
+    /// source's (mass and centre of mass are conserved, so this is what can be matched).
+    #[default]
+    MatchVolume,
+    /// Use the target exactly as given, in the source's coordinates.
+    AsGiven,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct PlacementOptions {
+    /// Grid cells across the domain's longest side (reference: 32).
+    pub resolution: usize,
+    pub target_fit: TargetFit,
+    /// Empty margin on each side of the shapes, as a fraction of `resolution` (at least 3
+    /// cells).
+    pub padding: f64,
+}
+
+impl Default for PlacementOptions {
+    fn default() -> Self {
+        PlacementOptions {
+            resolution: 32,
+            target_fit: TargetFit::MatchVolume,
+            padding: 0.15,
+        }
+    }
+}
+
+impl PlacementOptions {
+    pub fn validate(&self) -> Result<(), MeshError> {
+        if !(8..=512).contains(&self.resolution) {
+            return Err(MeshError::BadOption(format!(
+                "--resolution must be between 8 and 512 cells, got {}",
+                self.resolution
+            )));
+        }
+        if !(self.padding.is_finite() && (0.0..=0.4).contains(&self.padding)) {
+            return Err(MeshError::BadOption(format!(
+                "padding must be between 0 and 0.4 of the domain, got {}",
+                self.padding
+            )));
+        }
+        Ok(())
+    }
+
+    /// Empty cells on each side of the shapes.
+    pub fn pad_cells(&self) -> usize {
+        ((self.padding * self.resolution as f64).round() as usize).max(3)
+    }
+}
+
+/// Where everything sits: the grid (in sim units) and the maps between the frames.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Placement {
+    pub grid: GridSpec,
+    /// World (source mesh) coordinates -> sim coordinates.
+    pub world_to_sim: Similarity,
+    /// Target mesh coordinates -> world coordinates (`target.scale`, `target.translation`).
+    pub target_to_world: Similarity,
+}
+
+impl Placement {
+    pub fn new(
+        source: &Solid,
+        target: &Solid,
+        options: &PlacementOptions,
+    ) -> Result<Placement, MeshError> {
+        options.validate()?;
+        let target_to_world = match options.target_fit {
+            TargetFit::AsGiven => Similarity::identity(),
+            TargetFit::MatchVolume => {
+                let scale = (source.volume / target.volume).cbrt();
+                let t = Vector3::from(source.centroid) - scale * Vector3::from(target.centroid);
+                Similarity {
+                    scale,
+                    translation: t.into(),
+                }
+            }
+        };
+        let tb = target.bounds();
+        let target_in_world = Aabb::of_points(&[
+            target_to_world.apply(&tb.min),
+            target_to_world.apply(&tb.max),
+        ]);
+        let shapes = source.bounds().union(&target_in_world);
+        let pad = options.pad_cells();
+        let inner = options.resolution.saturating_sub(2 * pad).max(1);
+        let dx = DOMAIN_SIZE / options.resolution as f64;
+        let scale = inner as f64 * dx / shapes.longest_side();
+        let extent = shapes.extent() * scale;
+        let cells = [0, 1, 2].map(|a| {
+            if a == shapes.extent().imax() {
+                options.resolution
+            } else {
+                ((extent[a] / dx).ceil() as usize + 2 * pad).max(4)
+            }
+        });
+        // Centre the shapes in the grid; the sim origin is the grid centre.
+        let half = Vector3::new(cells[0] as f64, cells[1] as f64, cells[2] as f64) * (0.5 * dx);
+        let world_to_sim = Similarity {
+            scale,
+            translation: (-scale * shapes.centre()).into(),
+        };
+        Ok(Placement {
+            grid: GridSpec {
+                origin: (-half).into(),
+                dx,
+                cells,
+            },
+            world_to_sim,
+            target_to_world,
+        })
+    }
+
+    /// Target mesh coordinates -> sim coordinates.
+    pub fn target_to_sim(&self) -> Similarity {
+        self.world_to_sim.after(&self.target_to_world)
+    }
+
+    pub fn sim_to_world(&self) -> Similarity {
+        self.world_to_sim.inverse()
+    }
+}
