@@ -54,6 +54,18 @@ enum Command {
         #[arg(long, default_value_t = 3)]
         repeats: usize,
     },
+    /// Check a mesh before a run: topology, inside volume and particle count, as JSON.
+    ///
+    /// Loads MESH (OBJ or PLY) with the same validation as a morph, measures its inside
+    /// (winding number > 1/2, so open meshes work) and fills it with particles as a source at
+    /// --resolution. Warnings (open mesh, flipped faces, missing .mtl) go to stderr.
+    Inspect {
+        /// The mesh file.
+        mesh: std::path::PathBuf,
+        /// Grid cells across the domain's longest side.
+        #[arg(long, default_value_t = 32)]
+        resolution: usize,
+    },
     /// Write the built-in meshes (sphere, torus, cube, two lobes) as OBJ into a folder.
     Assets {
         /// Destination folder.
@@ -95,6 +107,15 @@ fn main() -> ExitCode {
             resolutions,
             repeats,
         } => morph::bench::geometry::run(&meshes, &resolutions, repeats),
+        Command::Inspect { mesh, resolution } => morph::geometry::inspect(&mesh, resolution)
+            .map_err(anyhow::Error::from)
+            .and_then(|report| {
+                for w in &report.warnings {
+                    eprintln!("morph: warning: {w}");
+                }
+                println!("{}", serde_json::to_string_pretty(&report)?);
+                Ok(())
+            }),
         Command::Assets { output } => morph::geometry::assets::write_builtin(&output)
             .map(|paths| {
                 for p in paths {

@@ -21,7 +21,7 @@ pub enum MeshError {
         reason: String,
     },
 
-    #[error("mesh '{}' {reason}", path.display())]
+    #[error("mesh '{}': {reason}", path.display())]
     Invalid { path: PathBuf, reason: String },
 
     #[error("mesh '{}': cannot decide its inside: {reason}", path.display())]

@@ -351,7 +351,7 @@ pub fn validate(path: &Path, mesh: &TriMesh) -> Result<(), MeshError> {
         })
     };
     if mesh.triangles.is_empty() {
-        return bad("has no faces (a solid needs at least 4 triangles)".into());
+        return bad("no faces (a solid needs at least 4 triangles)".into());
     }
     if let Some((i, v)) = mesh
         .vertices
@@ -381,7 +381,7 @@ pub fn validate(path: &Path, mesh: &TriMesh) -> Result<(), MeshError> {
     }
     if mesh.triangles.len() < 4 {
         return bad(format!(
-            "has only {} triangle(s) and cannot enclose a volume (a solid needs at least 4)",
+            "only {} triangle(s), which cannot enclose a volume (a solid needs at least 4)",
             mesh.triangles.len()
         ));
     }
@@ -392,7 +392,7 @@ pub fn validate(path: &Path, mesh: &TriMesh) -> Result<(), MeshError> {
     }
     if let Some(axis) = (0..3).find(|&a| ext[a] <= 1e-9 * longest) {
         return bad(format!(
-            "is flat (zero thickness along {}) and encloses no volume",
+            "flat (zero thickness along {}), so it encloses no volume",
             ["x", "y", "z"][axis]
         ));
     }
@@ -408,6 +408,18 @@ fn parse_obj(path: &Path, bytes: &[u8]) -> Result<(TriMesh, Vec<String>), MeshEr
         ignore_points: true,
         ignore_lines: true,
     };
+    if let Err(e) = std::str::from_utf8(bytes) {
+        let at = e.valid_up_to();
+        let line = bytes[..at].iter().filter(|&&b| b == b'\n').count() + 1;
+        return Err(MeshError::Malformed {
+            path: path.into(),
+            format: "OBJ",
+            reason: format!(
+                "line {line} is not text (byte 0x{:02x} at offset {at})",
+                bytes[at]
+            ),
+        });
+    }
     let mut reader = std::io::Cursor::new(bytes);
     let (models, _materials) = tobj::load_obj_buf(&mut reader, &options, |mtl| {
         // Materials are not used; a missing library is only worth a warning.
@@ -424,7 +436,7 @@ fn parse_obj(path: &Path, bytes: &[u8]) -> Result<(TriMesh, Vec<String>), MeshEr
     .map_err(|e| MeshError::Malformed {
         path: path.into(),
         format: "OBJ",
-        reason: e.to_string(),
+        reason: one_line(&e.to_string()),
     })?;
     let mut mesh = TriMesh::default();
     for model in &models {
@@ -450,7 +462,7 @@ fn parse_ply(path: &Path, bytes: &[u8]) -> Result<TriMesh, MeshError> {
     let malformed = |reason: String| MeshError::Malformed {
         path: path.into(),
         format: "PLY",
-        reason,
+        reason: one_line(&reason),
     };
     let mut reader = std::io::Cursor::new(bytes);
     let ply = Parser::<DefaultElement>::new()
@@ -516,4 +528,13 @@ fn parse_ply(path: &Path, bytes: &[u8]) -> Result<TriMesh, MeshError> {
         }
     }
     Ok(mesh)
+}
+
+/// Parser messages can span lines and end in a debug dump; errors are printed on one line.
+fn one_line(s: &str) -> String {
+    let flat = s.split_whitespace().collect::<Vec<_>>().join(" ");
+    match flat.split_once(" Error: ParseError") {
+        Some((head, _)) => head.to_string(),
+        None => flat,
+    }
 }

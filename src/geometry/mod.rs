@@ -86,3 +86,85 @@ impl MorphGeometry {
         })
     }
 }
+
+impl MorphGeometry {
+    /// Target nodal masses `m*_i`: the target particles' mass P2G-transferred with `kernel`,
+    /// scaled so the total equals the source's mass (mass is conserved, so a target of
+    /// another mass could not be matched; the scale is within voxelization error of 1).
+    pub fn target_masses(
+        &self,
+        kernel: crate::mpm::KernelKind,
+        density: f64,
+    ) -> Result<Vec<f64>, crate::mpm::SimError> {
+        let source_mass = density * self.source.volume * self.source.positions.len() as f64;
+        let per_particle = source_mass / self.target.positions.len() as f64;
+        let masses = vec![per_particle; self.target.positions.len()];
+        crate::mpm::p2g::mass_grid(
+            &self.placement.grid,
+            kernel,
+            &self.target.positions,
+            &masses,
+        )
+    }
+}
+
+/// A mesh report for `morph inspect`: topology, inside volume, particle count.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct MeshReport {
+    pub path: String,
+    pub vertices: usize,
+    pub triangles: usize,
+    pub closed: bool,
+    pub boundary_edges: usize,
+    pub non_manifold_edges: usize,
+    /// Genus from the Euler characteristic, for closed single-shell meshes.
+    pub genus: Option<i64>,
+    pub bounds_min: [f64; 3],
+    pub bounds_max: [f64; 3],
+    /// Inside volume in the mesh's units (winding-number voxelization).
+    pub volume: f64,
+    pub centroid: [f64; 3],
+    pub resolution: usize,
+    /// Particles at `resolution` cells across, 2x2x2 per cell, placed as a morph source.
+    pub particles: usize,
+    pub warnings: Vec<String>,
+}
+
+/// Loads, measures and voxelizes one mesh as `morph SRC TGT` would use it as a source.
+pub fn inspect(path: &Path, resolution: usize) -> Result<MeshReport, MeshError> {
+    let loaded = load_mesh(path)?;
+    let mesh = &loaded.mesh;
+    let solid = Solid::measure(mesh, path)?;
+    let options = PlacementOptions {
+        resolution,
+        ..Default::default()
+    };
+    let placement = Placement::new(&solid, &solid, &options)?;
+    let particles = particles_in(
+        &placement.world_to_sim.apply_mesh(mesh),
+        &placement.grid,
+        2,
+        None,
+    );
+    let topo = mesh.topology();
+    let genus = topo.is_closed().then(|| {
+        let chi = mesh.vertices.len() as i64 - topo.edges as i64 + mesh.triangles.len() as i64;
+        (2 - chi) / 2
+    });
+    Ok(MeshReport {
+        path: path.display().to_string(),
+        vertices: mesh.vertices.len(),
+        triangles: mesh.triangles.len(),
+        closed: topo.is_closed(),
+        boundary_edges: topo.boundary_edges,
+        non_manifold_edges: topo.non_manifold_edges,
+        genus,
+        bounds_min: solid.bounds_min,
+        bounds_max: solid.bounds_max,
+        volume: solid.volume,
+        centroid: solid.centroid,
+        resolution,
+        particles: particles.positions.len(),
+        warnings: loaded.warnings,
+    })
+}

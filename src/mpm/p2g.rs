@@ -4,7 +4,9 @@
 //! momentum after drag. Grid nodes hold `[m, px, py, pz]`. The forward pass is a scatter run
 //! under the colouring of [`super::grid::Bins`]; its reverse is a per-particle gather.
 
-use super::grid::SharedMut;
+use super::error::SimError;
+use super::grid::{Bins, GridSpec, SharedMut};
+use super::kernel::KernelKind;
 use super::kernel::Stencil;
 use nalgebra::{Matrix3, Vector3};
 
@@ -133,4 +135,38 @@ pub fn mass_particle_reverse<const N: usize>(
         }
     }
     mass * grad_x
+}
+
+/// Nodal masses `m_i = sum_p w_ip m_p` of any particle set on `grid` (e.g. the target
+/// shape's particles, which need not match the simulated ones). Deterministic: the
+/// coloured scatter adds into each node in an order fixed by the positions.
+pub fn mass_grid(
+    grid: &GridSpec,
+    kernel: KernelKind,
+    positions: &[Vector3<f64>],
+    masses: &[f64],
+) -> Result<Vec<f64>, SimError> {
+    assert_eq!(positions.len(), masses.len());
+    match kernel {
+        KernelKind::Quadratic => mass_grid_impl::<3>(grid, positions, masses),
+        KernelKind::Cubic => mass_grid_impl::<4>(grid, positions, masses),
+    }
+}
+
+fn mass_grid_impl<const N: usize>(
+    grid: &GridSpec,
+    positions: &[Vector3<f64>],
+    masses: &[f64],
+) -> Result<Vec<f64>, SimError> {
+    let bins = Bins::build(grid, positions, N, 0)?;
+    let mut out = vec![0.0; grid.node_count()];
+    let (strides, origin, dx) = (grid.strides(), grid.origin_vec(), grid.dx);
+    {
+        let g = SharedMut::new(&mut out);
+        bins.for_each_coloured(|p| {
+            let s = Stencil::<N>::new(&positions[p], &origin, dx);
+            mass_particle(&s, &strides, masses[p], &g);
+        });
+    }
+    Ok(out)
 }

@@ -6,7 +6,7 @@ use super::g2p::{g2p_particle, g2p_particle_reverse};
 use super::grid::{Bins, GridSpec, SharedMut};
 use super::grid_update::{grid_velocity, grid_velocity_reverse};
 use super::kernel::{KernelKind, Stencil};
-use super::p2g::{mass_particle, mass_particle_reverse, p2g_particle, p2g_particle_reverse};
+use super::p2g::{mass_particle_reverse, p2g_particle, p2g_particle_reverse};
 use super::state::{State, StateGrad};
 use super::stress::StressInputs;
 use crate::effects::{Effect, GridContext};
@@ -576,27 +576,7 @@ impl Simulator {
 
     /// Nodal masses `m_i = sum_p w_ip m_p` of particles at `positions` (for losses).
     pub fn mass_grid(&self, positions: &[Vector3<f64>]) -> Result<Vec<f64>, SimError> {
-        match self.kernel {
-            KernelKind::Quadratic => self.mass_grid_impl::<3>(positions),
-            KernelKind::Cubic => self.mass_grid_impl::<4>(positions),
-        }
-    }
-
-    fn mass_grid_impl<const N: usize>(
-        &self,
-        positions: &[Vector3<f64>],
-    ) -> Result<Vec<f64>, SimError> {
-        let bins = Bins::build(&self.grid, positions, N, 0)?;
-        let mut grid = vec![0.0; self.grid.node_count()];
-        let (strides, origin, dx) = (self.grid.strides(), self.grid.origin_vec(), self.grid.dx);
-        {
-            let g = SharedMut::new(&mut grid);
-            bins.for_each_coloured(|p| {
-                let s = Stencil::<N>::new(&positions[p], &origin, dx);
-                mass_particle(&s, &strides, self.mass[p], &g);
-            });
-        }
-        Ok(grid)
+        super::p2g::mass_grid(&self.grid, self.kernel, positions, &self.mass)
     }
 
     /// Reverse of [`Simulator::mass_grid`]: dL/dx_p from dL/dm_i.
