@@ -415,7 +415,7 @@ fn surface_of_particle_ball_is_closed_with_matching_volume() {
     ] {
         let p = particles_in(&sphere, &grid, 2, jitter);
         let volumes = vec![p.volume; p.positions.len()];
-        let mesh = extract_surface(&p.positions, &volumes, 0.5);
+        let mesh = extract_surface(&p.positions, &volumes, 0.5).unwrap();
         let topo = mesh.topology();
         assert!(topo.is_closed(), "{topo:?}");
         assert_eq!(topo.misoriented_edges, 0);
@@ -427,7 +427,7 @@ fn surface_of_particle_ball_is_closed_with_matching_volume() {
                 .num_threads(threads)
                 .build()
                 .unwrap()
-                .install(|| extract_surface(&p.positions, &volumes, 0.5))
+                .install(|| extract_surface(&p.positions, &volumes, 0.5).unwrap())
         };
         assert_eq!(on(1), on(2));
     }
@@ -447,7 +447,7 @@ fn surface_of_deformed_particles_stays_closed() {
         .collect();
     let j = stretch.product();
     let volumes = vec![p.volume * j; x.len()];
-    let mesh = extract_surface(&x, &volumes, 0.5);
+    let mesh = extract_surface(&x, &volumes, 0.5).unwrap();
     assert!(mesh.topology().is_closed());
     let ratio = mesh.signed_volume() / (p.volume * j * x.len() as f64);
     assert!((ratio - 1.0).abs() < 0.08, "{ratio}");

@@ -78,6 +78,7 @@ pub fn run(meshes: &Path, resolutions: &[usize], repeats: usize) -> anyhow::Resu
         let grid = GridSpec::centred_cube(40, 1.0);
         let (x, vol) = ball_particles(&grid, Vector3::zeros(), radius, 2);
         let (secs, mesh) = best_of(repeats, || extract_surface(&x, &vol, 0.5));
+        let mesh = mesh?;
         let particle_volume: f64 = vol.iter().sum();
         println!(
             "{}",

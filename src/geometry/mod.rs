@@ -13,7 +13,7 @@ pub mod winding;
 pub use error::MeshError;
 pub use mesh::{Aabb, LoadedMesh, TriMesh, load_mesh};
 pub use placement::{Placement, PlacementOptions, Similarity, Solid, TargetFit};
-pub use surface::extract_surface;
+pub use surface::{SurfaceError, extract_surface};
 pub use voxelize::{Jitter, Lattice, Particles, Voxelization, particles_in, voxelize};
 
 use std::path::Path;
@@ -52,6 +52,14 @@ impl MorphGeometry {
             return Err(MeshError::BadOption(format!(
                 "jitter must be between 0 and 1 particle spacing, got {}",
                 j.amount
+            )));
+        }
+        let samples = (options.resolution * per_cell).pow(3);
+        if samples > 1 << 28 {
+            return Err(MeshError::BadOption(format!(
+                "resolution {} with {per_cell}^3 particles per cell needs up to {samples} samples (limit {}); lower one of them",
+                options.resolution,
+                1 << 28
             )));
         }
         let src = load_mesh(source_path)?;

@@ -146,9 +146,9 @@ impl Default for PlacementOptions {
 
 impl PlacementOptions {
     pub fn validate(&self) -> Result<(), MeshError> {
-        if !(8..=512).contains(&self.resolution) {
+        if !(8..=256).contains(&self.resolution) {
             return Err(MeshError::BadOption(format!(
-                "--resolution must be between 8 and 512 cells, got {}",
+                "--resolution must be between 8 and 256 cells, got {}",
                 self.resolution
             )));
         }

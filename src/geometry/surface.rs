@@ -21,16 +21,50 @@ const ISO: f64 = 0.5;
 /// outermost layer is zero and the surface cannot touch the lattice boundary.
 const PAD: usize = 3;
 
+/// Largest fill lattice we build (nodes); a frame whose particles spread wider is refused.
+const MAX_NODES: usize = 1 << 28;
+
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SurfaceError {
+    #[error("surface extraction: particle {0} has a non-finite position or volume")]
+    NonFinite(usize),
+    #[error("surface extraction: spacing must be positive and finite, got {0}")]
+    BadSpacing(f64),
+    #[error(
+        "surface extraction: the particles spread over {0} lattice nodes (limit {MAX_NODES}); use a larger spacing"
+    )]
+    TooLarge(usize),
+}
+
 /// A closed surface around `positions`, each of which stands for volume `volumes[p]`
 /// (current volume: rest volume times J). `spacing` is the lattice spacing, normally the
 /// particles' rest spacing `dx / per_cell`.
-pub fn extract_surface(positions: &[Vector3<f64>], volumes: &[f64], spacing: f64) -> TriMesh {
-    assert_eq!(positions.len(), volumes.len());
-    if positions.is_empty() {
-        return TriMesh::default();
+pub fn extract_surface(
+    positions: &[Vector3<f64>],
+    volumes: &[f64],
+    spacing: f64,
+) -> Result<TriMesh, SurfaceError> {
+    assert_eq!(positions.len(), volumes.len(), "one volume per particle");
+    if !(spacing.is_finite() && spacing > 0.0) {
+        return Err(SurfaceError::BadSpacing(spacing));
     }
-    let field = FillField::splat(positions, volumes, spacing);
-    field.march()
+    if let Some(p) = (0..positions.len())
+        .find(|&p| !(positions[p].iter().all(|c| c.is_finite()) && volumes[p].is_finite()))
+    {
+        return Err(SurfaceError::NonFinite(p));
+    }
+    if positions.is_empty() {
+        return Ok(TriMesh::default());
+    }
+    let extent = Aabb::of_points(positions).extent() / spacing;
+    let nodes = extent
+        .iter()
+        .map(|e| e.ceil() + (2 * PAD + 1) as f64)
+        .product::<f64>();
+    if nodes > MAX_NODES as f64 {
+        return Err(SurfaceError::TooLarge(nodes as usize));
+    }
+    Ok(FillField::splat(positions, volumes, spacing).march())
 }
 
 /// Fill fraction on a lattice: node (i, j, k) at `origin + h * (i, j, k)`.
@@ -259,13 +293,28 @@ mod tests {
 
     #[test]
     fn single_particle_gives_a_closed_blob() {
-        let mesh = extract_surface(&[Vector3::new(0.1, 0.2, 0.3)], &[1.0], 1.0);
+        let mesh = extract_surface(&[Vector3::new(0.1, 0.2, 0.3)], &[1.0], 1.0).unwrap();
         // A lone particle of volume h^3 peaks at a fill of 0.75^3 = 0.42 < 1/2: no surface.
         // With spacing 0.5 its volume counts as 8 lattice volumes and a blob appears.
         assert!(mesh.triangles.is_empty());
-        let mesh = extract_surface(&[Vector3::new(0.1, 0.2, 0.3)], &[1.0], 0.5);
+        let mesh = extract_surface(&[Vector3::new(0.1, 0.2, 0.3)], &[1.0], 0.5).unwrap();
         assert!(!mesh.triangles.is_empty());
         assert!(mesh.topology().is_closed());
         assert!(mesh.signed_volume() > 0.0);
+    }
+
+    #[test]
+    fn bad_input_is_an_error() {
+        let x = [Vector3::zeros(), Vector3::new(f64::NAN, 0.0, 0.0)];
+        assert_eq!(
+            extract_surface(&x, &[1.0, 1.0], 0.5),
+            Err(SurfaceError::NonFinite(1))
+        );
+        let far = [Vector3::zeros(), Vector3::repeat(1e9)];
+        assert!(matches!(
+            extract_surface(&far, &[1.0, 1.0], 0.5),
+            Err(SurfaceError::TooLarge(_))
+        ));
+        assert!(extract_surface(&x[..1], &[1.0], 0.0).is_err());
     }
 }
