@@ -10,5 +10,6 @@ pub mod effects;
 pub mod geometry;
 pub mod loss;
 pub mod material;
+pub mod morph;
 pub mod mpm;
 pub mod scene;

@@ -1,0 +1,71 @@
+//! How well the final particles fill the target.
+//!
+//! - `target_cells_filled`: of the grid cells that hold a target particle, the fraction that
+//!   also hold a final source particle.
+//! - `particles_outside`: the fraction of final particles farther than two particle spacings
+//!   outside the target. Target particles sit on the sub-cell lattice (spacing h) and each
+//!   stands for a cube of side h, so "outside by more than 2h" means no target particle
+//!   within 2.5 h.
+
+use crate::mpm::GridSpec;
+use nalgebra::Vector3;
+use serde::Serialize;
+use std::collections::HashSet;
+
+#[derive(Clone, Copy, Debug, Serialize, PartialEq)]
+pub struct FillMetrics {
+    pub target_cells: usize,
+    pub target_cells_filled: f64,
+    pub particles_outside: f64,
+}
+
+pub fn fill_metrics(
+    grid: &GridSpec,
+    spacing: f64,
+    target: &[Vector3<f64>],
+    particles: &[Vector3<f64>],
+) -> FillMetrics {
+    let origin = grid.origin_vec();
+    let cell_of = |x: &Vector3<f64>, h: f64| -> [i64; 3] {
+        let g = (x - origin) / h;
+        [g.x.floor() as i64, g.y.floor() as i64, g.z.floor() as i64]
+    };
+    let target_cells: HashSet<[i64; 3]> = target.iter().map(|x| cell_of(x, grid.dx)).collect();
+    let source_cells: HashSet<[i64; 3]> = particles.iter().map(|x| cell_of(x, grid.dx)).collect();
+    let filled = target_cells.intersection(&source_cells).count();
+    // Target particles by lattice cell of size h for the neighbourhood search.
+    let lattice: HashSet<[i64; 3]> = target.iter().map(|x| cell_of(x, spacing)).collect();
+    let reach = 2.5 * spacing;
+    let outside = particles
+        .iter()
+        .filter(|x| {
+            let c = cell_of(x, spacing);
+            for di in -3..=3 {
+                for dj in -3..=3 {
+                    for dk in -3..=3 {
+                        let n = [c[0] + di, c[1] + dj, c[2] + dk];
+                        if lattice.contains(&n) {
+                            // Target particle at the centre of lattice cell n.
+                            let centre = origin
+                                + spacing
+                                    * Vector3::new(
+                                        n[0] as f64 + 0.5,
+                                        n[1] as f64 + 0.5,
+                                        n[2] as f64 + 0.5,
+                                    );
+                            if (*x - centre).norm() <= reach {
+                                return false;
+                            }
+                        }
+                    }
+                }
+            }
+            true
+        })
+        .count();
+    FillMetrics {
+        target_cells: target_cells.len(),
+        target_cells_filled: filled as f64 / target_cells.len().max(1) as f64,
+        particles_outside: outside as f64 / particles.len().max(1) as f64,
+    }
+}

@@ -1,0 +1,309 @@
+//! One segment of a morph: `steps` simulation steps from a start state, with a control layer
+//! (one `Fc` per particle) every `stride` steps, scored by the mass loss of its last state.
+//!
+//! Two optimizers:
+//! - [`Optimizer::Adam`]: Adam on all control layers of the segment at once, one forward and
+//!   one reverse pass per iteration.
+//! - [`Optimizer::LineSearch`]: the reference method (normalized gradient steps with a
+//!   backtracking line search, one control layer after another), without its three known
+//!   defects: each layer is normalized by its own current gradient norm (the reference used
+//!   a stale norm from layer 0), the accepted line-search trial's rollout is kept instead of
+//!   re-running an identical forward pass, and a failed line search leaves the last accepted
+//!   rollout in place (the reference left the rejected trial's states).
+
+use crate::loss::MassLoss;
+use crate::mpm::{SimError, Simulator, State, Tape};
+use nalgebra::Matrix3;
+use serde::{Deserialize, Serialize};
+
+/// Which optimizer a segment uses.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum Optimizer {
+    /// Adam on all control layers of a segment at once.
+    Adam,
+    /// The reference: normalized gradient descent with backtracking, layer by layer.
+    LineSearch,
+}
+
+/// Optimizer settings.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct OptimizerSettings {
+    pub kind: Optimizer,
+    /// Forward+reverse evaluations per segment (Adam), or iterations per layer (line search).
+    pub iterations: usize,
+    /// Adam: step size per control entry. Line search: initial step (reference: 0.1).
+    pub learning_rate: f64,
+    /// Line search: halvings before giving up on a layer (reference: 15).
+    pub line_search_tries: usize,
+    /// Line search: stop a layer when |g| < gd_tol |g_0| (reference: 1e-3).
+    pub gd_tol: f64,
+}
+
+/// What a segment's optimization returns: the best controls found and their rollout.
+pub struct SegmentResult {
+    pub layers: Vec<Vec<Matrix3<f64>>>,
+    pub loss: f64,
+    pub initial_loss: f64,
+    /// The accepted rollout: states at the start of every step, and the last state.
+    pub tape: Tape,
+    /// Evaluations (forward passes) spent.
+    pub evaluations: usize,
+}
+
+/// A segment to optimize.
+pub struct Segment<'a> {
+    pub sim: &'a Simulator,
+    pub loss: &'a MassLoss,
+    pub start: &'a State,
+    /// Global index of the segment's first step (for error messages).
+    pub first_step: usize,
+    pub steps: usize,
+    pub stride: usize,
+    /// Weight of the kinetic energy left at the segment's end, `w * sum 1/2 m |v|^2`, added
+    /// to the mass loss so the body arrives instead of flying through the target.
+    pub arrival_weight: f64,
+}
+
+/// One evaluated control set.
+struct Rollout {
+    loss: f64,
+    tape: Tape,
+}
+
+impl Segment<'_> {
+    pub fn num_layers(&self) -> usize {
+        self.steps.div_ceil(self.stride)
+    }
+
+    /// Per-step controls with layer `l` at step `l * stride`, from layer `from` on.
+    fn schedule(
+        &self,
+        layers: &[Vec<Matrix3<f64>>],
+        from: usize,
+    ) -> Vec<Option<Vec<Matrix3<f64>>>> {
+        (from * self.stride..self.steps)
+            .map(|s| (s % self.stride == 0).then(|| layers[s / self.stride].clone()))
+            .collect()
+    }
+
+    /// Forward from the start of layer `from` (state `start`) to the end of the segment.
+    fn rollout(
+        &self,
+        start: &State,
+        layers: &[Vec<Matrix3<f64>>],
+        from: usize,
+    ) -> Result<Rollout, SimError> {
+        let mut state = start.clone();
+        let mut tape = Tape::default();
+        let schedule = self.schedule(layers, from);
+        self.sim.forward(
+            &mut state,
+            &schedule,
+            self.first_step + from * self.stride,
+            self.steps - from * self.stride,
+            Some(&mut tape),
+        )?;
+        let mass = self.sim.mass_grid(&state.x)?;
+        let (loss, _) = self.loss.value_and_grad(&mass);
+        let loss = loss + self.arrival_weight * state.kinetic_energy(&self.sim.mass);
+        Ok(Rollout { loss, tape })
+    }
+
+    /// dL/dFc for the layers from `from` on, through a taped rollout that started there.
+    fn gradient(
+        &self,
+        rollout: &Rollout,
+        layers: &[Vec<Matrix3<f64>>],
+        from: usize,
+    ) -> Result<Vec<Vec<Matrix3<f64>>>, SimError> {
+        let last = &rollout.tape.last;
+        let mass = self.sim.mass_grid(&last.x)?;
+        let (_, grad_m) = self.loss.value_and_grad(&mass);
+        let mut seed = State::zeros(last.len());
+        seed.x = self.sim.mass_grid_reverse(&last.x, &grad_m);
+        for (p, g) in seed.v.iter_mut().enumerate() {
+            *g = self.arrival_weight * self.sim.mass[p] * last.v[p];
+        }
+        let schedule = self.schedule(layers, from);
+        let grads = self.sim.backward(&rollout.tape, &schedule, seed);
+        Ok(grads.controls.into_iter().flatten().collect())
+    }
+
+    /// Optimizes the segment from `initial` controls (one per layer). `on_iteration` gets the
+    /// loss of every accepted evaluation.
+    pub fn optimize(
+        &self,
+        initial: Vec<Vec<Matrix3<f64>>>,
+        settings: &OptimizerSettings,
+        mut on_iteration: impl FnMut(usize, f64),
+    ) -> Result<SegmentResult, SimError> {
+        assert_eq!(initial.len(), self.num_layers());
+        match settings.kind {
+            Optimizer::Adam => self.adam(initial, settings, &mut on_iteration),
+            Optimizer::LineSearch => self.line_search(initial, settings, &mut on_iteration),
+        }
+    }
+
+    fn adam(
+        &self,
+        mut layers: Vec<Vec<Matrix3<f64>>>,
+        s: &OptimizerSettings,
+        on_iteration: &mut dyn FnMut(usize, f64),
+    ) -> Result<SegmentResult, SimError> {
+        const BETA1: f64 = 0.9;
+        const BETA2: f64 = 0.999;
+        const EPS: f64 = 1e-12;
+        let n = self.start.len();
+        let iterations = s.iterations.max(1);
+        let mut m1 = vec![vec![Matrix3::zeros(); n]; layers.len()];
+        let mut m2 = vec![vec![Matrix3::zeros(); n]; layers.len()];
+        let mut current = self.rollout(self.start, &layers, 0)?;
+        let initial_loss = current.loss;
+        let mut evaluations = 1;
+        let mut best: Option<(Vec<Vec<Matrix3<f64>>>, Rollout)> = None;
+        let mut lr = s.learning_rate;
+        let mut t = 0;
+        let mut iteration = 0;
+        'outer: loop {
+            on_iteration(iteration, current.loss);
+            let grad = if iteration + 1 < iterations {
+                Some(self.gradient(&current, &layers, 0)?)
+            } else {
+                None
+            };
+            if best.as_ref().is_none_or(|b| current.loss < b.1.loss) {
+                best = Some((layers.clone(), current));
+            }
+            let Some(grad) = grad else { break };
+            t += 1;
+            let (c1, c2) = (1.0 - BETA1.powi(t), 1.0 - BETA2.powi(t));
+            let saved = (layers.clone(), m1.clone(), m2.clone());
+            loop {
+                for l in 0..layers.len() {
+                    for p in 0..n {
+                        let g = grad[l][p];
+                        m1[l][p] = BETA1 * m1[l][p] + (1.0 - BETA1) * g;
+                        m2[l][p] = BETA2 * m2[l][p] + (1.0 - BETA2) * g.component_mul(&g);
+                        let step =
+                            (m1[l][p] / c1).zip_map(&(m2[l][p] / c2), |a, b| a / (b.sqrt() + EPS));
+                        layers[l][p] -= lr * step;
+                    }
+                }
+                evaluations += 1;
+                iteration += 1;
+                match self.rollout(self.start, &layers, 0) {
+                    Ok(r) => {
+                        current = r;
+                        break;
+                    }
+                    Err(e) if blew_up(&e) => {
+                        // The step blew the simulation up: undo it, retry with half the step.
+                        (layers, m1, m2) = saved.clone();
+                        lr *= 0.5;
+                        on_iteration(iteration, f64::INFINITY);
+                        if iteration + 1 >= iterations {
+                            break 'outer;
+                        }
+                    }
+                    Err(e) => return Err(e),
+                }
+            }
+        }
+        let (layers, rollout) = best.expect("at least one evaluation");
+        Ok(SegmentResult {
+            layers,
+            loss: rollout.loss,
+            initial_loss,
+            tape: rollout.tape,
+            evaluations,
+        })
+    }
+
+    fn line_search(
+        &self,
+        mut layers: Vec<Vec<Matrix3<f64>>>,
+        s: &OptimizerSettings,
+        on_iteration: &mut dyn FnMut(usize, f64),
+    ) -> Result<SegmentResult, SimError> {
+        // The accepted rollout of the whole segment, and the state at each layer's start.
+        let mut accepted = self.rollout(self.start, &layers, 0)?;
+        let initial_loss = accepted.loss;
+        on_iteration(0, accepted.loss);
+        let mut evaluations = 1;
+        let mut iteration = 1;
+        for layer in 0..layers.len() {
+            let mut g0_norm = None;
+            for _ in 0..s.iterations {
+                // Rollout from this layer's start: the accepted states from that step on.
+                let from_step = layer * self.stride;
+                // Borrow the accepted rollout's tail as a tape of its own (moved, not copied).
+                let partial = Rollout {
+                    loss: accepted.loss,
+                    tape: Tape {
+                        steps: accepted.tape.steps.split_off(from_step),
+                        last: std::mem::take(&mut accepted.tape.last),
+                    },
+                };
+                let grads = self.gradient(&partial, &layers, layer);
+                accepted.tape.steps.extend(partial.tape.steps);
+                accepted.tape.last = partial.tape.last;
+                let grads = grads?;
+                let g = &grads[0];
+                let norm = g.iter().map(|m| m.norm_squared()).sum::<f64>().sqrt();
+                let g0 = *g0_norm.get_or_insert(norm);
+                if !(norm > s.gd_tol * g0) || norm == 0.0 {
+                    break;
+                }
+                let start = accepted.tape.steps[from_step].pre.clone();
+                let mut alpha = s.learning_rate;
+                let mut improved = None;
+                for _ in 0..s.line_search_tries.max(1) {
+                    let mut trial = layers.clone();
+                    for (fc, gp) in trial[layer].iter_mut().zip(g) {
+                        *fc -= (alpha / norm) * gp;
+                    }
+                    evaluations += 1;
+                    match self.rollout(&start, &trial, layer) {
+                        Ok(r) if r.loss < accepted.loss => {
+                            improved = Some((trial, r));
+                            break;
+                        }
+                        Ok(_) => alpha *= 0.5,
+                        Err(e) if blew_up(&e) => alpha *= 0.5,
+                        Err(e) => return Err(e),
+                    }
+                }
+                match improved {
+                    Some((trial, r)) => {
+                        layers = trial;
+                        // Splice the trial's steps after the unchanged prefix: no re-run.
+                        accepted.tape.steps.truncate(from_step);
+                        accepted.tape.steps.extend(r.tape.steps);
+                        accepted.tape.last = r.tape.last;
+                        accepted.loss = r.loss;
+                        on_iteration(iteration, r.loss);
+                        iteration += 1;
+                    }
+                    // Line search failed: the accepted rollout is untouched; next layer.
+                    None => break,
+                }
+            }
+        }
+        Ok(SegmentResult {
+            layers,
+            loss: accepted.loss,
+            initial_loss,
+            tape: accepted.tape,
+            evaluations,
+        })
+    }
+}
+
+/// Errors a too-large control step causes (the trial is rejected, not the morph).
+fn blew_up(e: &SimError) -> bool {
+    matches!(
+        e,
+        SimError::CflExceeded { .. } | SimError::NonFinite { .. } | SimError::OutsideGrid { .. }
+    )
+}

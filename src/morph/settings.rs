@@ -1,0 +1,160 @@
+//! Morph settings and presets.
+
+use super::segment::{Optimizer, OptimizerSettings};
+use crate::geometry::TargetFit;
+use crate::loss::MassLossKind;
+use crate::mpm::KernelKind;
+use crate::scene::MaterialConfig;
+use serde::{Deserialize, Serialize};
+
+/// Named bundles of chain length and effort. See `docs/morph.md`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum, Default)]
+#[serde(rename_all = "lowercase")]
+pub enum Preset {
+    /// A quick look: short chain, one pass, few iterations.
+    Draft,
+    /// The everyday setting.
+    #[default]
+    Default,
+    /// The reference chain length (40 segments), more passes and iterations.
+    Final,
+}
+
+/// Everything that decides a morph's result.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MorphSettings {
+    pub preset: Preset,
+    /// Grid cells across the domain's longest side.
+    pub resolution: usize,
+    /// Particles per cell along each axis (k; k^3 per cell).
+    pub particles_per_cell: usize,
+    /// Random particle offsets in particle spacings (0 = regular lattice).
+    pub jitter: f64,
+    pub seed: u64,
+    pub target_fit: TargetFit,
+    pub segments: usize,
+    pub steps_per_segment: usize,
+    /// Steps between control layers within a segment.
+    pub control_stride: usize,
+    pub passes: usize,
+    pub optimizer: OptimizerSettings,
+    pub loss: MassLossKind,
+    /// Weight of the kinetic energy at each segment's end in the objective.
+    pub arrival_weight: f64,
+    pub kernel: KernelKind,
+    pub material: MaterialConfig,
+    /// Velocity damping per second (reference 0.5).
+    pub drag: f64,
+    /// Time step in seconds; `None`: the reference 1/120, lowered if the grid is finer than
+    /// the reference so that it stays at most half the elastic stability limit.
+    pub dt: Option<f64>,
+    /// Export every n-th step as a frame.
+    pub frame_every: usize,
+    /// Write a closed surface per frame.
+    pub surfaces: bool,
+}
+
+impl MorphSettings {
+    pub fn preset(preset: Preset) -> MorphSettings {
+        let (segments, passes, iterations) = match preset {
+            Preset::Draft => (6, 1, 10),
+            Preset::Default => (12, 2, 12),
+            Preset::Final => (40, 3, 25),
+        };
+        MorphSettings {
+            preset,
+            resolution: 32,
+            particles_per_cell: 2,
+            jitter: 0.0,
+            seed: 0,
+            target_fit: TargetFit::MatchVolume,
+            segments,
+            steps_per_segment: 30,
+            control_stride: 10,
+            passes,
+            optimizer: OptimizerSettings {
+                kind: Optimizer::Adam,
+                iterations,
+                learning_rate: 0.02,
+                line_search_tries: 15,
+                gd_tol: 1e-3,
+            },
+            loss: MassLossKind::Log,
+            arrival_weight: 0.001,
+            kernel: KernelKind::Cubic,
+            material: MaterialConfig {
+                mu: 38888.9,
+                lambda: 58333.0,
+                density: 40.0,
+            },
+            drag: 0.5,
+            dt: None,
+            frame_every: 3,
+            surfaces: true,
+        }
+    }
+
+    /// Checks every setting; the message names the option.
+    pub fn validate(&self) -> Result<(), String> {
+        let range = |name: &str, v: usize, lo: usize, hi: usize| {
+            if (lo..=hi).contains(&v) {
+                Ok(())
+            } else {
+                Err(format!("--{name} must be between {lo} and {hi}, got {v}"))
+            }
+        };
+        range("resolution", self.resolution, 8, 256)?;
+        range("particles-per-cell", self.particles_per_cell, 1, 4)?;
+        range("segments", self.segments, 1, 10_000)?;
+        range("steps", self.steps_per_segment, 1, 10_000)?;
+        range(
+            "control-stride",
+            self.control_stride,
+            1,
+            self.steps_per_segment,
+        )?;
+        range("passes", self.passes, 1, 100)?;
+        range("iterations", self.optimizer.iterations, 1, 100_000)?;
+        range("frame-every", self.frame_every, 1, 1_000_000)?;
+        let positive = |name: &str, v: f64| {
+            if v.is_finite() && v > 0.0 {
+                Ok(())
+            } else {
+                Err(format!("--{name} must be a positive number, got {v}"))
+            }
+        };
+        positive("learning-rate", self.optimizer.learning_rate)?;
+        positive("density", self.material.density)?;
+        positive("mu", self.material.mu)?;
+        if !(self.material.lambda.is_finite() && self.material.lambda >= 0.0) {
+            return Err(format!(
+                "--lambda must be >= 0, got {}",
+                self.material.lambda
+            ));
+        }
+        if !(self.arrival_weight.is_finite() && self.arrival_weight >= 0.0) {
+            return Err(format!(
+                "--arrival-weight must be >= 0, got {}",
+                self.arrival_weight
+            ));
+        }
+        if !(self.drag.is_finite() && self.drag >= 0.0) {
+            return Err(format!("--drag must be >= 0, got {}", self.drag));
+        }
+        if !(self.jitter.is_finite() && (0.0..=1.0).contains(&self.jitter)) {
+            return Err(format!(
+                "--jitter must be between 0 and 1, got {}",
+                self.jitter
+            ));
+        }
+        if let Some(dt) = self.dt {
+            positive("dt", dt)?;
+        }
+        Ok(())
+    }
+
+    /// Total simulation steps of the chain.
+    pub fn total_steps(&self) -> usize {
+        self.segments * self.steps_per_segment
+    }
+}
