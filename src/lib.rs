@@ -8,6 +8,7 @@
 pub mod bench;
 pub mod effects;
 pub mod geometry;
+pub mod io;
 pub mod loss;
 pub mod material;
 pub mod morph;

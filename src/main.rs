@@ -1,18 +1,178 @@
 //! The `morph` command line.
 
-use clap::{Parser, Subcommand};
+use clap::{Args, Parser, Subcommand};
+use morph::geometry::TargetFit;
+use morph::loss::MassLossKind;
+use morph::morph::segment::Optimizer;
+use morph::morph::{MorphError, MorphEvent, MorphSettings, Preset};
 use morph::mpm::KernelKind;
+use std::path::PathBuf;
 use std::process::ExitCode;
+
+const LONG_ABOUT: &str = "\
+morph turns the shape in SOURCE into the shape in TARGET: SOURCE is filled with particles of an
+elastic material, simulated with a differentiable Material Point Method, and steered by
+optimized per-particle controls until it flows into TARGET. The result is a folder with a
+frame sequence for Blender or Houdini.
+
+SOURCE and TARGET are OBJ or PLY meshes in any units and position; open meshes (holes) are
+accepted. TARGET is scaled to SOURCE's volume and centred on it unless --target-fit as-given.";
+
+const AFTER_LONG_HELP: &str = "\
+OUTPUT (folder -o, written as OUT.partial and renamed when complete):
+  frames/frame_0001.ply ...  binary PLY points per frame: x y z vx vy vz J, source units
+  meshes/frame_0001.obj ...  closed surface per frame, source units
+  final_mass.mgrid           final nodal mass grid; compare two with `morph compare`
+  manifest.json              inputs with SHA-256, settings, placement, losses, timings, frames
+  loss.png, preview.png      loss curves; a contact sheet of frames
+
+PRESETS (segments x 30 steps, passes, iterations per segment):
+  draft    6 x 30, 1 pass, 10      a quick look (sphere to spot in well under 2 minutes)
+  default 12 x 30, 2 passes, 12
+  final   40 x 30, 3 passes, 25    the reference chain length
+  Any of --segments --steps --passes --iterations overrides its preset value.
+
+EXIT CODES:
+  0  success            1  the run failed (bad mesh, simulation, writing)
+  2  bad command line or option value
+
+EXAMPLES:
+  morph assets/sphere.obj assets/two-lobes.obj -o out
+  morph sphere.obj bunny.obj -o bunny_morph --preset final --json > log.jsonl
+  morph compare out/final_mass.mgrid golden/final_mass.mgrid --rtol 1e-6";
 
 /// morph - turn one 3D shape into another with a differentiable Material Point Method.
 #[derive(Parser, Debug)]
-#[command(name = "morph", version, about, long_about = None)]
+#[command(
+    name = "morph",
+    version,
+    about,
+    long_about = LONG_ABOUT,
+    after_long_help = AFTER_LONG_HELP,
+    args_conflicts_with_subcommands = true,
+    subcommand_negates_reqs = true
+)]
 struct Cli {
     /// Worker threads (default: all cores). Results are identical for any count.
     #[arg(long, global = true)]
     threads: Option<usize>,
     #[command(subcommand)]
-    command: Command,
+    command: Option<Command>,
+    #[command(flatten)]
+    morph: MorphArgs,
+}
+
+/// The main job: `morph SOURCE TARGET [options]`.
+#[derive(Args, Debug)]
+struct MorphArgs {
+    /// Mesh to start from (OBJ or PLY).
+    #[arg(required = true)]
+    source: Option<PathBuf>,
+    /// Mesh to become (OBJ or PLY).
+    #[arg(required = true)]
+    target: Option<PathBuf>,
+    /// Output folder.
+    #[arg(short, long, default_value = "morph-out")]
+    output: PathBuf,
+    /// Replace the output folder if it exists.
+    #[arg(long)]
+    overwrite: bool,
+    /// Effort preset; the options below override its values.
+    #[arg(long, value_enum, default_value_t = Preset::Default)]
+    preset: Preset,
+    /// Grid cells across the domain's longest side.
+    #[arg(long)]
+    resolution: Option<usize>,
+    /// Segments in the chain.
+    #[arg(long)]
+    segments: Option<usize>,
+    /// Simulation steps per segment (dt 1/120 s at the reference resolution).
+    #[arg(long)]
+    steps: Option<usize>,
+    /// Steps between control layers in a segment.
+    #[arg(long)]
+    control_stride: Option<usize>,
+    /// Passes over the chain (later passes refine the earlier controls).
+    #[arg(long)]
+    passes: Option<usize>,
+    /// Optimizer evaluations per segment (Adam) or per control layer (line search).
+    #[arg(long)]
+    iterations: Option<usize>,
+    /// Optimizer.
+    #[arg(long, value_enum)]
+    optimizer: Option<Optimizer>,
+    /// Step size (Adam: per control entry; line search: initial normalized step).
+    #[arg(long)]
+    learning_rate: Option<f64>,
+    /// Mass loss on the grid.
+    #[arg(long, value_enum, default_value_t = MassLossKind::Log)]
+    loss: MassLossKind,
+    /// Weight of the kinetic energy left at each segment's end.
+    #[arg(long)]
+    arrival_weight: Option<f64>,
+    /// How the target is placed.
+    #[arg(long, value_enum, default_value_t = TargetFit::MatchVolume)]
+    target_fit: TargetFit,
+    /// Particles per cell along each axis (k^3 per cell).
+    #[arg(long)]
+    particles_per_cell: Option<usize>,
+    /// Random particle offsets, in particle spacings (0..1).
+    #[arg(long)]
+    jitter: Option<f64>,
+    /// Seed for the jitter.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Export every n-th simulation step as a frame.
+    #[arg(long)]
+    frame_every: Option<usize>,
+    /// Skip the per-frame surface meshes (points only).
+    #[arg(long)]
+    no_surfaces: bool,
+    /// Print one JSON object per event on stdout (for farm logs) instead of progress bars.
+    #[arg(long)]
+    json: bool,
+    /// Print nothing but errors.
+    #[arg(long, short)]
+    quiet: bool,
+}
+
+impl MorphArgs {
+    fn settings(&self) -> MorphSettings {
+        let mut s = MorphSettings::preset(self.preset);
+        let set = |dst: &mut usize, v: Option<usize>| {
+            if let Some(v) = v {
+                *dst = v;
+            }
+        };
+        set(&mut s.resolution, self.resolution);
+        set(&mut s.segments, self.segments);
+        set(&mut s.steps_per_segment, self.steps);
+        set(&mut s.control_stride, self.control_stride);
+        set(&mut s.passes, self.passes);
+        set(&mut s.optimizer.iterations, self.iterations);
+        set(&mut s.particles_per_cell, self.particles_per_cell);
+        set(&mut s.frame_every, self.frame_every);
+        if let Some(o) = self.optimizer {
+            s.optimizer.kind = o;
+            if o == Optimizer::LineSearch && self.learning_rate.is_none() {
+                s.optimizer.learning_rate = 0.1; // the reference step
+            }
+        }
+        if let Some(lr) = self.learning_rate {
+            s.optimizer.learning_rate = lr;
+        }
+        if let Some(w) = self.arrival_weight {
+            s.arrival_weight = w;
+        }
+        if let Some(j) = self.jitter {
+            s.jitter = j;
+        }
+        s.seed = self.seed;
+        s.loss = self.loss;
+        s.target_fit = self.target_fit;
+        s.surfaces = !self.no_surfaces;
+        s
+    }
 }
 
 #[derive(Subcommand, Debug)]
@@ -66,6 +226,23 @@ enum Command {
         #[arg(long, default_value_t = 32)]
         resolution: usize,
     },
+    /// Compare two nodal mass grids (final_mass.mgrid); exit 0 if equal within tolerance.
+    ///
+    /// Equal means |a - b| <= atol + rtol * |b| at every node (b is the reference). Prints the
+    /// node count, max and mean absolute difference as JSON. Exit 0: equal; 1: different or
+    /// incompatible grids (shape, origin, spacing); 2: unreadable file or bad option.
+    Compare {
+        /// The grid to check.
+        a: PathBuf,
+        /// The reference grid.
+        b: PathBuf,
+        /// Relative tolerance.
+        #[arg(long, default_value_t = 1e-5)]
+        rtol: f64,
+        /// Absolute tolerance.
+        #[arg(long, default_value_t = 1e-8)]
+        atol: f64,
+    },
     /// Write the built-in meshes (sphere, torus, cube, two lobes) as OBJ into a folder.
     Assets {
         /// Destination folder.
@@ -90,24 +267,25 @@ fn main() -> ExitCode {
         }
     }
     let result = match cli.command {
-        Command::Bench {
+        None => return run_morph(&cli.morph),
+        Some(Command::Bench {
             steps,
             repeats,
             thread_counts,
             kernels,
-        } => {
+        }) => {
             if steps == 0 || thread_counts.contains(&0) {
                 eprintln!("morph: error: --steps and --thread-counts must be positive");
                 return ExitCode::from(2);
             }
             morph::bench::run(steps, repeats, &thread_counts, &kernels)
         }
-        Command::BenchGeometry {
+        Some(Command::BenchGeometry {
             meshes,
             resolutions,
             repeats,
-        } => morph::bench::geometry::run(&meshes, &resolutions, repeats),
-        Command::Inspect { mesh, resolution } => morph::geometry::inspect(&mesh, resolution)
+        }) => morph::bench::geometry::run(&meshes, &resolutions, repeats),
+        Some(Command::Inspect { mesh, resolution }) => morph::geometry::inspect(&mesh, resolution)
             .map_err(anyhow::Error::from)
             .and_then(|report| {
                 for w in &report.warnings {
@@ -116,7 +294,8 @@ fn main() -> ExitCode {
                 println!("{}", serde_json::to_string_pretty(&report)?);
                 Ok(())
             }),
-        Command::Assets { output } => morph::geometry::assets::write_builtin(&output)
+        Some(Command::Compare { a, b, rtol, atol }) => return compare(&a, &b, rtol, atol),
+        Some(Command::Assets { output }) => morph::geometry::assets::write_builtin(&output)
             .map(|paths| {
                 for p in paths {
                     println!("{}", p.display());
@@ -129,6 +308,151 @@ fn main() -> ExitCode {
         Err(e) => {
             eprintln!("morph: error: {e:#}");
             ExitCode::FAILURE
+        }
+    }
+}
+
+fn compare(a: &std::path::Path, b: &std::path::Path, rtol: f64, atol: f64) -> ExitCode {
+    use morph::io::massgrid::{MassGrid, compare};
+    if !(rtol.is_finite() && rtol >= 0.0 && atol.is_finite() && atol >= 0.0) {
+        eprintln!("morph: error: --rtol and --atol must be finite and >= 0");
+        return ExitCode::from(2);
+    }
+    let (ga, gb) = match (MassGrid::read(a), MassGrid::read(b)) {
+        (Ok(x), Ok(y)) => (x, y),
+        (Err(e), _) | (_, Err(e)) => {
+            eprintln!("morph: error: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    match compare(&ga, &gb, rtol, atol) {
+        Ok(c) => {
+            println!("{}", serde_json::to_string(&c).expect("plain struct"));
+            if c.within_tolerance {
+                ExitCode::SUCCESS
+            } else {
+                ExitCode::FAILURE
+            }
+        }
+        Err(e) => {
+            println!(
+                "{}",
+                serde_json::json!({ "within_tolerance": false, "error": e })
+            );
+            eprintln!("morph: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// `morph SOURCE TARGET`: progress bars on a terminal, JSON lines with --json.
+fn run_morph(args: &MorphArgs) -> ExitCode {
+    use indicatif::{ProgressBar, ProgressStyle};
+    use std::io::IsTerminal;
+    let (Some(source), Some(target)) = (&args.source, &args.target) else {
+        eprintln!("morph: error: give a SOURCE and a TARGET mesh (see morph --help)");
+        return ExitCode::from(2);
+    };
+    let settings = args.settings();
+    if let Err(e) = settings.validate() {
+        eprintln!("morph: error: {e}");
+        return ExitCode::from(2);
+    }
+    let show_bar = !args.quiet && !args.json && std::io::stderr().is_terminal();
+    let bar = ProgressBar::hidden();
+    let mut last_loss = f64::NAN;
+    let on_event = |e: &MorphEvent| {
+        if args.json {
+            println!("{}", serde_json::to_string(e).expect("plain event"));
+            return;
+        }
+        match e {
+            MorphEvent::Setup {
+                particles,
+                grid_cells,
+                segments,
+                passes,
+                iterations,
+                warnings,
+                ..
+            } => {
+                if !args.quiet {
+                    for w in warnings {
+                        eprintln!("morph: warning: {w}");
+                    }
+                }
+                if show_bar {
+                    bar.set_draw_target(indicatif::ProgressDrawTarget::stderr());
+                    bar.set_length((segments * passes * iterations) as u64);
+                    bar.set_style(
+                        ProgressStyle::with_template(
+                            "{elapsed_precise} [{bar:30}] {pos}/{len} evaluations  {msg}",
+                        )
+                        .expect("valid template")
+                        .progress_chars("=> "),
+                    );
+                    bar.println(format!(
+                        "morph: {particles} particles on a {}x{}x{} grid, {segments} segments x {passes} passes",
+                        grid_cells[0], grid_cells[1], grid_cells[2]
+                    ));
+                }
+            }
+            MorphEvent::Iteration {
+                pass,
+                segment,
+                loss,
+                ..
+            } => {
+                if loss.is_finite() {
+                    last_loss = *loss;
+                }
+                bar.inc(1);
+                bar.set_message(format!(
+                    "pass {}  segment {}  loss {last_loss:.4e}",
+                    pass + 1,
+                    segment + 1
+                ));
+            }
+            MorphEvent::Segment { .. } | MorphEvent::Done { .. } => {}
+        }
+    };
+    let result = morph::morph::output::morph_to_folder(
+        &settings,
+        source,
+        target,
+        &args.output,
+        args.overwrite,
+        on_event,
+    );
+    bar.finish_and_clear();
+    match result {
+        Ok(summary) => {
+            if args.json {
+                println!(
+                    "{}",
+                    serde_json::json!({ "event": "written", "summary": summary })
+                );
+            } else if !args.quiet {
+                println!(
+                    "wrote {}: {} frames of {} particles; loss {:.4e} -> {:.4e}; target cells filled {:.1}%, particles outside {:.2}%; {:.1} s",
+                    summary.output.display(),
+                    summary.frames,
+                    summary.particles,
+                    summary.initial_loss,
+                    summary.final_loss,
+                    100.0 * summary.fill.target_cells_filled,
+                    100.0 * summary.fill.particles_outside,
+                    summary.seconds
+                );
+            }
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            eprintln!("morph: error: {e}");
+            match e {
+                MorphError::Settings(_) => ExitCode::from(2),
+                _ => ExitCode::FAILURE,
+            }
         }
     }
 }

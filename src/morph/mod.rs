@@ -7,6 +7,7 @@
 //! the accepted rollouts of the last pass.
 
 pub mod metrics;
+pub mod output;
 pub mod segment;
 pub mod settings;
 

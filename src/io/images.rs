@@ -1,0 +1,284 @@
+//! `loss.png` (loss against evaluation and against wall time, log scale) and `preview.png`
+//! (a contact sheet of frames rendered as shaded point splats), drawn with the image crate.
+//! Labels use a small built-in 3x5 pixel font, so no system fonts are needed on farm nodes.
+
+use image::{Rgb, RgbImage};
+use nalgebra::{Rotation3, Vector3};
+use std::path::Path;
+
+const BACKGROUND: Rgb<u8> = Rgb([250, 250, 250]);
+const INK: Rgb<u8> = Rgb([40, 40, 40]);
+const GRID: Rgb<u8> = Rgb([220, 220, 220]);
+const SERIES: Rgb<u8> = Rgb([200, 80, 30]);
+
+/// 3x5 glyphs, one row per entry, bit 2 = left column.
+fn glyph(c: char) -> [u8; 5] {
+    match c.to_ascii_uppercase() {
+        '0' | 'O' => [7, 5, 5, 5, 7],
+        '1' => [2, 6, 2, 2, 7],
+        '2' => [7, 1, 7, 4, 7],
+        '3' => [7, 1, 7, 1, 7],
+        '4' => [5, 5, 7, 1, 1],
+        '5' | 'S' => [7, 4, 7, 1, 7],
+        '6' => [7, 4, 7, 5, 7],
+        '7' => [7, 1, 1, 1, 1],
+        '8' => [7, 5, 7, 5, 7],
+        '9' => [7, 5, 7, 1, 7],
+        '.' => [0, 0, 0, 0, 2],
+        '-' => [0, 0, 7, 0, 0],
+        '+' => [0, 2, 7, 2, 0],
+        'E' => [7, 4, 7, 4, 7],
+        'L' => [4, 4, 4, 4, 7],
+        'I' => [7, 2, 2, 2, 7],
+        'T' => [7, 2, 2, 2, 2],
+        'R' => [6, 5, 6, 5, 5],
+        'A' => [2, 5, 7, 5, 5],
+        'N' => [5, 7, 7, 7, 5],
+        'C' => [7, 4, 4, 4, 7],
+        'D' => [6, 5, 5, 5, 6],
+        'V' => [5, 5, 5, 5, 2],
+        'P' => [7, 5, 7, 4, 4],
+        'F' => [7, 4, 7, 4, 4],
+        'M' => [5, 7, 7, 5, 5],
+        _ => [0; 5],
+    }
+}
+
+/// Draws `text` with its top-left corner at (x, y), glyph pixels `scale` wide.
+fn text(img: &mut RgbImage, x: i64, y: i64, s: &str, scale: i64, color: Rgb<u8>) {
+    for (i, c) in s.chars().enumerate() {
+        let g = glyph(c);
+        for (row, bits) in g.iter().enumerate() {
+            for col in 0..3 {
+                if bits & (4 >> col) != 0 {
+                    for dy in 0..scale {
+                        for dx in 0..scale {
+                            put(
+                                img,
+                                x + (i as i64 * 4 + col) * scale + dx,
+                                y + row as i64 * scale + dy,
+                                color,
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+fn put(img: &mut RgbImage, x: i64, y: i64, c: Rgb<u8>) {
+    if x >= 0 && y >= 0 && (x as u32) < img.width() && (y as u32) < img.height() {
+        img.put_pixel(x as u32, y as u32, c);
+    }
+}
+
+fn line(img: &mut RgbImage, (x0, y0): (f64, f64), (x1, y1): (f64, f64), c: Rgb<u8>) {
+    let n = ((x1 - x0).abs().max((y1 - y0).abs()).ceil() as i64).max(1);
+    for i in 0..=n {
+        let t = i as f64 / n as f64;
+        put(
+            img,
+            (x0 + t * (x1 - x0)).round() as i64,
+            (y0 + t * (y1 - y0)).round() as i64,
+            c,
+        );
+    }
+}
+
+/// Short label for a number: 3 significant digits, E notation outside [0.01, 1e4).
+fn label(v: f64) -> String {
+    if v != 0.0 && !(0.01..1e4).contains(&v.abs()) {
+        format!("{v:.1e}").to_uppercase()
+    } else if v.abs() >= 100.0 || v.fract() == 0.0 {
+        format!("{v:.0}")
+    } else {
+        format!("{v:.2}")
+    }
+}
+
+/// One panel: `points` (x, loss) on a log-y axis inside the rectangle at (left, top).
+fn panel(
+    img: &mut RgbImage,
+    left: f64,
+    top: f64,
+    w: f64,
+    h: f64,
+    points: &[(f64, f64)],
+    title: &str,
+) {
+    text(img, left as i64, top as i64 - 22, title, 3, INK);
+    let finite: Vec<(f64, f64)> = points
+        .iter()
+        .copied()
+        .filter(|(x, y)| x.is_finite() && y.is_finite() && *y > 0.0)
+        .collect();
+    line(img, (left, top + h), (left + w, top + h), INK);
+    line(img, (left, top), (left, top + h), INK);
+    if finite.is_empty() {
+        return;
+    }
+    let xmax = finite.iter().map(|p| p.0).fold(f64::MIN_POSITIVE, f64::max);
+    let (lo, hi) = finite
+        .iter()
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
+            (a.min(p.1.log10()), b.max(p.1.log10()))
+        });
+    let (lo, hi) = (lo.floor(), hi.ceil().max(lo.floor() + 1.0));
+    let to_px = |(x, y): (f64, f64)| {
+        (
+            left + w * x / xmax,
+            top + h * (1.0 - (y.log10() - lo) / (hi - lo)),
+        )
+    };
+    let mut decade = lo;
+    while decade <= hi + 1e-9 {
+        let y = top + h * (1.0 - (decade - lo) / (hi - lo));
+        line(img, (left + 1.0, y), (left + w, y), GRID);
+        text(
+            img,
+            left as i64 - 62,
+            y as i64 - 5,
+            &label(10f64.powf(decade)),
+            2,
+            INK,
+        );
+        decade += 1.0;
+    }
+    text(img, left as i64, (top + h) as i64 + 8, "0", 2, INK);
+    let xl = label(xmax);
+    text(
+        img,
+        (left + w) as i64 - 8 * xl.len() as i64,
+        (top + h) as i64 + 8,
+        &xl,
+        2,
+        INK,
+    );
+    for pair in finite.windows(2) {
+        line(img, to_px(pair[0]), to_px(pair[1]), SERIES);
+    }
+}
+
+/// `loss.png`: loss per evaluation (left) and against wall seconds (right).
+pub fn write_loss_plot(path: &Path, losses: &[(f64, f64)]) -> std::io::Result<()> {
+    let mut img = RgbImage::from_pixel(1000, 420, BACKGROUND);
+    let by_index: Vec<(f64, f64)> = losses
+        .iter()
+        .enumerate()
+        .map(|(i, p)| (i as f64, p.1))
+        .collect();
+    let by_time: Vec<(f64, f64)> = losses.iter().map(|p| (p.0, p.1)).collect();
+    panel(
+        &mut img,
+        80.0,
+        50.0,
+        380.0,
+        310.0,
+        &by_index,
+        "LOSS VS ITERATION",
+    );
+    panel(
+        &mut img,
+        580.0,
+        50.0,
+        380.0,
+        310.0,
+        &by_time,
+        "LOSS VS SECONDS",
+    );
+    save(path, &img)
+}
+
+fn save(path: &Path, img: &RgbImage) -> std::io::Result<()> {
+    let mut bytes = Vec::new();
+    img.write_to(
+        &mut std::io::Cursor::new(&mut bytes),
+        image::ImageFormat::Png,
+    )
+    .map_err(std::io::Error::other)?;
+    super::write_atomically(path, |w| std::io::Write::write_all(w, &bytes))
+}
+
+/// `preview.png`: the given frames side by side, each particle drawn as a small lit sphere
+/// (orthographic view from the front-right, slightly above; y up).
+pub fn write_preview(
+    path: &Path,
+    frames: &[(usize, Vec<Vector3<f64>>)],
+    particle_radius: f64,
+) -> std::io::Result<()> {
+    const TILE: u32 = 260;
+    let cols = frames.len().max(1) as u32;
+    let mut img = RgbImage::from_pixel(TILE * cols, TILE + 24, Rgb([30, 32, 36]));
+    let view =
+        Rotation3::from_euler_angles(0.35, 0.0, 0.0) * Rotation3::from_euler_angles(0.0, -0.6, 0.0);
+    let projected: Vec<Vec<Vector3<f64>>> = frames
+        .iter()
+        .map(|(_, x)| x.iter().map(|p| view * p).collect())
+        .collect();
+    let all = projected.iter().flatten();
+    let (mut lo, mut hi) = (
+        Vector3::repeat(f64::INFINITY),
+        Vector3::repeat(f64::NEG_INFINITY),
+    );
+    for p in all {
+        lo = lo.inf(p);
+        hi = hi.sup(p);
+    }
+    let span = (hi - lo).x.max((hi - lo).y).max(1e-12);
+    let scale = (TILE as f64 - 20.0) / span;
+    let r_px = (particle_radius * scale).max(1.0);
+    let light = Vector3::new(-0.4, 0.6, 0.7).normalize();
+    for (tile, ((index, _), pts)) in frames.iter().zip(&projected).enumerate() {
+        let x0 = tile as f64 * TILE as f64;
+        let mut depth = vec![f64::NEG_INFINITY; (TILE * TILE) as usize];
+        let mut colour = vec![None; (TILE * TILE) as usize];
+        for p in pts {
+            let cx =
+                x0 + 10.0 + (p.x - lo.x) * scale + 0.5 * (TILE as f64 - 20.0 - (hi - lo).x * scale);
+            let cy = 10.0 + (hi.y - p.y) * scale + 0.5 * (TILE as f64 - 20.0 - (hi - lo).y * scale);
+            let r = r_px.ceil() as i64;
+            for dy in -r..=r {
+                for dx in -r..=r {
+                    let (u, v) = (dx as f64 / r_px, dy as f64 / r_px);
+                    let d2 = u * u + v * v;
+                    if d2 > 1.0 {
+                        continue;
+                    }
+                    let (px, py) = (cx.round() as i64 + dx, cy.round() as i64 + dy);
+                    let lx = px - x0 as i64;
+                    if lx < 0 || py < 0 || lx >= TILE as i64 || py >= TILE as i64 {
+                        continue;
+                    }
+                    let nz = (1.0 - d2).sqrt();
+                    let z = p.z + nz * particle_radius;
+                    let k = (py * TILE as i64 + lx) as usize;
+                    if z > depth[k] {
+                        depth[k] = z;
+                        let n = Vector3::new(u, -v, nz);
+                        let shade = 0.25 + 0.75 * n.dot(&light).max(0.0);
+                        colour[k] = Some(Rgb([
+                            (235.0 * shade) as u8,
+                            (150.0 * shade) as u8,
+                            (70.0 * shade) as u8,
+                        ]));
+                    }
+                }
+            }
+        }
+        for (k, c) in colour.iter().enumerate() {
+            if let Some(c) = c {
+                img.put_pixel(x0 as u32 + (k as u32 % TILE), k as u32 / TILE, *c);
+            }
+        }
+        text(
+            &mut img,
+            x0 as i64 + 8,
+            TILE as i64 + 4,
+            &format!("F {index}"),
+            3,
+            Rgb([220, 220, 220]),
+        );
+    }
+    save(path, &img)
+}

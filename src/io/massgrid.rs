@@ -1,0 +1,164 @@
+//! The nodal mass grid file (`final_mass.mgrid`), and comparing two of them.
+//!
+//! Layout (all little-endian):
+//!
+//! | bytes | content |
+//! |---|---|
+//! | 8 | magic `MORPHMG1` |
+//! | 4 | u32: length H of the JSON header |
+//! | H | JSON: `{"dims":[nx,ny,nz],"origin":[x,y,z],"dx":h,"dtype":"f64le","order":"x-slowest","units":"world"}` |
+//! | 8 nx ny nz | f64 node masses, node (i,j,k) at index (i*ny + j)*nz + k |
+//!
+//! `dims` counts nodes; node (i,j,k) sits at `origin + dx * (i,j,k)` in world units. Masses
+//! are in simulation units (density x sim volume); both files of a comparison come from the
+//! same kind of run, so only their agreement matters.
+
+use super::write_atomically;
+use serde::{Deserialize, Serialize};
+use std::io::Write;
+use std::path::Path;
+
+const MAGIC: &[u8; 8] = b"MORPHMG1";
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct MassGridHeader {
+    pub dims: [usize; 3],
+    pub origin: [f64; 3],
+    pub dx: f64,
+    pub dtype: String,
+    pub order: String,
+    pub units: String,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct MassGrid {
+    pub header: MassGridHeader,
+    pub values: Vec<f64>,
+}
+
+impl MassGrid {
+    pub fn new(dims: [usize; 3], origin: [f64; 3], dx: f64, values: Vec<f64>) -> MassGrid {
+        assert_eq!(dims[0] * dims[1] * dims[2], values.len());
+        MassGrid {
+            header: MassGridHeader {
+                dims,
+                origin,
+                dx,
+                dtype: "f64le".into(),
+                order: "x-slowest".into(),
+                units: "world".into(),
+            },
+            values,
+        }
+    }
+
+    pub fn write(&self, path: &Path) -> std::io::Result<()> {
+        let header = serde_json::to_vec(&self.header).map_err(std::io::Error::other)?;
+        write_atomically(path, |w| {
+            w.write_all(MAGIC)?;
+            w.write_all(&(header.len() as u32).to_le_bytes())?;
+            w.write_all(&header)?;
+            let mut buf = Vec::with_capacity(self.values.len() * 8);
+            for v in &self.values {
+                buf.extend_from_slice(&v.to_le_bytes());
+            }
+            w.write_all(&buf)
+        })
+    }
+
+    /// Reads and checks a mass grid file; errors name the file and the problem.
+    pub fn read(path: &Path) -> Result<MassGrid, String> {
+        let name = path.display();
+        let bytes = std::fs::read(path).map_err(|e| format!("cannot read '{name}': {e}"))?;
+        if bytes.len() < 12 || &bytes[..8] != MAGIC {
+            return Err(format!("'{name}' is not a morph mass grid (bad magic)"));
+        }
+        let h = u32::from_le_bytes(bytes[8..12].try_into().expect("4 bytes")) as usize;
+        let body = 12usize
+            .checked_add(h)
+            .filter(|&b| b <= bytes.len())
+            .ok_or_else(|| format!("'{name}': truncated header"))?;
+        let header: MassGridHeader = serde_json::from_slice(&bytes[12..body])
+            .map_err(|e| format!("'{name}': bad header: {e}"))?;
+        if header.dtype != "f64le" {
+            return Err(format!("'{name}': unsupported dtype '{}'", header.dtype));
+        }
+        let n = header
+            .dims
+            .iter()
+            .try_fold(1usize, |a, &d| a.checked_mul(d))
+            .ok_or_else(|| format!("'{name}': dims {:?} overflow", header.dims))?;
+        if bytes.len() - body != n * 8 {
+            return Err(format!(
+                "'{name}': {} data bytes for {n} nodes (expected {})",
+                bytes.len() - body,
+                n * 8
+            ));
+        }
+        let values = bytes[body..]
+            .chunks_exact(8)
+            .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes")))
+            .collect();
+        Ok(MassGrid { header, values })
+    }
+}
+
+/// Outcome of comparing two grids.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Comparison {
+    pub nodes: usize,
+    pub max_abs_diff: f64,
+    pub mean_abs_diff: f64,
+    /// Largest |a - b| / (atol + rtol |b|): 1 or less means within tolerance.
+    pub worst_ratio: f64,
+    pub within_tolerance: bool,
+}
+
+/// Compares `a` with the reference `b`: equal when every node has
+/// `|a - b| <= atol + rtol * |b|` (numpy's `allclose`). Grids of different shape, origin or
+/// spacing are an error.
+pub fn compare(a: &MassGrid, b: &MassGrid, rtol: f64, atol: f64) -> Result<Comparison, String> {
+    let (ha, hb) = (&a.header, &b.header);
+    if ha.dims != hb.dims {
+        return Err(format!(
+            "incompatible grids: dims {:?} vs {:?}",
+            ha.dims, hb.dims
+        ));
+    }
+    let close = |x: f64, y: f64| (x - y).abs() <= 1e-9 * x.abs().max(y.abs()).max(1e-300);
+    if !close(ha.dx, hb.dx) || (0..3).any(|i| !close(ha.origin[i], hb.origin[i])) {
+        return Err(format!(
+            "incompatible grids: origin {:?} dx {} vs origin {:?} dx {}",
+            ha.origin, ha.dx, hb.origin, hb.dx
+        ));
+    }
+    let mut max_abs: f64 = 0.0;
+    let mut sum = crate::loss::CompensatedSum::default();
+    let mut worst: f64 = 0.0;
+    for (&x, &y) in a.values.iter().zip(&b.values) {
+        let d = (x - y).abs();
+        if d.is_nan() {
+            worst = f64::INFINITY;
+            max_abs = f64::NAN;
+            continue;
+        }
+        max_abs = max_abs.max(d);
+        sum.add(d);
+        let allowed = atol + rtol * y.abs();
+        worst = worst.max(if allowed > 0.0 {
+            d / allowed
+        } else if d > 0.0 {
+            f64::INFINITY
+        } else {
+            0.0
+        });
+    }
+    let nodes = a.values.len();
+    Ok(Comparison {
+        nodes,
+        max_abs_diff: max_abs,
+        mean_abs_diff: sum.value() / nodes.max(1) as f64,
+        worst_ratio: worst,
+        within_tolerance: worst <= 1.0,
+    })
+}
