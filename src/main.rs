@@ -50,7 +50,8 @@ EXAMPLES:
     long_about = LONG_ABOUT,
     after_long_help = AFTER_LONG_HELP,
     args_conflicts_with_subcommands = true,
-    subcommand_negates_reqs = true
+    subcommand_negates_reqs = true,
+    allow_negative_numbers = true
 )]
 struct Cli {
     /// Worker threads (default: all cores). Results are identical for any count.
@@ -434,7 +435,7 @@ fn run_morph(args: &MorphArgs) -> ExitCode {
                 );
             } else if !args.quiet {
                 println!(
-                    "wrote {}: {} frames of {} particles; loss {:.4e} -> {:.4e}; target cells filled {:.1}%, particles outside {:.2}%; {:.1} s",
+                    "wrote {}: {} frames of {} particles; loss {:.4e} -> {:.4e}; target cells filled {:.1}%, particles outside {:.2}% (ejected {:.2}%); {:.1} s",
                     summary.output.display(),
                     summary.frames,
                     summary.particles,
@@ -442,6 +443,7 @@ fn run_morph(args: &MorphArgs) -> ExitCode {
                     summary.final_loss,
                     100.0 * summary.fill.target_cells_filled,
                     100.0 * summary.fill.particles_outside,
+                    100.0 * summary.fill.particles_ejected,
                     summary.seconds
                 );
             }

@@ -17,12 +17,16 @@ pub struct FillMetrics {
     pub target_cells: usize,
     pub target_cells_filled: f64,
     pub particles_outside: f64,
+    /// Fraction of final particles in empty space: farther than two spacings outside both
+    /// the target and the source's starting shape (flung out rather than not yet arrived).
+    pub particles_ejected: f64,
 }
 
 pub fn fill_metrics(
     grid: &GridSpec,
     spacing: f64,
     target: &[Vector3<f64>],
+    source_start: &[Vector3<f64>],
     particles: &[Vector3<f64>],
 ) -> FillMetrics {
     let origin = grid.origin_vec();
@@ -33,19 +37,45 @@ pub fn fill_metrics(
     let target_cells: HashSet<[i64; 3]> = target.iter().map(|x| cell_of(x, grid.dx)).collect();
     let source_cells: HashSet<[i64; 3]> = particles.iter().map(|x| cell_of(x, grid.dx)).collect();
     let filled = target_cells.intersection(&source_cells).count();
-    // Target particles by lattice cell of size h for the neighbourhood search.
-    let lattice: HashSet<[i64; 3]> = target.iter().map(|x| cell_of(x, spacing)).collect();
-    let reach = 2.5 * spacing;
-    let outside = particles
+    let far_from_target = far_from(&origin, spacing, target, particles);
+    let far_from_source = far_from(&origin, spacing, source_start, particles);
+    let outside = far_from_target.iter().filter(|f| **f).count();
+    let ejected = far_from_target
         .iter()
-        .filter(|x| {
-            let c = cell_of(x, spacing);
+        .zip(&far_from_source)
+        .filter(|(t, s)| **t && **s)
+        .count();
+    FillMetrics {
+        target_cells: target_cells.len(),
+        target_cells_filled: filled as f64 / target_cells.len().max(1) as f64,
+        particles_outside: outside as f64 / particles.len().max(1) as f64,
+        particles_ejected: ejected as f64 / particles.len().max(1) as f64,
+    }
+}
+
+/// For each particle: is it farther than 2 spacings outside the shape made of `lattice`
+/// points (each standing for a cube of side h), i.e. no lattice point within 2.5 h?
+fn far_from(
+    origin: &Vector3<f64>,
+    spacing: f64,
+    lattice: &[Vector3<f64>],
+    particles: &[Vector3<f64>],
+) -> Vec<bool> {
+    let cell = |x: &Vector3<f64>| -> [i64; 3] {
+        let g = (x - origin) / spacing;
+        [g.x.floor() as i64, g.y.floor() as i64, g.z.floor() as i64]
+    };
+    let occupied: HashSet<[i64; 3]> = lattice.iter().map(cell).collect();
+    let reach = 2.5 * spacing;
+    particles
+        .iter()
+        .map(|x| {
+            let c = cell(x);
             for di in -3..=3 {
                 for dj in -3..=3 {
                     for dk in -3..=3 {
                         let n = [c[0] + di, c[1] + dj, c[2] + dk];
-                        if lattice.contains(&n) {
-                            // Target particle at the centre of lattice cell n.
+                        if occupied.contains(&n) {
                             let centre = origin
                                 + spacing
                                     * Vector3::new(
@@ -53,7 +83,7 @@ pub fn fill_metrics(
                                         n[1] as f64 + 0.5,
                                         n[2] as f64 + 0.5,
                                     );
-                            if (*x - centre).norm() <= reach {
+                            if (x - centre).norm() <= reach {
                                 return false;
                             }
                         }
@@ -62,10 +92,5 @@ pub fn fill_metrics(
             }
             true
         })
-        .count();
-    FillMetrics {
-        target_cells: target_cells.len(),
-        target_cells_filled: filled as f64 / target_cells.len().max(1) as f64,
-        particles_outside: outside as f64 / particles.len().max(1) as f64,
-    }
+        .collect()
 }

@@ -228,6 +228,7 @@ fn write_run(
         g,
         spacing,
         &prep.geometry.target.positions,
+        &prep.initial.x,
         &result.final_state.x,
     );
     let losses: Vec<(f64, f64)> = result

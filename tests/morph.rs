@@ -1,0 +1,344 @@
+//! The morph end to end through the `morph` binary: a small case's loss, outputs and
+//! thread-count determinism; log against L2 ejection; `morph compare`; command-line errors.
+
+use morph::geometry::{assets, load_mesh};
+use morph::io::massgrid::MassGrid;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("morph-tests");
+    std::fs::create_dir_all(&dir).unwrap();
+    let p = dir.join(name);
+    let _ = std::fs::remove_dir_all(&p);
+    p
+}
+
+fn morph(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_morph"))
+        .current_dir(root())
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn manifest(dir: &Path) -> serde_json::Value {
+    serde_json::from_slice(&std::fs::read(dir.join("manifest.json")).unwrap()).unwrap()
+}
+
+/// Floats of a frame PLY written by morph (7 float32 per particle after the header).
+fn ply_floats(path: &Path) -> (usize, Vec<f32>) {
+    let bytes = std::fs::read(path).unwrap();
+    let end = b"end_header\n";
+    let at = bytes.windows(end.len()).position(|w| w == end).unwrap() + end.len();
+    let header = std::str::from_utf8(&bytes[..at]).unwrap();
+    assert!(header.starts_with("ply\nformat binary_little_endian 1.0\n"));
+    let n: usize = header
+        .lines()
+        .find_map(|l| l.strip_prefix("element vertex "))
+        .unwrap()
+        .parse()
+        .unwrap();
+    let floats: Vec<f32> = bytes[at..]
+        .chunks_exact(4)
+        .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
+        .collect();
+    assert_eq!(floats.len(), 7 * n);
+    (n, floats)
+}
+
+const SMALL: &[&str] = &[
+    "assets/sphere.obj",
+    "assets/cube.obj",
+    "--resolution",
+    "16",
+    "--segments",
+    "2",
+    "--passes",
+    "1",
+    "--iterations",
+    "10",
+    "--frame-every",
+    "10",
+];
+
+/// Done-when 3: a small morph cuts the loss by at least 80%, every frame is finite and inside
+/// the grid, the folder has the documented layout, and 1 and 2 threads give the same bytes.
+#[test]
+fn small_morph_end_to_end_and_thread_independent() {
+    let mut outputs = Vec::new();
+    for threads in ["1", "2"] {
+        let out = scratch(&format!("small-{threads}"));
+        let mut args = vec!["--threads", threads];
+        args.extend_from_slice(SMALL);
+        args.extend_from_slice(&["-o", out.to_str().unwrap(), "--quiet"]);
+        let r = morph(&args);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        assert!(
+            r.stdout.is_empty() && r.stderr.is_empty(),
+            "--quiet prints nothing"
+        );
+        outputs.push(out);
+    }
+    let (a, b) = (&outputs[0], &outputs[1]);
+    let m = manifest(a);
+    let (initial, fin) = (
+        m["initial_loss"].as_f64().unwrap(),
+        m["final_loss"].as_f64().unwrap(),
+    );
+    assert!(fin <= 0.2 * initial, "loss {initial} -> {fin}");
+
+    // Layout and contents.
+    assert!(!morph::morph::output::partial_dir(a).exists());
+    let frames = m["frames"].as_array().unwrap();
+    assert_eq!(frames.len(), 2 * 30 / 10 + 1);
+    let cells = m["grid_cells"].as_array().unwrap();
+    assert_eq!(cells.iter().map(|c| c.as_u64().unwrap()).max(), Some(16));
+    let to_world = &m["sim_to_world"];
+    let scale = to_world["scale"].as_f64().unwrap();
+    for f in frames {
+        let (n, floats) = ply_floats(&a.join(f["points"].as_str().unwrap()));
+        assert_eq!(n as u64, m["particles"].as_u64().unwrap());
+        assert!(floats.iter().all(|v| v.is_finite()));
+        // Inside the domain (world units): |x| within the grid's half extent from its centre.
+        let half = 0.5 * 16.0 * (32.0 / 16.0) * scale;
+        let shift: Vec<f64> = (0..3)
+            .map(|i| to_world["translation"][i].as_f64().unwrap())
+            .collect();
+        for p in floats.chunks_exact(7) {
+            for i in 0..3 {
+                assert!(((p[i] as f64) - shift[i]).abs() < half * 1.0001);
+            }
+            assert!(p[6] > 0.0, "J must stay positive");
+        }
+        let mesh = load_mesh(&a.join(f["mesh"].as_str().unwrap()))
+            .unwrap()
+            .mesh;
+        assert!(mesh.topology().is_closed());
+    }
+    for name in ["loss.png", "preview.png"] {
+        let bytes = std::fs::read(a.join(name)).unwrap();
+        assert_eq!(&bytes[1..4], b"PNG", "{name}");
+    }
+    assert_eq!(m["target"]["scale"].as_f64().map(|s| s > 0.0), Some(true));
+    assert_eq!(m["inputs"][0]["sha256"].as_str().unwrap().len(), 64);
+    let grid = MassGrid::read(&a.join("final_mass.mgrid")).unwrap();
+    assert!(grid.values.iter().all(|v| v.is_finite() && *v >= 0.0));
+
+    // Same bytes for 1 and 2 threads: mass grid and every frame.
+    for rel in [
+        "final_mass.mgrid",
+        "frames/frame_0007.ply",
+        "meshes/frame_0007.obj",
+    ] {
+        assert!(
+            std::fs::read(a.join(rel)).unwrap() == std::fs::read(b.join(rel)).unwrap(),
+            "{rel} differs between 1 and 2 threads"
+        );
+    }
+    let r = morph(&[
+        "compare",
+        a.join("final_mass.mgrid").to_str().unwrap(),
+        b.join("final_mass.mgrid").to_str().unwrap(),
+        "--rtol",
+        "0",
+        "--atol",
+        "0",
+    ]);
+    assert_eq!(r.status.code(), Some(0));
+}
+
+/// Done-when 4: on a case built to provoke ejection (a ball into a thin ring around its own
+/// centre: the ball's core has nowhere near to go), the L2 loss flings particles into empty
+/// space and the log loss does not.
+#[test]
+fn log_loss_ejects_fewer_particles_than_l2() {
+    let ring = scratch("ring.obj");
+    assets::torus(1.0, 0.25, 96, 16).write_obj(&ring).unwrap();
+    let mut ejected = Vec::new();
+    for loss in ["log", "l2"] {
+        let out = scratch(&format!("ring-{loss}"));
+        let r = morph(&[
+            "assets/sphere.obj",
+            ring.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--resolution",
+            "24",
+            "--segments",
+            "3",
+            "--passes",
+            "1",
+            "--iterations",
+            "10",
+            "--no-surfaces",
+            "--frame-every",
+            "30",
+            "--quiet",
+            "--loss",
+            loss,
+        ]);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        let fill = &manifest(&out)["fill"];
+        eprintln!("{loss}: {fill}");
+        ejected.push(fill["particles_ejected"].as_f64().unwrap());
+    }
+    assert!(
+        ejected[1] > 0.02,
+        "the case must provoke L2 ejection: {ejected:?}"
+    );
+    assert!(
+        ejected[0] < 0.5 * ejected[1],
+        "log {} vs L2 {}",
+        ejected[0],
+        ejected[1]
+    );
+}
+
+fn write_grid(name: &str, dims: [usize; 3], f: impl Fn(usize) -> f64) -> PathBuf {
+    let path = scratch(name);
+    let n = dims.iter().product();
+    MassGrid::new(dims, [0.0, 1.0, 2.0], 0.5, (0..n).map(f).collect())
+        .write(&path)
+        .unwrap();
+    path
+}
+
+/// Done-when 5: `morph compare` on equal, slightly different and incompatible grids.
+#[test]
+fn compare_equal_different_incompatible() {
+    let a = write_grid("a.mgrid", [4, 5, 6], |i| i as f64 * 0.25);
+    let same = write_grid("same.mgrid", [4, 5, 6], |i| i as f64 * 0.25);
+    let close = write_grid("close.mgrid", [4, 5, 6], |i| i as f64 * 0.25 * (1.0 + 1e-4));
+    let other = write_grid("other.mgrid", [4, 5, 7], |i| i as f64);
+    let s = |p: &PathBuf| p.to_str().unwrap().to_string();
+    let run = |args: &[String]| {
+        let r = Command::new(env!("CARGO_BIN_EXE_morph"))
+            .args(args)
+            .output()
+            .unwrap();
+        (
+            r.status.code(),
+            String::from_utf8(r.stdout).unwrap(),
+            String::from_utf8(r.stderr).unwrap(),
+        )
+    };
+    let (code, out, _) = run(&["compare".into(), s(&a), s(&same)]);
+    assert_eq!(code, Some(0));
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["max_abs_diff"].as_f64(), Some(0.0));
+    assert_eq!(v["nodes"].as_u64(), Some(120));
+
+    let (code, out, _) = run(&["compare".into(), s(&close), s(&a)]);
+    assert_eq!(
+        code,
+        Some(1),
+        "1e-4 relative is beyond the default rtol 1e-5"
+    );
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let max = v["max_abs_diff"].as_f64().unwrap();
+    assert!((max - 119.0 * 0.25 * 1e-4).abs() < 1e-12, "{max}");
+    assert!(v["mean_abs_diff"].as_f64().unwrap() < max);
+    let (code, _, _) = run(&[
+        "compare".into(),
+        s(&close),
+        s(&a),
+        "--rtol".into(),
+        "2e-4".into(),
+    ]);
+    assert_eq!(code, Some(0));
+
+    let (code, out, err) = run(&["compare".into(), s(&a), s(&other)]);
+    assert_eq!(code, Some(1));
+    assert!(
+        out.contains("incompatible") && err.contains("incompatible"),
+        "{out} {err}"
+    );
+
+    let garbage = scratch("garbage.mgrid");
+    std::fs::write(&garbage, b"not a grid").unwrap();
+    let (code, _, err) = run(&["compare".into(), s(&a), s(&garbage)]);
+    assert_eq!(code, Some(2));
+    assert!(
+        err.contains("not a morph mass grid") && err.lines().count() == 1,
+        "{err}"
+    );
+}
+
+/// Bad options exit 2 with one line; a bad mesh exits 1; an existing output is not clobbered.
+#[test]
+fn command_line_errors() {
+    let out = scratch("cli-out");
+    let o = out.to_str().unwrap();
+    for (extra, code, needle) in [
+        (vec!["--resolution", "3"], 2, "--resolution"),
+        (vec!["--learning-rate", "-1"], 2, "--learning-rate"),
+        (vec!["--iterations", "0"], 2, "--iterations"),
+        (vec!["--control-stride", "50"], 2, "--control-stride"),
+        (vec!["--jitter", "nan"], 2, "--jitter"),
+        (vec!["--preset", "huge"], 2, "huge"),
+    ] {
+        let mut args = vec!["assets/sphere.obj", "assets/cube.obj", "-o", o];
+        args.extend(extra.iter().copied());
+        let r = morph(&args);
+        let err = String::from_utf8_lossy(&r.stderr);
+        assert_eq!(r.status.code(), Some(code), "{args:?}: {err}");
+        assert!(err.contains(needle), "{args:?}: {err}");
+    }
+    let r = morph(&["assets/sphere.obj", "no/such.obj", "-o", o]);
+    assert_eq!(r.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(err.contains("no/such.obj"));
+    assert!(!out.exists() && !morph::morph::output::partial_dir(&out).exists());
+
+    std::fs::create_dir_all(&out).unwrap();
+    std::fs::write(out.join("keep.txt"), "mine").unwrap();
+    let r = morph(&["assets/sphere.obj", "assets/cube.obj", "-o", o]);
+    assert_eq!(r.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&r.stderr).contains("--overwrite"));
+    assert_eq!(
+        std::fs::read_to_string(out.join("keep.txt")).unwrap(),
+        "mine"
+    );
+
+    let r = morph(&["assets/sphere.obj"]);
+    assert_eq!(r.status.code(), Some(2));
+    let help = morph(&["--help"]);
+    let text = String::from_utf8_lossy(&help.stdout);
+    for section in ["EXIT CODES", "OUTPUT", "PRESETS", "EXAMPLES"] {
+        assert!(text.contains(section), "{section}");
+    }
+}
+
+/// `--json` prints one JSON object per line, ending with the written summary.
+#[test]
+fn json_mode_prints_one_object_per_line() {
+    let out = scratch("json");
+    let mut args: Vec<&str> = SMALL[..4].to_vec();
+    args.extend_from_slice(&[
+        "--iterations",
+        "2",
+        "--segments",
+        "1",
+        "-o",
+        out.to_str().unwrap(),
+        "--json",
+        "--no-surfaces",
+    ]);
+    let r = morph(&args);
+    assert!(r.status.success());
+    let text = String::from_utf8(r.stdout).unwrap();
+    let events: Vec<serde_json::Value> = text
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    assert_eq!(events[0]["event"], "setup");
+    assert!(events.iter().any(|e| e["event"] == "iteration"));
+    assert_eq!(events.last().unwrap()["event"], "written");
+    assert!(!out.join("meshes").exists());
+}
