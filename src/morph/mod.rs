@@ -231,6 +231,7 @@ pub fn run(
             on_frame(frame, 0, &state)?;
             frame += 1;
         }
+        #[allow(clippy::needless_range_loop)] // k also numbers steps, events and records
         for k in 0..s.segments {
             let seg_clock = Instant::now();
             let segment = Segment {
@@ -282,7 +283,7 @@ pub fn run(
                 let tape = &result.tape;
                 for local in 1..=s.steps_per_segment {
                     let global = k * s.steps_per_segment + local;
-                    if global % s.frame_every == 0 {
+                    if global.is_multiple_of(s.frame_every) {
                         let st = if local < s.steps_per_segment {
                             &tape.steps[local].pre
                         } else {

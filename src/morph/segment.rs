@@ -252,7 +252,7 @@ impl Segment<'_> {
                 let g = &grads[0];
                 let norm = g.iter().map(|m| m.norm_squared()).sum::<f64>().sqrt();
                 let g0 = *g0_norm.get_or_insert(norm);
-                if !(norm > s.gd_tol * g0) || norm == 0.0 {
+                if norm <= s.gd_tol * g0 || norm == 0.0 || !norm.is_finite() {
                     break;
                 }
                 let start = accepted.tape.steps[from_step].pre.clone();
