@@ -130,6 +130,22 @@ impl Segment<'_> {
         Ok(grads.controls.into_iter().flatten().collect())
     }
 
+    /// The segment objective (mass loss + arrival term) for `layers`, and its gradient with
+    /// respect to every layer: what the optimizers use, exposed for finite-difference tests.
+    pub fn objective_and_gradient(
+        &self,
+        layers: &[Vec<Matrix3<f64>>],
+    ) -> Result<(f64, Vec<Vec<Matrix3<f64>>>), SimError> {
+        let r = self.rollout(self.start, layers, 0)?;
+        let g = self.gradient(&r, layers, 0)?;
+        Ok((r.loss, g))
+    }
+
+    /// The objective alone.
+    pub fn objective(&self, layers: &[Vec<Matrix3<f64>>]) -> Result<f64, SimError> {
+        Ok(self.rollout(self.start, layers, 0)?.loss)
+    }
+
     /// Optimizes the segment from `initial` controls (one per layer). `on_iteration` gets the
     /// loss of every accepted evaluation.
     pub fn optimize(
