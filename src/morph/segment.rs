@@ -40,6 +40,9 @@ pub struct OptimizerSettings {
     pub gd_tol: f64,
 }
 
+/// Controls of a segment: one `Fc` per particle for each control layer.
+pub type Layers = Vec<Vec<Matrix3<f64>>>;
+
 /// What a segment's optimization returns: the best controls found and their rollout.
 pub struct SegmentResult {
     pub layers: Vec<Vec<Matrix3<f64>>>,
@@ -135,7 +138,7 @@ impl Segment<'_> {
     pub fn objective_and_gradient(
         &self,
         layers: &[Vec<Matrix3<f64>>],
-    ) -> Result<(f64, Vec<Vec<Matrix3<f64>>>), SimError> {
+    ) -> Result<(f64, Layers), SimError> {
         let r = self.rollout(self.start, layers, 0)?;
         let g = self.gradient(&r, layers, 0)?;
         Ok((r.loss, g))
