@@ -45,7 +45,7 @@ pub type Layers = Vec<Vec<Matrix3<f64>>>;
 
 /// What a segment's optimization returns: the best controls found and their rollout.
 pub struct SegmentResult {
-    pub layers: Vec<Vec<Matrix3<f64>>>,
+    pub layers: Layers,
     pub loss: f64,
     pub initial_loss: f64,
     /// The accepted rollout: states at the start of every step, and the last state.
@@ -119,7 +119,7 @@ impl Segment<'_> {
         rollout: &Rollout,
         layers: &[Vec<Matrix3<f64>>],
         from: usize,
-    ) -> Result<Vec<Vec<Matrix3<f64>>>, SimError> {
+    ) -> Result<Layers, SimError> {
         let last = &rollout.tape.last;
         let mass = self.sim.mass_grid(&last.x)?;
         let (_, grad_m) = self.loss.value_and_grad(&mass);
@@ -153,7 +153,7 @@ impl Segment<'_> {
     /// loss of every accepted evaluation.
     pub fn optimize(
         &self,
-        initial: Vec<Vec<Matrix3<f64>>>,
+        initial: Layers,
         settings: &OptimizerSettings,
         mut on_iteration: impl FnMut(usize, f64),
     ) -> Result<SegmentResult, SimError> {
@@ -166,7 +166,7 @@ impl Segment<'_> {
 
     fn adam(
         &self,
-        mut layers: Vec<Vec<Matrix3<f64>>>,
+        mut layers: Layers,
         s: &OptimizerSettings,
         on_iteration: &mut dyn FnMut(usize, f64),
     ) -> Result<SegmentResult, SimError> {
@@ -180,7 +180,7 @@ impl Segment<'_> {
         let mut current = self.rollout(self.start, &layers, 0)?;
         let initial_loss = current.loss;
         let mut evaluations = 1;
-        let mut best: Option<(Vec<Vec<Matrix3<f64>>>, Rollout)> = None;
+        let mut best: Option<(Layers, Rollout)> = None;
         let mut lr = s.learning_rate;
         let mut t = 0;
         let mut iteration = 0;
@@ -241,7 +241,7 @@ impl Segment<'_> {
 
     fn line_search(
         &self,
-        mut layers: Vec<Vec<Matrix3<f64>>>,
+        mut layers: Layers,
         s: &OptimizerSettings,
         on_iteration: &mut dyn FnMut(usize, f64),
     ) -> Result<SegmentResult, SimError> {
