@@ -6,6 +6,7 @@
 //! reference benchmark workload).
 
 pub mod bench;
+pub mod control;
 pub mod effects;
 pub mod geometry;
 pub mod io;
@@ -13,4 +14,5 @@ pub mod loss;
 pub mod material;
 pub mod morph;
 pub mod mpm;
+pub mod ode;
 pub mod scene;

@@ -1,0 +1,246 @@
+//! The rope scene: a hyperelastic (fixed-corotated) rope clamped at one end, released
+//! horizontal at rest under gravity, so it falls and swings like a heavy pendulum while its
+//! elastic modes ring. The controller moves the clamped end (a prescribed-velocity region,
+//! bounded speed in the swing plane) and/or pushes the free tip (a bounded body force).
+//! Units are SI. docs/control.md gives the numbers and why they were chosen.
+
+use crate::material::FixedCorotated;
+use crate::mpm::{GridSpec, KernelKind, SimError};
+use crate::ode::{
+    ControlEffect, ControlKind, ControlPlan, Interpolation, OdeState, OdeSystem, Schedule,
+};
+use nalgebra::Vector3;
+use serde::Serialize;
+use std::sync::Arc;
+
+/// What the controller may move.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum Actuation {
+    /// Velocity of the clamped end, in the swing plane.
+    Clamp,
+    /// A body force on the free quarter of the rope, in the swing plane.
+    TipForce,
+    /// Both.
+    Both,
+}
+
+/// Rope scene settings (all SI).
+#[derive(Clone, Debug, Serialize)]
+pub struct RopeConfig {
+    pub length: f64,
+    /// Grid cells along the rope (dx = length / cells_along).
+    pub cells_along: usize,
+    /// Square cross-section side, in cells.
+    pub thickness_cells: usize,
+    /// Particles per cell per axis.
+    pub particles_per_cell: usize,
+    pub density: f64,
+    pub youngs_modulus: f64,
+    pub poisson_ratio: f64,
+    pub gravity: f64,
+    pub dt: f64,
+    /// Simulated steps (the control horizon).
+    pub steps: usize,
+    /// Length of the clamped end, in cells.
+    pub clamp_cells: usize,
+    pub kernel: KernelKind,
+    pub actuation: Actuation,
+    pub interpolation: Interpolation,
+    /// Steps per control interval.
+    pub control_interval: usize,
+    /// Largest clamp speed per axis (m/s).
+    pub max_clamp_speed: f64,
+    /// Largest tip acceleration per axis (m/s^2).
+    pub max_tip_acceleration: f64,
+}
+
+impl Default for RopeConfig {
+    fn default() -> Self {
+        RopeConfig {
+            length: 0.5,
+            cells_along: 16,
+            thickness_cells: 1,
+            particles_per_cell: 2,
+            density: 1000.0,
+            youngs_modulus: 1.0e5,
+            poisson_ratio: 0.3,
+            gravity: 9.81,
+            dt: 2.0e-3,
+            steps: 750,
+            clamp_cells: 1,
+            kernel: KernelKind::Quadratic,
+            actuation: Actuation::Clamp,
+            interpolation: Interpolation::Linear,
+            control_interval: 10,
+            max_clamp_speed: 0.3,
+            max_tip_acceleration: 5.0,
+        }
+    }
+}
+
+/// A built rope: the ODE system and its initial state.
+pub struct Rope {
+    pub system: OdeSystem,
+    pub initial: OdeState,
+    pub config: RopeConfig,
+}
+
+impl RopeConfig {
+    pub fn dx(&self) -> f64 {
+        self.length / self.cells_along as f64
+    }
+
+    fn check(&self) -> Result<(), SimError> {
+        let bad = |m: String| Err(SimError::InvalidScene(m));
+        let positive = [
+            ("length", self.length),
+            ("density", self.density),
+            ("youngs modulus", self.youngs_modulus),
+            ("dt", self.dt),
+        ];
+        for (name, v) in positive {
+            if !(v.is_finite() && v > 0.0) {
+                return bad(format!("rope {name} must be positive and finite, got {v}"));
+            }
+        }
+        for (name, v) in [
+            ("gravity", self.gravity),
+            ("max clamp speed", self.max_clamp_speed),
+            ("max tip acceleration", self.max_tip_acceleration),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return bad(format!("rope {name} must be finite and >= 0, got {v}"));
+            }
+        }
+        if !(self.poisson_ratio.is_finite() && (0.0..0.5).contains(&self.poisson_ratio)) {
+            return bad(format!(
+                "Poisson ratio must be in [0, 0.5), got {}",
+                self.poisson_ratio
+            ));
+        }
+        if !(4..=256).contains(&self.cells_along) {
+            return bad(format!(
+                "cells along the rope must be in 4..=256, got {}",
+                self.cells_along
+            ));
+        }
+        if self.thickness_cells == 0 || self.particles_per_cell == 0 || self.particles_per_cell > 4
+        {
+            return bad("thickness needs >= 1 cell and 1..=4 particles per cell".into());
+        }
+        if self.clamp_cells == 0 || self.clamp_cells >= self.cells_along {
+            return bad(format!(
+                "the clamp must cover 1..{} cells, got {}",
+                self.cells_along, self.clamp_cells
+            ));
+        }
+        if self.steps == 0 {
+            return bad("the horizon must have at least one step".into());
+        }
+        if self.control_interval == 0 || self.steps % self.control_interval != 0 {
+            return bad(format!(
+                "the control interval ({} steps) must be >= 1 and divide the horizon ({} steps)",
+                self.control_interval, self.steps
+            ));
+        }
+        Ok(())
+    }
+
+    /// Builds the rope: particles on a regular sub-cell lattice, the grid large enough for the
+    /// rope to swing through a full circle around the clamp even after the clamp has drifted
+    /// at full speed for the whole horizon.
+    pub fn build(&self) -> Result<Rope, SimError> {
+        self.check()?;
+        let dx = self.dx();
+        let ppc = self.particles_per_cell;
+        let h = dx / ppc as f64;
+        let (nl, nt) = (self.cells_along * ppc, self.thickness_cells * ppc);
+        let half_t = 0.5 * self.thickness_cells as f64 * dx;
+        let mut x = Vec::with_capacity(nl * nt * nt);
+        let mut clamped = Vec::new();
+        for i in 0..nl {
+            for j in 0..nt {
+                for k in 0..nt {
+                    let p = Vector3::new(
+                        (i as f64 + 0.5) * h,
+                        (j as f64 + 0.5) * h - half_t,
+                        (k as f64 + 0.5) * h - half_t,
+                    );
+                    if p.x < self.clamp_cells as f64 * dx {
+                        clamped.push(x.len());
+                    }
+                    x.push(p);
+                }
+            }
+        }
+        let vol = h * h * h;
+        let n = x.len();
+        let horizon = self.steps as f64 * self.dt;
+        let (use_clamp, use_tip) = match self.actuation {
+            Actuation::Clamp => (true, false),
+            Actuation::TipForce => (false, true),
+            Actuation::Both => (true, true),
+        };
+        let drift = if use_clamp {
+            self.max_clamp_speed * horizon
+        } else {
+            0.0
+        };
+        // Reach of the rope around the clamp (with 10% stretch), drift and a kernel margin.
+        let reach = 1.1 * self.length + drift + 4.0 * dx;
+        let cells_xy = (2.0 * reach / dx).ceil() as usize;
+        let cells_y = ((reach + drift + 4.0 * dx + half_t) / dx).ceil() as usize;
+        let cells_z = (2.0 * (half_t + 4.0 * dx) / dx).ceil() as usize;
+        let grid = GridSpec {
+            origin: [-reach, -reach, -0.5 * cells_z as f64 * dx],
+            dx,
+            cells: [cells_xy, cells_y.max(4), cells_z.max(4)],
+        };
+        let mut effects = Vec::new();
+        if use_clamp {
+            effects.push(ControlEffect {
+                kind: ControlKind::PrescribedVelocity,
+                name: "clamp".into(),
+                particles: clamped,
+                bound: Vector3::new(self.max_clamp_speed, self.max_clamp_speed, 0.0),
+            });
+        }
+        if use_tip {
+            let tip: Vec<usize> = (0..n).filter(|&p| x[p].x > 0.75 * self.length).collect();
+            effects.push(ControlEffect {
+                kind: ControlKind::BodyForce,
+                name: "tip-force".into(),
+                particles: tip,
+                bound: Vector3::new(self.max_tip_acceleration, self.max_tip_acceleration, 0.0),
+            });
+        }
+        let plan = ControlPlan {
+            schedule: Schedule {
+                interpolation: self.interpolation,
+                steps_per_interval: self.control_interval,
+                intervals: self.steps / self.control_interval,
+            },
+            effects,
+        };
+        let material = Arc::new(FixedCorotated::from_young_poisson(
+            self.youngs_modulus,
+            self.poisson_ratio,
+        ));
+        let system = OdeSystem::new(
+            grid,
+            self.kernel,
+            material,
+            vec![self.density * vol; n],
+            vec![vol; n],
+            Vector3::new(0.0, -self.gravity, 0.0),
+            plan,
+            self.dt,
+        )?;
+        Ok(Rope {
+            system,
+            initial: OdeState::at_rest(x),
+            config: self.clone(),
+        })
+    }
+}

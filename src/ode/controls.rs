@@ -1,0 +1,244 @@
+//! Controls of the ODE form, as effects a scene declares: body forces on a set of particles,
+//! and a prescribed velocity of a boundary region (e.g. the clamped end of a rope moved by
+//! the controller). Each control is a 3-vector sequence over control intervals, piecewise
+//! constant or piecewise linear in time, bounded per component.
+
+use crate::mpm::SimError;
+use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+
+/// How a control varies inside its intervals.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[serde(rename_all = "lowercase")]
+pub enum Interpolation {
+    /// One value per interval (`intervals` knots).
+    Constant,
+    /// Linear between knots at interval ends (`intervals + 1` knots), continuous in time.
+    Linear,
+}
+
+/// Control intervals of `steps_per_interval` steps each, shared by all controls of a scene.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Schedule {
+    pub interpolation: Interpolation,
+    pub steps_per_interval: usize,
+    pub intervals: usize,
+}
+
+impl Schedule {
+    pub fn knots(&self) -> usize {
+        match self.interpolation {
+            Interpolation::Constant => self.intervals,
+            Interpolation::Linear => self.intervals + 1,
+        }
+    }
+
+    /// Steps covered by the schedule.
+    pub fn steps(&self) -> usize {
+        self.steps_per_interval * self.intervals
+    }
+
+    /// Knots and weights of the value at fraction `theta` in [0, 1] of step `step`. A
+    /// piecewise-constant value uses the step's own interval for every RK4 stage, so a stage
+    /// at the step's end never reads the next interval.
+    pub fn knot_weights(&self, step: usize, theta: f64) -> [(usize, f64); 2] {
+        let spi = self.steps_per_interval;
+        match self.interpolation {
+            Interpolation::Constant => {
+                let j = (step / spi).min(self.intervals - 1);
+                [(j, 1.0), (j, 0.0)]
+            }
+            Interpolation::Linear => {
+                let tau = (step as f64 + theta) / spi as f64;
+                let j = (tau.floor() as usize).min(self.intervals - 1);
+                let alpha = tau - j as f64;
+                [(j, 1.0 - alpha), (j + 1, alpha)]
+            }
+        }
+    }
+}
+
+/// What a control acts on.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ControlKind {
+    /// An acceleration (force per unit mass) added to the grid forces of its particles:
+    /// `f_i += sum_p w_ip m_p b(t)`.
+    BodyForce,
+    /// Its particles move kinematically with velocity `u(t)`: they hand `m_p u` to the grid,
+    /// move with `dx/dt = u`, and ignore the grid's acceleration (a clamp the controller drives).
+    PrescribedVelocity,
+}
+
+/// One declared control: its kind, the particles it acts on and its per-component bound.
+#[derive(Clone, Debug)]
+pub struct ControlEffect {
+    pub kind: ControlKind,
+    pub name: String,
+    pub particles: Vec<usize>,
+    /// Largest allowed `|value[k]|` per component (0 freezes that component).
+    pub bound: Vector3<f64>,
+}
+
+/// Knot values per control: `params[e][j]` is control `e`'s value at knot `j`.
+pub type ControlParams = Vec<Vec<Vector3<f64>>>;
+
+/// The controls a scene declares and their common schedule.
+#[derive(Clone, Debug)]
+pub struct ControlPlan {
+    pub schedule: Schedule,
+    pub effects: Vec<ControlEffect>,
+}
+
+impl ControlPlan {
+    /// A plan with no controls (an uncontrolled scene) covering `steps` steps.
+    pub fn none(steps: usize) -> ControlPlan {
+        ControlPlan {
+            schedule: Schedule {
+                interpolation: Interpolation::Constant,
+                steps_per_interval: steps.max(1),
+                intervals: 1,
+            },
+            effects: Vec::new(),
+        }
+    }
+
+    /// Checks the schedule, particle sets and bounds against `n` particles.
+    pub fn validate(&self, n: usize) -> Result<(), SimError> {
+        let bad = |m: String| Err(SimError::InvalidScene(m));
+        let s = &self.schedule;
+        if s.steps_per_interval == 0 {
+            return bad("control interval must be at least 1 step".into());
+        }
+        if s.intervals == 0 {
+            return bad("control schedule needs at least one interval".into());
+        }
+        let mut clamped = vec![false; n];
+        for e in &self.effects {
+            if e.particles.is_empty() {
+                return bad(format!("control '{}' acts on no particles", e.name));
+            }
+            if let Some(&p) = e.particles.iter().find(|&&p| p >= n) {
+                return bad(format!(
+                    "control '{}' names particle {p}, but the scene has {n}",
+                    e.name
+                ));
+            }
+            if !e.bound.iter().all(|b| b.is_finite() && *b >= 0.0) {
+                return bad(format!(
+                    "control '{}' has bound ({}, {}, {}); bounds must be finite and >= 0",
+                    e.name, e.bound[0], e.bound[1], e.bound[2]
+                ));
+            }
+            if e.kind == ControlKind::PrescribedVelocity {
+                for &p in &e.particles {
+                    if std::mem::replace(&mut clamped[p], true) {
+                        return bad(format!(
+                            "particle {p} is in two prescribed-velocity regions (last '{}')",
+                            e.name
+                        ));
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// All-zero knot values.
+    pub fn zero_params(&self) -> ControlParams {
+        vec![vec![Vector3::zeros(); self.schedule.knots()]; self.effects.len()]
+    }
+
+    /// Checks that `params` has one finite value per knot of every control.
+    pub fn check_params(&self, params: &ControlParams) -> Result<(), SimError> {
+        if params.len() != self.effects.len() {
+            return Err(SimError::InvalidScene(format!(
+                "{} control sequences for {} controls",
+                params.len(),
+                self.effects.len()
+            )));
+        }
+        for (e, knots) in self.effects.iter().zip(params) {
+            if knots.len() != self.schedule.knots() {
+                return Err(SimError::InvalidScene(format!(
+                    "control '{}' has {} knots, its schedule {}",
+                    e.name,
+                    knots.len(),
+                    self.schedule.knots()
+                )));
+            }
+            if let Some(j) = knots.iter().position(|k| !k.iter().all(|a| a.is_finite())) {
+                return Err(SimError::InvalidScene(format!(
+                    "control '{}' knot {j} is not finite",
+                    e.name
+                )));
+            }
+        }
+        Ok(())
+    }
+
+    /// Clamps every knot into its control's bounds (the optimizers' projection).
+    pub fn project(&self, params: &mut ControlParams) {
+        for (e, knots) in self.effects.iter().zip(params.iter_mut()) {
+            for k in knots.iter_mut() {
+                for a in 0..3 {
+                    k[a] = k[a].clamp(-e.bound[a], e.bound[a]);
+                }
+            }
+        }
+    }
+
+    /// Each control's value at fraction `theta` of step `step`.
+    pub fn values(&self, params: &ControlParams, step: usize, theta: f64) -> Vec<Vector3<f64>> {
+        let kw = self.schedule.knot_weights(step, theta);
+        params
+            .iter()
+            .map(|knots| kw.iter().map(|&(j, w)| w * knots[j]).sum())
+            .collect()
+    }
+
+    /// Reverse of [`ControlPlan::values`]: adds dL/d(values) into the knot gradients.
+    pub fn values_reverse(
+        &self,
+        step: usize,
+        theta: f64,
+        grad_values: &[Vector3<f64>],
+        grad_params: &mut ControlParams,
+    ) {
+        let kw = self.schedule.knot_weights(step, theta);
+        for (g, gk) in grad_values.iter().zip(grad_params.iter_mut()) {
+            for &(j, w) in &kw {
+                gk[j] += w * g;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn linear_schedule_is_continuous_and_constant_stays_in_its_interval() {
+        let lin = Schedule {
+            interpolation: Interpolation::Linear,
+            steps_per_interval: 4,
+            intervals: 3,
+        };
+        // End of step 3 and start of step 4 are the same instant: knot 1.
+        let a = lin.knot_weights(3, 1.0);
+        let b = lin.knot_weights(4, 0.0);
+        let at = |kw: [(usize, f64); 2], j: usize| {
+            kw.iter().filter(|k| k.0 == j).map(|k| k.1).sum::<f64>()
+        };
+        assert!((at(a, 1) - 1.0).abs() < 1e-15 && (at(b, 1) - 1.0).abs() < 1e-15);
+        // The last stage of the last step reaches the final knot.
+        assert_eq!(lin.knot_weights(11, 1.0)[1], (3, 1.0));
+        let con = Schedule {
+            interpolation: Interpolation::Constant,
+            ..lin
+        };
+        assert_eq!(con.knot_weights(3, 1.0)[0], (0, 1.0));
+        assert_eq!(con.knot_weights(4, 0.0)[0], (1, 1.0));
+    }
+}

@@ -1,0 +1,525 @@
+//! The right-hand side `dS/dt = f(S, u, t)` of the ODE form and its reverse (a
+//! vector-Jacobian product), for S = {x, v, F}:
+//!
+//! - P2G: `m_i = sum w m_p`, `p_i = sum w m_p v~_p`, `f_i = sum w (K_p (x_i - x_p) + m_p b_p)`;
+//! - grid: `v_i = p_i / m_i`, `a_i = f_i / m_i + g`;
+//! - G2P: `dx_p/dt = sum w v_i`, `dv_p/dt = sum w a_i`, `dF_p/dt = B_p F_p`.
+//!
+//! Particles of a prescribed-velocity control use `v~_p = u(t)`, `dx_p/dt = u(t)` and
+//! `dv_p/dt = 0`. With the same MLS gradient in the force and in `B_p`, the semi-discrete
+//! system conserves kinetic + elastic + gravitational energy exactly: the only losses left are
+//! the integrator's (see docs/control.md).
+
+use super::controls::{ControlKind, ControlParams, ControlPlan};
+use super::state::OdeState;
+use super::transfer::{self, Gathered, Node, ScatterInputs};
+use crate::material::ConstitutiveModel;
+use crate::mpm::SimError;
+use crate::mpm::grid::{Bins, GridSpec, SharedMut};
+use crate::mpm::kernel::{KernelKind, Stencil};
+use crate::mpm::stress::StressInputs;
+use nalgebra::{Matrix3, Vector3};
+use rayon::prelude::*;
+use std::sync::Arc;
+
+/// A scene in ODE form: grid, kernel, material, particles, gravity and declared controls.
+#[derive(Debug)]
+pub struct OdeSystem {
+    pub grid: GridSpec,
+    pub kernel: KernelKind,
+    pub material: Arc<dyn ConstitutiveModel>,
+    pub mass: Vec<f64>,
+    pub volume: Vec<f64>,
+    pub gravity: Vector3<f64>,
+    pub controls: ControlPlan,
+    /// Integrator time step.
+    pub dt: f64,
+    /// Prescribed-velocity control of each particle (`u32::MAX` for free particles).
+    clamp_of: Vec<u32>,
+}
+
+const FREE: u32 = u32::MAX;
+
+/// dL/d(inputs) of one right-hand-side evaluation.
+pub struct RhsGrad {
+    pub state: OdeState,
+    /// dL/d(control values) at the evaluation time, one per control.
+    pub controls: Vec<Vector3<f64>>,
+}
+
+impl OdeSystem {
+    pub fn new(
+        grid: GridSpec,
+        kernel: KernelKind,
+        material: Arc<dyn ConstitutiveModel>,
+        mass: Vec<f64>,
+        volume: Vec<f64>,
+        gravity: Vector3<f64>,
+        controls: ControlPlan,
+        dt: f64,
+    ) -> Result<OdeSystem, SimError> {
+        grid.validate()?;
+        if !(dt.is_finite() && dt > 0.0) {
+            return Err(SimError::InvalidScene(format!(
+                "dt must be positive and finite, got {dt}"
+            )));
+        }
+        let n = mass.len();
+        if volume.len() != n {
+            return Err(SimError::InvalidScene(
+                "mass and volume lengths differ".into(),
+            ));
+        }
+        if let Some(p) = (0..n).find(|&p| {
+            !(mass[p].is_finite() && mass[p] > 0.0 && volume[p].is_finite() && volume[p] > 0.0)
+        }) {
+            return Err(SimError::InvalidScene(format!(
+                "particle {p} has mass {} and volume {}; both must be positive and finite",
+                mass[p], volume[p]
+            )));
+        }
+        if !gravity.iter().all(|g| g.is_finite()) {
+            return Err(SimError::InvalidScene("gravity is not finite".into()));
+        }
+        controls.validate(n)?;
+        let mut clamp_of = vec![FREE; n];
+        for (e, c) in controls.effects.iter().enumerate() {
+            if c.kind == ControlKind::PrescribedVelocity {
+                for &p in &c.particles {
+                    clamp_of[p] = e as u32;
+                }
+            }
+        }
+        let sys = OdeSystem {
+            grid,
+            kernel,
+            material,
+            mass,
+            volume,
+            gravity,
+            controls,
+            dt,
+            clamp_of,
+        };
+        // Same elastic bound as the engine; RK4's stability region on the imaginary axis
+        // (|h w| < 2.8) leaves a margin above it.
+        let c = sys.wave_speed();
+        let limit = sys.grid.dx / c;
+        if dt > limit {
+            return Err(SimError::UnstableTimeStep {
+                dt,
+                limit,
+                wave_speed: c,
+                dx: sys.grid.dx,
+            });
+        }
+        Ok(sys)
+    }
+
+    pub fn num_particles(&self) -> usize {
+        self.mass.len()
+    }
+
+    pub fn inv_d(&self) -> f64 {
+        self.kernel.inv_d(self.grid.dx)
+    }
+
+    /// Elastic wave speed `sqrt(modulus / density)` of the densest particle.
+    pub fn wave_speed(&self) -> f64 {
+        let rho = self
+            .mass
+            .iter()
+            .zip(&self.volume)
+            .map(|(m, v)| m / v)
+            .fold(0.0f64, f64::max);
+        if rho > 0.0 {
+            (self.material.wave_modulus() / rho).sqrt()
+        } else {
+            0.0
+        }
+    }
+
+    /// Whether particle `p` moves with a prescribed velocity.
+    pub fn is_clamped(&self, p: usize) -> bool {
+        self.clamp_of[p] != FREE
+    }
+
+    /// The velocity particle `p` carries to the grid given the control values.
+    #[inline]
+    pub fn transfer_velocity(
+        &self,
+        s: &OdeState,
+        values: &[Vector3<f64>],
+        p: usize,
+    ) -> Vector3<f64> {
+        match self.clamp_of[p] {
+            FREE => s.v[p],
+            e => values[e as usize],
+        }
+    }
+
+    /// Kinetic energy `1/2 sum m |v~|^2` (clamped particles at their prescribed velocity).
+    pub fn kinetic_energy(&self, s: &OdeState, values: &[Vector3<f64>]) -> f64 {
+        (0..s.len())
+            .map(|p| 0.5 * self.mass[p] * self.transfer_velocity(s, values, p).norm_squared())
+            .sum()
+    }
+
+    /// Reverse of [`OdeSystem::kinetic_energy`] scaled by `weight`: adds into `grad_v` and the
+    /// control-value gradients.
+    pub fn kinetic_energy_reverse(
+        &self,
+        s: &OdeState,
+        values: &[Vector3<f64>],
+        weight: f64,
+        grad_v: &mut [Vector3<f64>],
+        grad_values: &mut [Vector3<f64>],
+    ) {
+        for p in 0..s.len() {
+            let g = weight * self.mass[p] * self.transfer_velocity(s, values, p);
+            match self.clamp_of[p] {
+                FREE => grad_v[p] += g,
+                e => grad_values[e as usize] += g,
+            }
+        }
+    }
+
+    /// Elastic energy `sum V psi(F)`.
+    pub fn elastic_energy(&self, s: &OdeState) -> f64 {
+        s.f.iter()
+            .zip(&self.volume)
+            .map(|(f, v)| v * self.material.energy_density(f))
+            .sum()
+    }
+
+    /// Gravitational potential energy `-sum m g . x`.
+    pub fn potential_energy(&self, s: &OdeState) -> f64 {
+        s.x.iter()
+            .zip(&self.mass)
+            .map(|(x, m)| -m * self.gravity.dot(x))
+            .sum()
+    }
+
+    /// Per-particle body accelerations from the body-force controls.
+    fn body_accelerations(&self, values: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
+        let mut b = vec![Vector3::zeros(); self.num_particles()];
+        for (e, c) in self.controls.effects.iter().enumerate() {
+            if c.kind == ControlKind::BodyForce {
+                for &p in &c.particles {
+                    b[p] += values[e];
+                }
+            }
+        }
+        b
+    }
+
+    fn stress_inputs(&self, p: usize) -> StressInputs<'_> {
+        // With dt = 1 and mass = 0 the engine's affine momentum is exactly K_p.
+        StressInputs {
+            model: self.material.as_ref(),
+            mass: 0.0,
+            volume: self.volume[p],
+            dt: 1.0,
+            inv_d: self.inv_d(),
+        }
+    }
+
+    /// Evaluates `f(S, u)` into `out`. `values` are the controls' values at this time; `step`
+    /// labels errors.
+    pub fn rhs(
+        &self,
+        s: &OdeState,
+        values: &[Vector3<f64>],
+        step: usize,
+        out: &mut OdeState,
+    ) -> Result<(), SimError> {
+        match self.kernel {
+            KernelKind::Quadratic => self.rhs_impl::<3>(s, values, step, out),
+            KernelKind::Cubic => self.rhs_impl::<4>(s, values, step, out),
+        }
+    }
+
+    /// Reverse of [`OdeSystem::rhs`] at state `s`: `grad_out` is dL/d(dS/dt).
+    pub fn rhs_reverse(
+        &self,
+        s: &OdeState,
+        values: &[Vector3<f64>],
+        grad_out: &OdeState,
+    ) -> RhsGrad {
+        match self.kernel {
+            KernelKind::Quadratic => self.rhs_reverse_impl::<3>(s, values, grad_out),
+            KernelKind::Cubic => self.rhs_reverse_impl::<4>(s, values, grad_out),
+        }
+    }
+
+    /// Forward pieces shared by the evaluation and its reverse.
+    fn forward_grid<const N: usize>(
+        &self,
+        s: &OdeState,
+        values: &[Vector3<f64>],
+        step: usize,
+    ) -> Result<Forward, SimError> {
+        let n = s.len();
+        let (strides, origin, dx) = (self.grid.strides(), self.grid.origin_vec(), self.grid.dx);
+        let bins = Bins::build(&self.grid, &s.x, N, step)?;
+        let body = self.body_accelerations(values);
+        let stress_force: Vec<Matrix3<f64>> = (0..n)
+            .into_par_iter()
+            .map(|p| {
+                let pk = self.material.stress(&s.f[p]);
+                self.stress_inputs(p)
+                    .affine_from_stress(&Matrix3::zeros(), &s.f[p], &pk)
+            })
+            .collect();
+        let mut nodes = vec![[0.0; 7]; self.grid.node_count()];
+        {
+            let shared = SharedMut::new(&mut nodes);
+            bins.for_each_coloured(|p| {
+                let st = Stencil::<N>::new(&s.x[p], &origin, dx);
+                let inp = ScatterInputs {
+                    mass: self.mass[p],
+                    velocity: self.transfer_velocity(s, values, p),
+                    stress_force: stress_force[p],
+                    body_force: self.mass[p] * body[p],
+                };
+                transfer::scatter(&st, &strides, &inp, &shared);
+            });
+        }
+        let g = self.gravity;
+        let (grid_v, grid_a): (Vec<Vector3<f64>>, Vec<Vector3<f64>>) = nodes
+            .par_iter()
+            .map(|nd| {
+                if nd[0] > 0.0 {
+                    let inv_m = 1.0 / nd[0];
+                    (
+                        inv_m * Vector3::new(nd[1], nd[2], nd[3]),
+                        inv_m * Vector3::new(nd[4], nd[5], nd[6]) + g,
+                    )
+                } else {
+                    (Vector3::zeros(), Vector3::zeros())
+                }
+            })
+            .unzip();
+        let inv_d = self.inv_d();
+        let gathered: Vec<Gathered> =
+            s.x.par_iter()
+                .map(|x| {
+                    let st = Stencil::<N>::new(x, &origin, dx);
+                    transfer::gather(&st, &strides, &grid_v, &grid_a, inv_d)
+                })
+                .collect();
+        Ok(Forward {
+            bins,
+            body,
+            stress_force,
+            nodes,
+            grid_v,
+            grid_a,
+            gathered,
+        })
+    }
+
+    fn rhs_impl<const N: usize>(
+        &self,
+        s: &OdeState,
+        values: &[Vector3<f64>],
+        step: usize,
+        out: &mut OdeState,
+    ) -> Result<(), SimError> {
+        let fw = self.forward_grid::<N>(s, values, step)?;
+        let n = s.len();
+        out.x.resize(n, Vector3::zeros());
+        out.v.resize(n, Vector3::zeros());
+        out.f.resize(n, Matrix3::zeros());
+        (
+            out.x.par_iter_mut(),
+            out.v.par_iter_mut(),
+            out.f.par_iter_mut(),
+        )
+            .into_par_iter()
+            .enumerate()
+            .for_each(|(p, (dx, dv, df))| {
+                let g = &fw.gathered[p];
+                match self.clamp_of[p] {
+                    FREE => {
+                        *dx = g.velocity;
+                        *dv = g.acceleration;
+                    }
+                    e => {
+                        *dx = values[e as usize];
+                        *dv = Vector3::zeros();
+                    }
+                }
+                *df = g.grad_v * s.f[p];
+            });
+        Ok(())
+    }
+
+    fn rhs_reverse_impl<const N: usize>(
+        &self,
+        s: &OdeState,
+        values: &[Vector3<f64>],
+        grad_out: &OdeState,
+    ) -> RhsGrad {
+        let fw = self
+            .forward_grid::<N>(s, values, 0)
+            .expect("reverse pass replays a forward evaluation that succeeded");
+        let n = s.len();
+        let (strides, origin, dx) = (self.grid.strides(), self.grid.origin_vec(), self.grid.dx);
+        let inv_d = self.inv_d();
+        let mut grad = OdeState::zeros(n);
+        // dL/d(clamp velocity) per particle, summed per control afterwards (in particle order,
+        // so the result does not depend on the thread count).
+        let mut grad_u = vec![Vector3::zeros(); n];
+
+        // G2P and dF/dt reverse (scatter into the grid adjoints).
+        let nodes = self.grid.node_count();
+        let mut grad_grid_v = vec![Vector3::zeros(); nodes];
+        let mut grad_grid_a = vec![Vector3::zeros(); nodes];
+        {
+            let ggv = SharedMut::new(&mut grad_grid_v);
+            let gga = SharedMut::new(&mut grad_grid_a);
+            let gx = SharedMut::new(&mut grad.x);
+            let gf = SharedMut::new(&mut grad.f);
+            let gu = SharedMut::new(&mut grad_u);
+            fw.bins.for_each_coloured(|p| {
+                let g_out = &fw.gathered[p];
+                let g_df = grad_out.f[p];
+                let mut g = Gathered {
+                    velocity: grad_out.x[p],
+                    acceleration: grad_out.v[p],
+                    grad_v: g_df * s.f[p].transpose(),
+                };
+                if self.clamp_of[p] != FREE {
+                    // SAFETY: each particle is visited exactly once.
+                    unsafe { *gu.get(p) += g.velocity };
+                    g.velocity = Vector3::zeros();
+                    g.acceleration = Vector3::zeros();
+                }
+                let st = Stencil::<N>::new(&s.x[p], &origin, dx);
+                let d = transfer::gather_reverse(
+                    &st, &strides, &fw.grid_v, &fw.grid_a, inv_d, &g, g_out, &ggv, &gga,
+                );
+                unsafe {
+                    *gx.get(p) += d;
+                    *gf.get(p) += g_out.grad_v.transpose() * g_df;
+                }
+            });
+        }
+
+        // Grid reverse: v = p / m, a = f / m + g.
+        let grad_nodes: Vec<Node> = (0..nodes)
+            .into_par_iter()
+            .map(|i| {
+                let nd = &fw.nodes[i];
+                if nd[0] > 0.0 {
+                    let inv_m = 1.0 / nd[0];
+                    let (gv, ga) = (grad_grid_v[i], grad_grid_a[i]);
+                    let f_over_m = fw.grid_a[i] - self.gravity;
+                    let gm = -inv_m * (gv.dot(&fw.grid_v[i]) + ga.dot(&f_over_m));
+                    [
+                        gm,
+                        inv_m * gv[0],
+                        inv_m * gv[1],
+                        inv_m * gv[2],
+                        inv_m * ga[0],
+                        inv_m * ga[1],
+                        inv_m * ga[2],
+                    ]
+                } else {
+                    [0.0; 7]
+                }
+            })
+            .collect();
+
+        // P2G reverse (gather) and the stress reverse.
+        let mut grad_body = vec![Vector3::zeros(); n];
+        (
+            grad.x.par_iter_mut(),
+            grad.v.par_iter_mut(),
+            grad.f.par_iter_mut(),
+            grad_u.par_iter_mut(),
+            grad_body.par_iter_mut(),
+        )
+            .into_par_iter()
+            .enumerate()
+            .for_each(|(p, (gx, gv, gf, gu, gb))| {
+                let st = Stencil::<N>::new(&s.x[p], &origin, dx);
+                let inp = ScatterInputs {
+                    mass: self.mass[p],
+                    velocity: self.transfer_velocity(s, values, p),
+                    stress_force: fw.stress_force[p],
+                    body_force: self.mass[p] * fw.body[p],
+                };
+                let g = transfer::scatter_reverse(&st, &strides, &inp, &grad_nodes);
+                *gx += g.x;
+                match self.clamp_of[p] {
+                    FREE => *gv += g.velocity,
+                    _ => *gu += g.velocity,
+                }
+                *gb = self.mass[p] * g.body_force;
+                let (_, g_f) = self
+                    .stress_inputs(p)
+                    .affine_momentum_reverse(&s.f[p], &g.stress_force);
+                *gf += g_f;
+            });
+
+        // Per-particle control adjoints summed per control, sequentially.
+        let controls = self
+            .controls
+            .effects
+            .iter()
+            .map(|c| {
+                let src = match c.kind {
+                    ControlKind::PrescribedVelocity => &grad_u,
+                    ControlKind::BodyForce => &grad_body,
+                };
+                c.particles.iter().map(|&p| src[p]).sum()
+            })
+            .collect();
+        RhsGrad {
+            state: grad,
+            controls,
+        }
+    }
+
+    /// Checks a state before integrating it.
+    pub fn check_state(&self, s: &OdeState, step: usize) -> Result<(), SimError> {
+        if s.len() != self.num_particles() || s.v.len() != s.len() || s.f.len() != s.len() {
+            return Err(SimError::InvalidScene(format!(
+                "state has {} particles, the scene {}",
+                s.len(),
+                self.num_particles()
+            )));
+        }
+        if let Some((particle, field)) = s.first_non_finite() {
+            return Err(SimError::NonFinite {
+                step,
+                particle,
+                field,
+            });
+        }
+        Ok(())
+    }
+
+    /// The control values at fraction `theta` of step `step`.
+    pub fn control_values(
+        &self,
+        params: &ControlParams,
+        step: usize,
+        theta: f64,
+    ) -> Vec<Vector3<f64>> {
+        self.controls.values(params, step, theta)
+    }
+}
+
+/// Intermediate results of one forward evaluation.
+struct Forward {
+    bins: Bins,
+    body: Vec<Vector3<f64>>,
+    stress_force: Vec<Matrix3<f64>>,
+    nodes: Vec<Node>,
+    grid_v: Vec<Vector3<f64>>,
+    grid_a: Vec<Vector3<f64>>,
+    gathered: Vec<Gathered>,
+}

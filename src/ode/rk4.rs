@@ -1,0 +1,127 @@
+//! Classic RK4 on the ODE form, with its reverse pass.
+//!
+//! Forward: `k1 = f(S)`, `k2 = f(S + h/2 k1)`, `k3 = f(S + h/2 k2)`, `k4 = f(S + h k3)`,
+//! `S' = S + h/6 (k1 + 2 k2 + 2 k3 + k4)`, controls read at the stage times (fractions 0,
+//! 1/2, 1/2, 1 of the step). The tape keeps the four stage inputs; the reverse pass replays
+//! each stage's evaluation and runs the stages backwards:
+//! `gk4 = h/6 gS'`, `gk3 = h/3 gS' + h gS4`, `gk2 = h/3 gS' + h/2 gS3`, `gk1 = h/6 gS' + h/2 gS2`,
+//! `gS = gS' + gS1 + gS2 + gS3 + gS4` with `gSi = f_rev(Si, gki)`.
+
+use super::controls::ControlParams;
+use super::rhs::OdeSystem;
+use super::state::OdeState;
+use crate::mpm::SimError;
+
+/// Stage fractions of the step at which RK4 evaluates `f`.
+pub const STAGE_THETA: [f64; 4] = [0.0, 0.5, 0.5, 1.0];
+
+/// The four stage inputs of one step.
+pub type StepStages = [OdeState; 4];
+
+/// Recorded forward steps: the stage inputs of each step, and the first step's index.
+#[derive(Clone, Debug, Default)]
+pub struct Rk4Tape {
+    pub first_step: usize,
+    pub steps: Vec<StepStages>,
+}
+
+impl OdeSystem {
+    /// Advances `s` by one RK4 step (global index `step`, used for the control schedule and
+    /// to label errors). Returns the stage inputs when asked (for the tape).
+    pub fn rk4_step(
+        &self,
+        s: &mut OdeState,
+        params: &ControlParams,
+        step: usize,
+        record: bool,
+    ) -> Result<Option<StepStages>, SimError> {
+        let h = self.dt;
+        let n = s.len();
+        let mut k = [
+            OdeState::zeros(n),
+            OdeState::zeros(n),
+            OdeState::zeros(n),
+            OdeState::zeros(n),
+        ];
+        let mut stage = s.clone();
+        let mut stages: Vec<OdeState> = Vec::with_capacity(if record { 4 } else { 0 });
+        let scale = [0.5 * h, 0.5 * h, h];
+        for i in 0..4 {
+            if i > 0 {
+                s.combine_into(scale[i - 1], &k[i - 1], &mut stage);
+            }
+            let values = self.control_values(params, step, STAGE_THETA[i]);
+            self.rhs(&stage, &values, step, &mut k[i])?;
+            if record {
+                stages.push(stage.clone());
+            }
+        }
+        s.axpy(h / 6.0, &k[0]);
+        s.axpy(h / 3.0, &k[1]);
+        s.axpy(h / 3.0, &k[2]);
+        s.axpy(h / 6.0, &k[3]);
+        self.check_step(s, step)?;
+        Ok(record.then(|| stages.try_into().expect("four stages")))
+    }
+
+    /// Rejects a non-finite state or a particle moving more than one cell per step.
+    fn check_step(&self, s: &OdeState, step: usize) -> Result<(), SimError> {
+        if let Some((particle, field)) = s.first_non_finite() {
+            return Err(SimError::NonFinite {
+                step,
+                particle,
+                field,
+            });
+        }
+        let limit = self.grid.dx / self.dt;
+        if let Some(p) = s.v.iter().position(|v| v.norm() > limit) {
+            return Err(SimError::CflExceeded {
+                step,
+                particle: p,
+                cells: s.v[p].norm() / limit,
+                limit: 1.0,
+            });
+        }
+        Ok(())
+    }
+
+    /// Reverse of one RK4 step: turns `adj` from dL/d(S') into dL/d(S) and adds the control
+    /// knots' gradients into `grad_params`.
+    pub fn rk4_step_reverse(
+        &self,
+        stages: &StepStages,
+        params: &ControlParams,
+        step: usize,
+        adj: &mut OdeState,
+        grad_params: &mut ControlParams,
+    ) {
+        let h = self.dt;
+        let weight = [h / 6.0, h / 3.0, h / 3.0, h / 6.0];
+        // dL/d(S_i) passed on to stage i-1's k (S_i = S + scale_i k_{i-1}).
+        let scale = [0.0, 0.5 * h, 0.5 * h, h];
+        let out = adj.clone();
+        let mut carried: Option<OdeState> = None;
+        for i in (0..4).rev() {
+            let mut gk = out.clone();
+            // gk_i = w_i gS' + scale_{i+1} gS_{i+1}
+            for v in gk.x.iter_mut() {
+                *v *= weight[i];
+            }
+            for v in gk.v.iter_mut() {
+                *v *= weight[i];
+            }
+            for v in gk.f.iter_mut() {
+                *v *= weight[i];
+            }
+            if let Some(g_next) = carried.take() {
+                gk.axpy(scale[i + 1], &g_next);
+            }
+            let values = self.control_values(params, step, STAGE_THETA[i]);
+            let g = self.rhs_reverse(&stages[i], &values, &gk);
+            self.controls
+                .values_reverse(step, STAGE_THETA[i], &g.controls, grad_params);
+            adj.axpy(1.0, &g.state);
+            carried = Some(g.state);
+        }
+    }
+}
