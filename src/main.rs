@@ -244,6 +244,13 @@ enum Command {
         #[arg(long, default_value_t = 1e-8)]
         atol: f64,
     },
+    /// Active damping of a swinging rope: uncontrolled vs MPPI vs gradient control (RK4).
+    ///
+    /// A fixed-corotated rope clamped at one end is released horizontal under gravity; the
+    /// controllers move the clamp (and/or push the tip) to remove its kinetic energy. Prints
+    /// a table and writes OUT/report.json, OUT/energy.png and OUT/frames/<method>/*.ply.
+    /// Exit 0: ok; 1: the run failed; 2: bad option. Scene details: docs/control.md.
+    Rope(Box<RopeArgs>),
     /// Write the built-in meshes (sphere, torus, cube, two lobes) as OBJ into a folder.
     Assets {
         /// Destination folder.
@@ -296,6 +303,7 @@ fn main() -> ExitCode {
                 Ok(())
             }),
         Some(Command::Compare { a, b, rtol, atol }) => return compare(&a, &b, rtol, atol),
+        Some(Command::Rope(args)) => return run_rope(&args),
         Some(Command::Assets { output }) => morph::geometry::assets::write_builtin(&output)
             .map(|paths| {
                 for p in paths {
@@ -455,6 +463,191 @@ fn run_morph(args: &MorphArgs) -> ExitCode {
                 MorphError::Settings(_) => ExitCode::from(2),
                 _ => ExitCode::FAILURE,
             }
+        }
+    }
+}
+
+#[derive(clap::Args, Debug)]
+#[command(allow_negative_numbers = true)]
+struct RopeArgs {
+    /// Output folder (written as OUT.partial, renamed when complete).
+    #[arg(short, long, default_value = "rope-out")]
+    output: PathBuf,
+    /// Replace an existing output folder.
+    #[arg(long)]
+    overwrite: bool,
+    /// Print progress as JSON lines instead of a progress bar.
+    #[arg(long)]
+    json: bool,
+    /// No progress output.
+    #[arg(short, long)]
+    quiet: bool,
+    /// Simulated steps (the control horizon).
+    #[arg(long, default_value_t = 750)]
+    steps: i64,
+    /// Time step (s).
+    #[arg(long, default_value_t = 2.0e-3)]
+    dt: f64,
+    /// Grid cells along the rope (dx = 0.5 m / cells).
+    #[arg(long, default_value_t = 16)]
+    cells_along: i64,
+    /// Young's modulus (Pa).
+    #[arg(long, default_value_t = 1.0e5)]
+    youngs_modulus: f64,
+    /// What the controllers move.
+    #[arg(long, value_enum, default_value = "clamp")]
+    actuation: morph::control::rope::Actuation,
+    /// Steps per control interval.
+    #[arg(long, default_value_t = 10)]
+    control_interval: i64,
+    /// Controls inside an interval: constant or linear.
+    #[arg(long, value_enum, default_value = "linear")]
+    interpolation: morph::ode::Interpolation,
+    /// Largest clamp speed per axis (m/s).
+    #[arg(long, default_value_t = 0.3)]
+    max_clamp_speed: f64,
+    /// Largest tip acceleration per axis (m/s^2).
+    #[arg(long, default_value_t = 5.0)]
+    max_tip_acceleration: f64,
+    /// Gradient controller: steps per inner batch (N).
+    #[arg(long, default_value_t = 50)]
+    batch: i64,
+    /// Gradient controller: Adam iterations per batch.
+    #[arg(long, default_value_t = 6)]
+    iterations: i64,
+    /// Gradient controller: Adam learning rate (control units).
+    #[arg(long, default_value_t = 0.1)]
+    lr: f64,
+    /// MPPI: samples per update (K).
+    #[arg(long, default_value_t = 64)]
+    samples: i64,
+    /// MPPI: planning horizon (steps).
+    #[arg(long, default_value_t = 100)]
+    mppi_horizon: i64,
+    /// MPPI: steps committed per replanning.
+    #[arg(long, default_value_t = 10)]
+    replan: i64,
+    /// MPPI: updates per replanning.
+    #[arg(long, default_value_t = 1)]
+    refinements: i64,
+    /// MPPI: temperature, relative to the sampled costs' spread.
+    #[arg(long, default_value_t = 0.1)]
+    lambda: f64,
+    /// MPPI: noise standard deviation, as a fraction of the bound.
+    #[arg(long, default_value_t = 0.3)]
+    noise: f64,
+    /// MPPI: random seed.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// A PLY frame every this many steps (0: none).
+    #[arg(long, default_value_t = 10)]
+    frame_every: i64,
+    /// Low energy = this fraction of the uncontrolled peak kinetic energy.
+    #[arg(long, default_value_t = 0.05)]
+    low_energy: f64,
+}
+
+/// A count option: must be >= `min`.
+fn count(name: &str, v: i64, min: i64) -> Result<usize, String> {
+    if v < min {
+        Err(format!("--{name} must be at least {min}, got {v}"))
+    } else {
+        Ok(v as usize)
+    }
+}
+
+fn rope_settings(a: &RopeArgs) -> Result<morph::control::compare::RopeSettings, String> {
+    use morph::control::compare::RopeSettings;
+    let mut s = RopeSettings::default();
+    s.rope.steps = count("steps", a.steps, 1)?;
+    s.rope.dt = a.dt;
+    s.rope.cells_along = count("cells-along", a.cells_along, 4)?;
+    s.rope.youngs_modulus = a.youngs_modulus;
+    s.rope.actuation = a.actuation;
+    s.rope.control_interval = count("control-interval", a.control_interval, 1)?;
+    s.rope.interpolation = a.interpolation;
+    s.rope.max_clamp_speed = a.max_clamp_speed;
+    s.rope.max_tip_acceleration = a.max_tip_acceleration;
+    s.gradient.batch_steps = count("batch", a.batch, 1)?;
+    s.gradient.iterations = count("iterations", a.iterations, 1)?;
+    s.gradient.learning_rate = a.lr;
+    s.mppi.samples = count("samples", a.samples, 2)?;
+    s.mppi.horizon_steps = count("mppi-horizon", a.mppi_horizon, 1)?;
+    s.mppi.replan_steps = count("replan", a.replan, 1)?;
+    s.mppi.refinements = count("refinements", a.refinements, 1)?;
+    s.mppi.lambda = a.lambda;
+    s.mppi.noise = a.noise;
+    s.mppi.seed = a.seed;
+    s.frame_every = count("frame-every", a.frame_every, 0)?;
+    s.low_energy_fraction = a.low_energy;
+    Ok(s)
+}
+
+fn run_rope(args: &RopeArgs) -> ExitCode {
+    use morph::control::ControlEvent;
+    use morph::control::compare::{RopeError, rope_to_folder, table};
+    let settings = match rope_settings(args) {
+        Ok(s) => s,
+        Err(e) => {
+            eprintln!("morph: error: {e}");
+            return ExitCode::from(2);
+        }
+    };
+    if let Err(e) = settings.validate() {
+        eprintln!("morph: error: {e}");
+        return ExitCode::from(2);
+    }
+    let show = !args.quiet && !args.json && std::io::IsTerminal::is_terminal(&std::io::stderr());
+    let bar = show.then(|| {
+        let b = indicatif::ProgressBar::new((2 * settings.rope.steps) as u64);
+        b.set_style(
+            indicatif::ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {msg}")
+                .expect("valid template"),
+        );
+        b
+    });
+    let steps = settings.rope.steps as u64;
+    let on_event = |e: ControlEvent| {
+        if args.json {
+            if let Ok(line) = serde_json::to_string(&e) {
+                println!("{line}");
+            }
+        }
+        if let Some(b) = &bar {
+            let ControlEvent::Window {
+                method, step, cost, ..
+            } = &e;
+            let offset = if *method == "gradient" { steps } else { 0 };
+            b.set_position(offset + *step as u64);
+            b.set_message(format!("{method} step {step} cost {cost:.3e}"));
+        }
+    };
+    match rope_to_folder(&settings, &args.output, args.overwrite, on_event) {
+        Ok(report) => {
+            if let Some(b) = &bar {
+                b.finish_and_clear();
+            }
+            if args.json {
+                println!(
+                    "{}",
+                    serde_json::json!({"event": "written", "output": args.output, "ratios": report.ratios})
+                );
+            } else if !args.quiet {
+                print!("{}", table(&report));
+                println!("wrote {}", args.output.display());
+            }
+            ExitCode::SUCCESS
+        }
+        Err(e) => {
+            if let Some(b) = &bar {
+                b.finish_and_clear();
+            }
+            eprintln!("morph: error: {e}");
+            ExitCode::from(if matches!(e, RopeError::Settings(_)) {
+                2
+            } else {
+                1
+            })
         }
     }
 }

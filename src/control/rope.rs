@@ -1,7 +1,8 @@
-//! The rope scene: a hyperelastic (fixed-corotated) rope clamped at one end, released
-//! horizontal at rest under gravity, so it falls and swings like a heavy pendulum while its
-//! elastic modes ring. The controller moves the clamped end (a prescribed-velocity region,
-//! bounded speed in the swing plane) and/or pushes the free tip (a bounded body force).
+//! The rope scene: a hyperelastic (fixed-corotated) rope hanging from a clamp at its top end,
+//! released at rest tilted from the vertical under gravity, so it swings like a heavy
+//! pendulum while its elastic modes ring. The controller moves the clamped end (a
+//! prescribed position, bounded offset in the swing plane) and/or pushes the free end (a
+//! bounded body force).
 //! Units are SI. docs/control.md gives the numbers and why they were chosen.
 
 use crate::material::FixedCorotated;
@@ -23,6 +24,16 @@ pub enum Actuation {
     TipForce,
     /// Both.
     Both,
+}
+
+/// How the clamp is driven.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[serde(rename_all = "kebab-case")]
+pub enum ClampMode {
+    /// Knots are offsets from the start (bounded by `max_clamp_offset`), linear in time.
+    Position,
+    /// Knots are velocities (bounded by `max_clamp_speed`).
+    Velocity,
 }
 
 /// Rope scene settings (all SI).
@@ -49,7 +60,12 @@ pub struct RopeConfig {
     pub interpolation: Interpolation,
     /// Steps per control interval.
     pub control_interval: usize,
-    /// Largest clamp speed per axis (m/s).
+    /// Initial tilt from the vertical (degrees), released at rest.
+    pub initial_angle_deg: f64,
+    pub clamp_mode: ClampMode,
+    /// Largest clamp offset per axis (m), position mode.
+    pub max_clamp_offset: f64,
+    /// Largest clamp speed per axis (m/s), velocity mode.
     pub max_clamp_speed: f64,
     /// Largest tip acceleration per axis (m/s^2).
     pub max_tip_acceleration: f64,
@@ -67,13 +83,16 @@ impl Default for RopeConfig {
             poisson_ratio: 0.3,
             gravity: 9.81,
             dt: 2.0e-3,
-            steps: 750,
+            steps: 1000,
             clamp_cells: 1,
             kernel: KernelKind::Quadratic,
             actuation: Actuation::Clamp,
             interpolation: Interpolation::Linear,
             control_interval: 10,
-            max_clamp_speed: 0.3,
+            initial_angle_deg: 40.0,
+            clamp_mode: ClampMode::Position,
+            max_clamp_offset: 0.15,
+            max_clamp_speed: 0.5,
             max_tip_acceleration: 5.0,
         }
     }
@@ -106,6 +125,7 @@ impl RopeConfig {
         }
         for (name, v) in [
             ("gravity", self.gravity),
+            ("max clamp offset", self.max_clamp_offset),
             ("max clamp speed", self.max_clamp_speed),
             ("max tip acceleration", self.max_tip_acceleration),
         ] {
@@ -135,6 +155,12 @@ impl RopeConfig {
                 self.cells_along, self.clamp_cells
             ));
         }
+        if !(self.initial_angle_deg.is_finite() && self.initial_angle_deg.abs() <= 180.0) {
+            return bad(format!(
+                "initial angle must be within [-180, 180] degrees, got {}",
+                self.initial_angle_deg
+            ));
+        }
         if self.steps == 0 {
             return bad("the horizon must have at least one step".into());
         }
@@ -157,18 +183,25 @@ impl RopeConfig {
         let h = dx / ppc as f64;
         let (nl, nt) = (self.cells_along * ppc, self.thickness_cells * ppc);
         let half_t = 0.5 * self.thickness_cells as f64 * dx;
+        // Lattice in the rope's frame (s along it from the clamp), then tilted about z.
+        let angle = self.initial_angle_deg.to_radians();
+        let along = Vector3::new(angle.sin(), -angle.cos(), 0.0);
+        let across = Vector3::new(angle.cos(), angle.sin(), 0.0);
         let mut x = Vec::with_capacity(nl * nt * nt);
         let mut clamped = Vec::new();
+        let mut tip = Vec::new();
         for i in 0..nl {
+            let s_along = (i as f64 + 0.5) * h;
             for j in 0..nt {
                 for k in 0..nt {
-                    let p = Vector3::new(
-                        (i as f64 + 0.5) * h,
-                        (j as f64 + 0.5) * h - half_t,
-                        (k as f64 + 0.5) * h - half_t,
-                    );
-                    if p.x < self.clamp_cells as f64 * dx {
+                    let p = s_along * along
+                        + ((j as f64 + 0.5) * h - half_t) * across
+                        + Vector3::new(0.0, 0.0, (k as f64 + 0.5) * h - half_t);
+                    if s_along < self.clamp_cells as f64 * dx {
                         clamped.push(x.len());
+                    }
+                    if s_along > 0.75 * self.length {
+                        tip.push(x.len());
                     }
                     x.push(p);
                 }
@@ -182,32 +215,38 @@ impl RopeConfig {
             Actuation::TipForce => (false, true),
             Actuation::Both => (true, true),
         };
-        let drift = if use_clamp {
-            self.max_clamp_speed * horizon
-        } else {
-            0.0
+        // How far the clamp can get from its start.
+        let drift = match (use_clamp, self.clamp_mode) {
+            (false, _) => 0.0,
+            (true, ClampMode::Position) => self.max_clamp_offset,
+            (true, ClampMode::Velocity) => self.max_clamp_speed * horizon,
         };
-        // Reach of the rope around the clamp (with 10% stretch), drift and a kernel margin.
-        let reach = 1.1 * self.length + drift + 4.0 * dx;
-        let cells_xy = (2.0 * reach / dx).ceil() as usize;
-        let cells_y = ((reach + drift + 4.0 * dx + half_t) / dx).ceil() as usize;
-        let cells_z = (2.0 * (half_t + 4.0 * dx) / dx).ceil() as usize;
+        // The rope (10% stretch allowed) swings through a full circle around the clamp.
+        let margin = 4.0 * dx;
+        let reach = 1.1 * self.length + drift + margin;
+        let top = drift + margin + half_t;
+        let cells_x = (2.0 * reach / dx).ceil() as usize;
+        let cells_y = ((reach + top) / dx).ceil() as usize;
+        let cells_z = (2.0 * (half_t + margin) / dx).ceil() as usize;
         let grid = GridSpec {
             origin: [-reach, -reach, -0.5 * cells_z as f64 * dx],
             dx,
-            cells: [cells_xy, cells_y.max(4), cells_z.max(4)],
+            cells: [cells_x, cells_y, cells_z.max(4)],
         };
         let mut effects = Vec::new();
         if use_clamp {
+            let (kind, b) = match self.clamp_mode {
+                ClampMode::Position => (ControlKind::PrescribedPosition, self.max_clamp_offset),
+                ClampMode::Velocity => (ControlKind::PrescribedVelocity, self.max_clamp_speed),
+            };
             effects.push(ControlEffect {
-                kind: ControlKind::PrescribedVelocity,
+                kind,
                 name: "clamp".into(),
                 particles: clamped,
-                bound: Vector3::new(self.max_clamp_speed, self.max_clamp_speed, 0.0),
+                bound: Vector3::new(b, b, 0.0),
             });
         }
         if use_tip {
-            let tip: Vec<usize> = (0..n).filter(|&p| x[p].x > 0.75 * self.length).collect();
             effects.push(ControlEffect {
                 kind: ControlKind::BodyForce,
                 name: "tip-force".into(),

@@ -40,6 +40,21 @@ fn glyph(c: char) -> [u8; 5] {
         'P' => [7, 5, 7, 4, 4],
         'F' => [7, 4, 7, 4, 4],
         'M' => [5, 7, 7, 5, 5],
+        'G' => [7, 4, 5, 5, 7],
+        'H' => [5, 5, 7, 5, 5],
+        'K' => [5, 5, 6, 5, 5],
+        'U' => [5, 5, 5, 5, 7],
+        'Y' => [5, 5, 2, 2, 2],
+        'W' => [5, 5, 7, 7, 5],
+        'B' => [6, 5, 6, 5, 6],
+        'X' => [5, 5, 2, 5, 5],
+        'Z' => [7, 1, 2, 4, 7],
+        'J' => [1, 1, 1, 5, 7],
+        'Q' => [7, 5, 5, 7, 1],
+        '(' => [1, 2, 2, 2, 1],
+        ')' => [4, 2, 2, 2, 4],
+        ':' => [0, 2, 0, 2, 0],
+        '/' => [1, 1, 2, 4, 4],
         _ => [0; 5],
     }
 }
@@ -97,29 +112,28 @@ fn label(v: f64) -> String {
     }
 }
 
-/// One panel: `points` (x, loss) on a log-y axis inside the rectangle at (left, top).
-fn panel(
-    img: &mut RgbImage,
-    left: f64,
-    top: f64,
-    w: f64,
-    h: f64,
-    points: &[(f64, f64)],
-    title: &str,
-) {
+/// One panel: each series' `(x, y)` points on a log-y axis inside the rectangle at
+/// (left, top), with a legend when series are named.
+fn panel(img: &mut RgbImage, left: f64, top: f64, w: f64, h: f64, series: &[Series], title: &str) {
     text(img, left as i64, top as i64 - 22, title, 3, INK);
-    let finite: Vec<(f64, f64)> = points
+    let finite: Vec<Vec<(f64, f64)>> = series
         .iter()
-        .copied()
-        .filter(|(x, y)| x.is_finite() && y.is_finite() && *y > 0.0)
+        .map(|s| {
+            s.points
+                .iter()
+                .copied()
+                .filter(|(x, y)| x.is_finite() && y.is_finite() && *y > 0.0)
+                .collect()
+        })
         .collect();
     line(img, (left, top + h), (left + w, top + h), INK);
     line(img, (left, top), (left, top + h), INK);
-    if finite.is_empty() {
+    let all: Vec<(f64, f64)> = finite.iter().flatten().copied().collect();
+    if all.is_empty() {
         return;
     }
-    let xmax = finite.iter().map(|p| p.0).fold(f64::MIN_POSITIVE, f64::max);
-    let (lo, hi) = finite
+    let xmax = all.iter().map(|p| p.0).fold(f64::MIN_POSITIVE, f64::max);
+    let (lo, hi) = all
         .iter()
         .fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), p| {
             (a.min(p.1.log10()), b.max(p.1.log10()))
@@ -132,6 +146,7 @@ fn panel(
         )
     };
     let mut decade = lo;
+    let step = ((hi - lo) / 8.0).ceil().max(1.0);
     while decade <= hi + 1e-9 {
         let y = top + h * (1.0 - (decade - lo) / (hi - lo));
         line(img, (left + 1.0, y), (left + w, y), GRID);
@@ -143,7 +158,7 @@ fn panel(
             2,
             INK,
         );
-        decade += 1.0;
+        decade += step;
     }
     text(img, left as i64, (top + h) as i64 + 8, "0", 2, INK);
     let xl = label(xmax);
@@ -155,39 +170,75 @@ fn panel(
         2,
         INK,
     );
-    for pair in finite.windows(2) {
-        line(img, to_px(pair[0]), to_px(pair[1]), SERIES);
+    for (k, (s, pts)) in series.iter().zip(&finite).enumerate() {
+        for pair in pts.windows(2) {
+            line(img, to_px(pair[0]), to_px(pair[1]), s.color);
+        }
+        if !s.name.is_empty() {
+            let y = top as i64 + 8 + 16 * k as i64;
+            let x = (left + w) as i64 - 8 * s.name.len() as i64 - 30;
+            line(
+                img,
+                (x as f64, y as f64 + 5.0),
+                (x as f64 + 20.0, y as f64 + 5.0),
+                s.color,
+            );
+            line(
+                img,
+                (x as f64, y as f64 + 6.0),
+                (x as f64 + 20.0, y as f64 + 6.0),
+                s.color,
+            );
+            text(img, x + 26, y, &s.name, 2, s.color);
+        }
     }
+}
+
+/// A named, coloured line of points.
+pub struct Series {
+    pub name: String,
+    pub color: Rgb<u8>,
+    pub points: Vec<(f64, f64)>,
+}
+
+/// Colours for up to four series.
+pub const PALETTE: [Rgb<u8>; 4] = [
+    Rgb([120, 120, 120]),
+    Rgb([40, 100, 200]),
+    Rgb([200, 80, 30]),
+    Rgb([40, 150, 60]),
+];
+
+/// Two log-y panels side by side, each with its own series.
+pub fn write_two_panels(
+    path: &Path,
+    left: (&str, &[Series]),
+    right: (&str, &[Series]),
+) -> std::io::Result<()> {
+    let mut img = RgbImage::from_pixel(1000, 420, BACKGROUND);
+    panel(&mut img, 80.0, 50.0, 380.0, 310.0, left.1, left.0);
+    panel(&mut img, 580.0, 50.0, 380.0, 310.0, right.1, right.0);
+    save(path, &img)
 }
 
 /// `loss.png`: loss per evaluation (left) and against wall seconds (right).
 pub fn write_loss_plot(path: &Path, losses: &[(f64, f64)]) -> std::io::Result<()> {
-    let mut img = RgbImage::from_pixel(1000, 420, BACKGROUND);
-    let by_index: Vec<(f64, f64)> = losses
+    let one = |points: Vec<(f64, f64)>| Series {
+        name: String::new(),
+        color: SERIES,
+        points,
+    };
+    let by_index = one(losses
         .iter()
         .enumerate()
         .map(|(i, p)| (i as f64, p.1))
-        .collect();
-    let by_time: Vec<(f64, f64)> = losses.iter().map(|p| (p.0, p.1)).collect();
-    panel(
-        &mut img,
-        80.0,
-        50.0,
-        380.0,
-        310.0,
-        &by_index,
-        "LOSS VS ITERATION",
-    );
-    panel(
-        &mut img,
-        580.0,
-        50.0,
-        380.0,
-        310.0,
-        &by_time,
-        "LOSS VS SECONDS",
-    );
-    save(path, &img)
+        .collect());
+    let by_time = one(losses.to_vec());
+    write_two_panels(
+        path,
+        ("LOSS VS ITERATION", &[by_index]),
+        ("LOSS VS SECONDS", &[by_time]),
+    )
 }
 
 fn save(path: &Path, img: &RgbImage) -> std::io::Result<()> {

@@ -68,6 +68,20 @@ pub enum ControlKind {
     /// Its particles move kinematically with velocity `u(t)`: they hand `m_p u` to the grid,
     /// move with `dx/dt = u`, and ignore the grid's acceleration (a clamp the controller drives).
     PrescribedVelocity,
+    /// The same kinematic region, driven by its offset `d(t)` from the start position: knots
+    /// are offsets (bounded, so the region stays within reach), linear in time, and the
+    /// particles move with `u = dd/dt`, constant over each interval. Knot 0 is held at 0.
+    PrescribedPosition,
+}
+
+impl ControlKind {
+    /// Whether the control moves its particles kinematically.
+    pub fn is_kinematic(self) -> bool {
+        matches!(
+            self,
+            ControlKind::PrescribedVelocity | ControlKind::PrescribedPosition
+        )
+    }
 }
 
 /// One declared control: its kind, the particles it acts on and its per-component bound.
@@ -130,11 +144,18 @@ impl ControlPlan {
                     e.name, e.bound[0], e.bound[1], e.bound[2]
                 ));
             }
-            if e.kind == ControlKind::PrescribedVelocity {
+            if e.kind == ControlKind::PrescribedPosition && s.interpolation != Interpolation::Linear
+            {
+                return bad(format!(
+                    "control '{}' prescribes a position, which needs linear interpolation (a piecewise-constant position would jump)",
+                    e.name
+                ));
+            }
+            if e.kind.is_kinematic() {
                 for &p in &e.particles {
                     if std::mem::replace(&mut clamped[p], true) {
                         return bad(format!(
-                            "particle {p} is in two prescribed-velocity regions (last '{}')",
+                            "particle {p} is in two prescribed-motion regions (last '{}')",
                             e.name
                         ));
                     }
@@ -177,7 +198,8 @@ impl ControlPlan {
         Ok(())
     }
 
-    /// Clamps every knot into its control's bounds (the optimizers' projection).
+    /// Clamps every knot into its control's bounds (the optimizers' projection); a
+    /// prescribed position's first knot stays at 0 (the region starts where it is).
     pub fn project(&self, params: &mut ControlParams) {
         for (e, knots) in self.effects.iter().zip(params.iter_mut()) {
             for k in knots.iter_mut() {
@@ -185,15 +207,44 @@ impl ControlPlan {
                     k[a] = k[a].clamp(-e.bound[a], e.bound[a]);
                 }
             }
+            if e.kind == ControlKind::PrescribedPosition {
+                if let Some(k0) = knots.first_mut() {
+                    *k0 = Vector3::zeros();
+                }
+            }
         }
     }
 
-    /// Each control's value at fraction `theta` of step `step`.
-    pub fn values(&self, params: &ControlParams, step: usize, theta: f64) -> Vec<Vector3<f64>> {
-        let kw = self.schedule.knot_weights(step, theta);
+    /// Knots and weights of control `e`'s value (for a prescribed position, its velocity
+    /// `(d_{j+1} - d_j) / (interval dt)` over the step's interval).
+    fn weights(&self, e: usize, step: usize, theta: f64, dt: f64) -> [(usize, f64); 2] {
+        if self.effects[e].kind == ControlKind::PrescribedPosition {
+            let spi = self.schedule.steps_per_interval;
+            let j = (step / spi).min(self.schedule.intervals - 1);
+            let rate = 1.0 / (spi as f64 * dt);
+            [(j, -rate), (j + 1, rate)]
+        } else {
+            self.schedule.knot_weights(step, theta)
+        }
+    }
+
+    /// Each control's value at fraction `theta` of step `step` (time step `dt`).
+    pub fn values(
+        &self,
+        params: &ControlParams,
+        step: usize,
+        theta: f64,
+        dt: f64,
+    ) -> Vec<Vector3<f64>> {
         params
             .iter()
-            .map(|knots| kw.iter().map(|&(j, w)| w * knots[j]).sum())
+            .enumerate()
+            .map(|(e, knots)| {
+                self.weights(e, step, theta, dt)
+                    .iter()
+                    .map(|&(j, w)| w * knots[j])
+                    .sum()
+            })
             .collect()
     }
 
@@ -202,12 +253,12 @@ impl ControlPlan {
         &self,
         step: usize,
         theta: f64,
+        dt: f64,
         grad_values: &[Vector3<f64>],
         grad_params: &mut ControlParams,
     ) {
-        let kw = self.schedule.knot_weights(step, theta);
-        for (g, gk) in grad_values.iter().zip(grad_params.iter_mut()) {
-            for &(j, w) in &kw {
+        for (e, (g, gk)) in grad_values.iter().zip(grad_params.iter_mut()).enumerate() {
+            for &(j, w) in &self.weights(e, step, theta, dt) {
                 gk[j] += w * g;
             }
         }

@@ -36,6 +36,7 @@ pub struct OdeSystem {
     pub dt: f64,
     /// Prescribed-velocity control of each particle (`u32::MAX` for free particles).
     clamp_of: Vec<u32>,
+    pool: BufferPool,
 }
 
 const FREE: u32 = u32::MAX;
@@ -84,7 +85,7 @@ impl OdeSystem {
         controls.validate(n)?;
         let mut clamp_of = vec![FREE; n];
         for (e, c) in controls.effects.iter().enumerate() {
-            if c.kind == ControlKind::PrescribedVelocity {
+            if c.kind.is_kinematic() {
                 for &p in &c.particles {
                     clamp_of[p] = e as u32;
                 }
@@ -100,6 +101,7 @@ impl OdeSystem {
             controls,
             dt,
             clamp_of,
+            pool: BufferPool::default(),
         };
         // Same elastic bound as the engine; RK4's stability region on the imaginary axis
         // (|h w| < 2.8) leaves a margin above it.
@@ -252,7 +254,9 @@ impl OdeSystem {
         }
     }
 
-    /// Forward pieces shared by the evaluation and its reverse.
+    /// Forward pieces shared by the evaluation and its reverse. Only the grid nodes inside
+    /// some particle's stencil (the active nodes) are touched, in dense buffers borrowed from
+    /// the pool, so the cost follows the particles and not the domain's size.
     fn forward_grid<const N: usize>(
         &self,
         s: &OdeState,
@@ -262,19 +266,27 @@ impl OdeSystem {
         let n = s.len();
         let (strides, origin, dx) = (self.grid.strides(), self.grid.origin_vec(), self.grid.dx);
         let bins = Bins::build(&self.grid, &s.x, N, step)?;
+        let mut buf = self.pool.take(self.grid.node_count());
+        buf.mark_active::<N>(&s.x, &origin, dx, &strides);
+        let par = n >= PARALLEL_MIN;
         let body = self.body_accelerations(values);
         let stress_force: Vec<Matrix3<f64>> = (0..n)
             .into_par_iter()
+            .with_min_len(PARALLEL_MIN)
             .map(|p| {
                 let pk = self.material.stress(&s.f[p]);
                 self.stress_inputs(p)
                     .affine_from_stress(&Matrix3::zeros(), &s.f[p], &pk)
             })
             .collect();
-        let mut nodes = vec![[0.0; 7]; self.grid.node_count()];
         {
-            let shared = SharedMut::new(&mut nodes);
-            bins.for_each_coloured(|p| {
+            let Buffers { nodes, active, .. } = &mut buf;
+            let shared = SharedMut::new(nodes);
+            active.par_iter().with_min_len(1024).for_each(|&i| {
+                // SAFETY: active node indices are distinct.
+                unsafe { *shared.get(i as usize) = [0.0; 7] };
+            });
+            visit_coloured(&bins, par, |p| {
                 let st = Stencil::<N>::new(&s.x[p], &origin, dx);
                 let inp = ScatterInputs {
                     mass: self.mass[p],
@@ -285,11 +297,20 @@ impl OdeSystem {
                 transfer::scatter(&st, &strides, &inp, &shared);
             });
         }
-        let g = self.gravity;
-        let (grid_v, grid_a): (Vec<Vector3<f64>>, Vec<Vector3<f64>>) = nodes
-            .par_iter()
-            .map(|nd| {
-                if nd[0] > 0.0 {
+        {
+            let g = self.gravity;
+            let Buffers {
+                nodes,
+                grid_v,
+                grid_a,
+                active,
+                ..
+            } = &mut buf;
+            let (gv, ga) = (SharedMut::new(grid_v), SharedMut::new(grid_a));
+            active.par_iter().with_min_len(1024).for_each(|&i| {
+                let i = i as usize;
+                let nd = &nodes[i];
+                let (v, a) = if nd[0] > 0.0 {
                     let inv_m = 1.0 / nd[0];
                     (
                         inv_m * Vector3::new(nd[1], nd[2], nd[3]),
@@ -297,24 +318,28 @@ impl OdeSystem {
                     )
                 } else {
                     (Vector3::zeros(), Vector3::zeros())
+                };
+                // SAFETY: active node indices are distinct.
+                unsafe {
+                    *gv.get(i) = v;
+                    *ga.get(i) = a;
                 }
-            })
-            .unzip();
+            });
+        }
         let inv_d = self.inv_d();
         let gathered: Vec<Gathered> =
             s.x.par_iter()
+                .with_min_len(PARALLEL_MIN)
                 .map(|x| {
                     let st = Stencil::<N>::new(x, &origin, dx);
-                    transfer::gather(&st, &strides, &grid_v, &grid_a, inv_d)
+                    transfer::gather(&st, &strides, &buf.grid_v, &buf.grid_a, inv_d)
                 })
                 .collect();
         Ok(Forward {
             bins,
             body,
             stress_force,
-            nodes,
-            grid_v,
-            grid_a,
+            buf,
             gathered,
         })
     }
@@ -337,6 +362,7 @@ impl OdeSystem {
             out.f.par_iter_mut(),
         )
             .into_par_iter()
+            .with_min_len(PARALLEL_MIN)
             .enumerate()
             .for_each(|(p, (dx, dv, df))| {
                 let g = &fw.gathered[p];
@@ -352,6 +378,7 @@ impl OdeSystem {
                 }
                 *df = g.grad_v * s.f[p];
             });
+        self.pool.put(fw.buf);
         Ok(())
     }
 
@@ -361,10 +388,11 @@ impl OdeSystem {
         values: &[Vector3<f64>],
         grad_out: &OdeState,
     ) -> RhsGrad {
-        let fw = self
+        let mut fw = self
             .forward_grid::<N>(s, values, 0)
             .expect("reverse pass replays a forward evaluation that succeeded");
         let n = s.len();
+        let par = n >= PARALLEL_MIN;
         let (strides, origin, dx) = (self.grid.strides(), self.grid.origin_vec(), self.grid.dx);
         let inv_d = self.inv_d();
         let mut grad = OdeState::zeros(n);
@@ -373,32 +401,45 @@ impl OdeSystem {
         let mut grad_u = vec![Vector3::zeros(); n];
 
         // G2P and dF/dt reverse (scatter into the grid adjoints).
-        let nodes = self.grid.node_count();
-        let mut grad_grid_v = vec![Vector3::zeros(); nodes];
-        let mut grad_grid_a = vec![Vector3::zeros(); nodes];
         {
-            let ggv = SharedMut::new(&mut grad_grid_v);
-            let gga = SharedMut::new(&mut grad_grid_a);
+            let Buffers {
+                grid_v,
+                grid_a,
+                grad_v,
+                grad_a,
+                active,
+                ..
+            } = &mut fw.buf;
+            let ggv = SharedMut::new(grad_v);
+            let gga = SharedMut::new(grad_a);
+            active.par_iter().with_min_len(1024).for_each(|&i| {
+                // SAFETY: active node indices are distinct.
+                unsafe {
+                    *ggv.get(i as usize) = Vector3::zeros();
+                    *gga.get(i as usize) = Vector3::zeros();
+                }
+            });
             let gx = SharedMut::new(&mut grad.x);
             let gf = SharedMut::new(&mut grad.f);
             let gu = SharedMut::new(&mut grad_u);
-            fw.bins.for_each_coloured(|p| {
-                let g_out = &fw.gathered[p];
+            let gathered = &fw.gathered;
+            visit_coloured(&fw.bins, par, |p| {
+                let g_out = &gathered[p];
                 let g_df = grad_out.f[p];
                 let mut g = Gathered {
                     velocity: grad_out.x[p],
                     acceleration: grad_out.v[p],
                     grad_v: g_df * s.f[p].transpose(),
                 };
+                // SAFETY: each particle is visited exactly once.
                 if self.clamp_of[p] != FREE {
-                    // SAFETY: each particle is visited exactly once.
                     unsafe { *gu.get(p) += g.velocity };
                     g.velocity = Vector3::zeros();
                     g.acceleration = Vector3::zeros();
                 }
                 let st = Stencil::<N>::new(&s.x[p], &origin, dx);
                 let d = transfer::gather_reverse(
-                    &st, &strides, &fw.grid_v, &fw.grid_a, inv_d, &g, g_out, &ggv, &gga,
+                    &st, &strides, grid_v, grid_a, inv_d, &g, g_out, &ggv, &gga,
                 );
                 unsafe {
                     *gx.get(p) += d;
@@ -408,15 +449,26 @@ impl OdeSystem {
         }
 
         // Grid reverse: v = p / m, a = f / m + g.
-        let grad_nodes: Vec<Node> = (0..nodes)
-            .into_par_iter()
-            .map(|i| {
-                let nd = &fw.nodes[i];
-                if nd[0] > 0.0 {
+        {
+            let Buffers {
+                nodes,
+                grid_v,
+                grid_a,
+                grad_v,
+                grad_a,
+                grad_nodes,
+                active,
+                ..
+            } = &mut fw.buf;
+            let gn = SharedMut::new(grad_nodes);
+            active.par_iter().with_min_len(1024).for_each(|&i| {
+                let i = i as usize;
+                let nd = &nodes[i];
+                let out = if nd[0] > 0.0 {
                     let inv_m = 1.0 / nd[0];
-                    let (gv, ga) = (grad_grid_v[i], grad_grid_a[i]);
-                    let f_over_m = fw.grid_a[i] - self.gravity;
-                    let gm = -inv_m * (gv.dot(&fw.grid_v[i]) + ga.dot(&f_over_m));
+                    let (gv, ga) = (grad_v[i], grad_a[i]);
+                    let f_over_m = grid_a[i] - self.gravity;
+                    let gm = -inv_m * (gv.dot(&grid_v[i]) + ga.dot(&f_over_m));
                     [
                         gm,
                         inv_m * gv[0],
@@ -428,12 +480,15 @@ impl OdeSystem {
                     ]
                 } else {
                     [0.0; 7]
-                }
-            })
-            .collect();
+                };
+                // SAFETY: active node indices are distinct.
+                unsafe { *gn.get(i) = out };
+            });
+        }
 
         // P2G reverse (gather) and the stress reverse.
         let mut grad_body = vec![Vector3::zeros(); n];
+        let grad_nodes = &fw.buf.grad_nodes;
         (
             grad.x.par_iter_mut(),
             grad.v.par_iter_mut(),
@@ -442,6 +497,7 @@ impl OdeSystem {
             grad_body.par_iter_mut(),
         )
             .into_par_iter()
+            .with_min_len(PARALLEL_MIN)
             .enumerate()
             .for_each(|(p, (gx, gv, gf, gu, gb))| {
                 let st = Stencil::<N>::new(&s.x[p], &origin, dx);
@@ -451,7 +507,7 @@ impl OdeSystem {
                     stress_force: fw.stress_force[p],
                     body_force: self.mass[p] * fw.body[p],
                 };
-                let g = transfer::scatter_reverse(&st, &strides, &inp, &grad_nodes);
+                let g = transfer::scatter_reverse(&st, &strides, &inp, grad_nodes);
                 *gx += g.x;
                 match self.clamp_of[p] {
                     FREE => *gv += g.velocity,
@@ -463,6 +519,7 @@ impl OdeSystem {
                     .affine_momentum_reverse(&s.f[p], &g.stress_force);
                 *gf += g_f;
             });
+        self.pool.put(fw.buf);
 
         // Per-particle control adjoints summed per control, sequentially.
         let controls = self
@@ -471,7 +528,7 @@ impl OdeSystem {
             .iter()
             .map(|c| {
                 let src = match c.kind {
-                    ControlKind::PrescribedVelocity => &grad_u,
+                    ControlKind::PrescribedVelocity | ControlKind::PrescribedPosition => &grad_u,
                     ControlKind::BodyForce => &grad_body,
                 };
                 c.particles.iter().map(|&p| src[p]).sum()
@@ -509,7 +566,123 @@ impl OdeSystem {
         step: usize,
         theta: f64,
     ) -> Vec<Vector3<f64>> {
-        self.controls.values(params, step, theta)
+        self.controls.values(params, step, theta, self.dt)
+    }
+}
+
+/// Below this many particles the stages run on the calling thread: the work is too small to
+/// pay for a fork-join (and the controllers parallelize over rollouts instead). Results are
+/// bitwise the same either way.
+const PARALLEL_MIN: usize = 2048;
+
+/// Runs `f(p)` for every particle in the colouring's order: in parallel, or sequentially in
+/// the very same order (so both give identical sums in every node).
+fn visit_coloured(bins: &Bins, parallel: bool, f: impl Fn(usize) + Sync) {
+    if parallel {
+        bins.for_each_coloured(f);
+    } else {
+        for blocks in &bins.colours {
+            for r in blocks {
+                for &p in &bins.order[r.start as usize..r.end as usize] {
+                    f(p as usize);
+                }
+            }
+        }
+    }
+}
+
+/// Dense grid buffers of one evaluation; only active nodes hold meaningful values.
+#[derive(Default)]
+struct Buffers {
+    nodes: Vec<Node>,
+    grid_v: Vec<Vector3<f64>>,
+    grid_a: Vec<Vector3<f64>>,
+    grad_v: Vec<Vector3<f64>>,
+    grad_a: Vec<Vector3<f64>>,
+    grad_nodes: Vec<Node>,
+    /// `mark[i] == generation` when node i is active in the current evaluation.
+    mark: Vec<u32>,
+    generation: u32,
+    active: Vec<u32>,
+}
+
+impl Buffers {
+    fn sized(nodes: usize) -> Buffers {
+        Buffers {
+            nodes: vec![[0.0; 7]; nodes],
+            grid_v: vec![Vector3::zeros(); nodes],
+            grid_a: vec![Vector3::zeros(); nodes],
+            grad_v: vec![Vector3::zeros(); nodes],
+            grad_a: vec![Vector3::zeros(); nodes],
+            grad_nodes: vec![[0.0; 7]; nodes],
+            mark: vec![0; nodes],
+            generation: 0,
+            active: Vec::new(),
+        }
+    }
+
+    /// Lists the nodes inside any particle's stencil (positions already checked by Bins).
+    fn mark_active<const N: usize>(
+        &mut self,
+        x: &[Vector3<f64>],
+        origin: &Vector3<f64>,
+        dx: f64,
+        strides: &[usize; 3],
+    ) {
+        self.generation = self.generation.wrapping_add(1);
+        if self.generation == 0 {
+            self.mark.iter_mut().for_each(|m| *m = 0);
+            self.generation = 1;
+        }
+        self.active.clear();
+        for xp in x {
+            let st = Stencil::<N>::new(xp, origin, dx);
+            let i0 = st.base[0] as usize * strides[0]
+                + st.base[1] as usize * strides[1]
+                + st.base[2] as usize;
+            for a in 0..N {
+                for b in 0..N {
+                    let row = i0 + a * strides[0] + b * strides[1];
+                    for c in 0..N {
+                        let i = row + c;
+                        if self.mark[i] != self.generation {
+                            self.mark[i] = self.generation;
+                            self.active.push(i as u32);
+                        }
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Reusable grid buffers, shared by concurrent evaluations (rollouts run in parallel, and a
+/// work-stealing thread may start a second evaluation while one is in flight, so a
+/// thread-local buffer would not do).
+#[derive(Default)]
+pub(crate) struct BufferPool {
+    free: std::sync::Mutex<Vec<Buffers>>,
+}
+
+impl std::fmt::Debug for BufferPool {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("BufferPool")
+    }
+}
+
+impl BufferPool {
+    fn take(&self, nodes: usize) -> Buffers {
+        let found = self.free.lock().map(|mut v| v.pop()).unwrap_or(None);
+        match found {
+            Some(b) if b.nodes.len() == nodes => b,
+            _ => Buffers::sized(nodes),
+        }
+    }
+
+    fn put(&self, b: Buffers) {
+        if let Ok(mut v) = self.free.lock() {
+            v.push(b);
+        }
     }
 }
 
@@ -518,8 +691,6 @@ struct Forward {
     bins: Bins,
     body: Vec<Vector3<f64>>,
     stress_force: Vec<Matrix3<f64>>,
-    nodes: Vec<Node>,
-    grid_v: Vec<Vector3<f64>>,
-    grid_a: Vec<Vector3<f64>>,
+    buf: Buffers,
     gathered: Vec<Gathered>,
 }

@@ -119,7 +119,7 @@ impl OdeSystem {
             let values = self.control_values(params, step, STAGE_THETA[i]);
             let g = self.rhs_reverse(&stages[i], &values, &gk);
             self.controls
-                .values_reverse(step, STAGE_THETA[i], &g.controls, grad_params);
+                .values_reverse(step, STAGE_THETA[i], self.dt, &g.controls, grad_params);
             adj.axpy(1.0, &g.state);
             carried = Some(g.state);
         }

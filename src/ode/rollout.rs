@@ -74,7 +74,7 @@ impl OdeSystem {
             let mut grad_values = vec![nalgebra::Vector3::zeros(); ne];
             self.kinetic_energy_reverse(after, &values, weight, &mut adj.v, &mut grad_values);
             self.controls
-                .values_reverse(k, 1.0, &grad_values, &mut grad_params);
+                .values_reverse(k, 1.0, self.dt, &grad_values, &mut grad_params);
             self.rk4_step_reverse(&tape.steps[i], params, k, &mut adj, &mut grad_params);
         }
         RunGradient {

@@ -4,6 +4,9 @@
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
+/// Below this many particles the element-wise operations stay on the calling thread.
+const MIN_LEN: usize = 4096;
+
 /// Particle positions, velocities and deformation gradients (no APIC `C`: in the ODE form the
 /// velocity gradient is recomputed from the grid at every evaluation).
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -45,14 +48,17 @@ impl OdeState {
     pub fn axpy(&mut self, a: f64, other: &OdeState) {
         self.x
             .par_iter_mut()
+            .with_min_len(MIN_LEN)
             .zip(&other.x)
             .for_each(|(s, o)| *s += a * o);
         self.v
             .par_iter_mut()
+            .with_min_len(MIN_LEN)
             .zip(&other.v)
             .for_each(|(s, o)| *s += a * o);
         self.f
             .par_iter_mut()
+            .with_min_len(MIN_LEN)
             .zip(&other.f)
             .for_each(|(s, o)| *s += a * o);
     }
@@ -65,17 +71,20 @@ impl OdeState {
 
     /// Index and name of the first particle with a non-finite field, if any.
     pub fn first_non_finite(&self) -> Option<(usize, &'static str)> {
-        (0..self.len()).into_par_iter().find_map_first(|p| {
-            if !self.x[p].iter().all(|a| a.is_finite()) {
-                Some((p, "position"))
-            } else if !self.v[p].iter().all(|a| a.is_finite()) {
-                Some((p, "velocity"))
-            } else if !self.f[p].iter().all(|a| a.is_finite()) {
-                Some((p, "deformation gradient F"))
-            } else {
-                None
-            }
-        })
+        (0..self.len())
+            .into_par_iter()
+            .with_min_len(MIN_LEN)
+            .find_map_first(|p| {
+                if !self.x[p].iter().all(|a| a.is_finite()) {
+                    Some((p, "position"))
+                } else if !self.v[p].iter().all(|a| a.is_finite()) {
+                    Some((p, "velocity"))
+                } else if !self.f[p].iter().all(|a| a.is_finite()) {
+                    Some((p, "deformation gradient F"))
+                } else {
+                    None
+                }
+            })
     }
 
     /// Sum of `<self, other>` over all fields (for directional-derivative checks).

@@ -1,0 +1,188 @@
+//! The gradient controller: Adam on the control knots, with the horizon split into inner
+//! batches of N steps. Each batch is optimized from the state the previous one ended in: a
+//! forward RK4 run of the batch with a tape, the exact gradient of its kinetic-energy cost
+//! through that run, an Adam step on the batch's own knots, projected onto the bounds. After
+//! the iterations the best evaluated controls of the batch are committed and its end state
+//! carried over.
+
+use super::{Committed, ControlEvent, free_knots};
+use crate::mpm::SimError;
+use crate::ode::{ControlParams, OdeState, OdeSystem, Rk4Tape};
+use nalgebra::Vector3;
+use serde::Serialize;
+use std::time::Instant;
+
+#[derive(Clone, Debug, Serialize)]
+pub struct GradientSettings {
+    /// Steps per inner batch (N).
+    pub batch_steps: usize,
+    /// Adam iterations per batch.
+    pub iterations: usize,
+    /// Adam step size, in control units (m/s for the clamp).
+    pub learning_rate: f64,
+    pub beta1: f64,
+    pub beta2: f64,
+}
+
+impl Default for GradientSettings {
+    fn default() -> Self {
+        GradientSettings {
+            batch_steps: 50,
+            iterations: 6,
+            learning_rate: 0.1,
+            beta1: 0.9,
+            beta2: 0.999,
+        }
+    }
+}
+
+/// The result of an online controller.
+#[derive(Clone, Debug)]
+pub struct ControllerRun {
+    pub params: ControlParams,
+    /// Wall seconds spent deciding the controls.
+    pub compute_s: f64,
+    pub committed: Vec<Committed>,
+    /// Cost of every evaluation, in order, with the compute time at which it finished.
+    pub evaluations: Vec<(f64, f64)>,
+    /// RK4 steps simulated (forward), a machine-independent measure of work.
+    pub simulated_steps: usize,
+}
+
+impl GradientSettings {
+    pub fn validate(&self, horizon: usize, interval: usize) -> Result<(), SimError> {
+        let bad = |m: String| Err(SimError::InvalidScene(m));
+        if self.batch_steps == 0 {
+            return bad("gradient batch N must be at least 1 step".into());
+        }
+        if self.batch_steps > horizon {
+            return bad(format!(
+                "gradient batch N ({} steps) is larger than the horizon ({horizon} steps)",
+                self.batch_steps
+            ));
+        }
+        if !self.batch_steps.is_multiple_of(interval) || !horizon.is_multiple_of(self.batch_steps) {
+            return bad(format!(
+                "gradient batch N ({}) must be a multiple of the control interval ({interval}) and divide the horizon ({horizon})",
+                self.batch_steps
+            ));
+        }
+        if self.iterations == 0 {
+            return bad("gradient iterations must be at least 1".into());
+        }
+        if !(self.learning_rate.is_finite() && self.learning_rate > 0.0) {
+            return bad(format!(
+                "learning rate must be positive and finite, got {}",
+                self.learning_rate
+            ));
+        }
+        for (name, b) in [("beta1", self.beta1), ("beta2", self.beta2)] {
+            if !(b.is_finite() && (0.0..1.0).contains(&b)) {
+                return bad(format!("Adam {name} must be in [0, 1), got {b}"));
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Runs the gradient controller over the whole horizon from `init`.
+pub fn gradient_control(
+    sys: &OdeSystem,
+    init: &OdeState,
+    settings: &GradientSettings,
+    horizon: usize,
+    mut on_event: impl FnMut(ControlEvent),
+) -> Result<ControllerRun, SimError> {
+    let schedule = sys.controls.schedule;
+    settings.validate(horizon, schedule.steps_per_interval)?;
+    let started = Instant::now();
+    let mut params = sys.controls.zero_params();
+    let mut state = init.clone();
+    let mut committed = Vec::with_capacity(horizon);
+    let mut evaluations = Vec::new();
+    let mut simulated_steps = 0;
+    let n = settings.batch_steps;
+    let dt = sys.dt;
+    for a in (0..horizon).step_by(n) {
+        let knots = free_knots(&schedule, a, a + n);
+        let ne = params.len();
+        let mut m1 = vec![vec![Vector3::zeros(); knots.len()]; ne];
+        let mut m2 = vec![vec![Vector3::zeros(); knots.len()]; ne];
+        let mut best: Option<(f64, ControlParams, OdeState, Vec<f64>)> = None;
+        let mut lr = settings.learning_rate;
+        let mut t = 0;
+        for _ in 0..settings.iterations {
+            let mut s = state.clone();
+            let mut tape = Rk4Tape::default();
+            simulated_steps += n;
+            let energy = match sys.run(&mut s, &params, a, n, Some(&mut tape), |_, _| {}) {
+                Ok(e) => e,
+                Err(_) if best.is_some() => {
+                    // The step left the stable region: go back to the best and halve it.
+                    params = best.as_ref().unwrap().1.clone();
+                    lr *= 0.5;
+                    continue;
+                }
+                Err(e) => return Err(e),
+            };
+            let cost = dt * energy.iter().sum::<f64>();
+            evaluations.push((started.elapsed().as_secs_f64(), cost));
+            if best.as_ref().is_none_or(|b| cost < b.0) {
+                best = Some((cost, params.clone(), s.clone(), energy));
+            }
+            let grad = sys.kinetic_cost_gradient(&tape, &params, &s, dt, None);
+            // Adam on this batch's knots, then projection onto the bounds.
+            t += 1;
+            let (c1, c2) = (1.0 - settings.beta1.powi(t), 1.0 - settings.beta2.powi(t));
+            for e in 0..ne {
+                for (i, j) in knots.clone().enumerate() {
+                    let g = grad.params[e][j];
+                    m1[e][i] = settings.beta1 * m1[e][i] + (1.0 - settings.beta1) * g;
+                    m2[e][i] =
+                        settings.beta2 * m2[e][i] + (1.0 - settings.beta2) * g.component_mul(&g);
+                    for c in 0..3 {
+                        let mhat = m1[e][i][c] / c1;
+                        let vhat = m2[e][i][c] / c2;
+                        params[e][j][c] -= lr * mhat / (vhat.sqrt() + 1e-12);
+                    }
+                }
+            }
+            sys.controls.project(&mut params);
+        }
+        let (cost, best_params, end, energy) = best.expect("at least one evaluation");
+        // Commit the batch's best knots (later knots keep their warm start).
+        for e in 0..params.len() {
+            for j in knots.clone() {
+                params[e][j] = best_params[e][j];
+            }
+            // Warm start of the next batch: hold the last committed value.
+            let next = knots.end.min(params[e].len());
+            for j in next..params[e].len() {
+                params[e][j] = best_params[e][knots.end - 1];
+            }
+        }
+        state = end;
+        let now = started.elapsed().as_secs_f64();
+        for (i, e) in energy.iter().enumerate() {
+            committed.push(Committed {
+                step: a + i,
+                compute_s: now,
+                energy: *e,
+            });
+        }
+        on_event(ControlEvent::Window {
+            method: "gradient",
+            step: a + n,
+            of: horizon,
+            cost,
+            compute_s: now,
+        });
+    }
+    Ok(ControllerRun {
+        params,
+        compute_s: started.elapsed().as_secs_f64(),
+        committed,
+        evaluations,
+        simulated_steps,
+    })
+}
