@@ -483,7 +483,7 @@ struct RopeArgs {
     #[arg(short, long)]
     quiet: bool,
     /// Simulated steps (the control horizon).
-    #[arg(long, default_value_t = 750)]
+    #[arg(long, default_value_t = 1000)]
     steps: i64,
     /// Time step (s).
     #[arg(long, default_value_t = 2.0e-3)]
@@ -495,7 +495,7 @@ struct RopeArgs {
     #[arg(long, default_value_t = 1.0e5)]
     youngs_modulus: f64,
     /// What the controllers move.
-    #[arg(long, value_enum, default_value = "clamp")]
+    #[arg(long, value_enum, default_value = "tip-force")]
     actuation: morph::control::rope::Actuation,
     /// Steps per control interval.
     #[arg(long, default_value_t = 10)]

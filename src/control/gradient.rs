@@ -18,7 +18,8 @@ pub struct GradientSettings {
     pub batch_steps: usize,
     /// Adam iterations per batch.
     pub iterations: usize,
-    /// Adam step size, in control units (m/s for the clamp).
+    /// Adam step size, as a fraction of each control's bound (so one setting suits offsets,
+    /// speeds and accelerations alike).
     pub learning_rate: f64,
     pub beta1: f64,
     pub beta2: f64,
@@ -103,6 +104,7 @@ pub fn gradient_control(
     let mut simulated_steps = 0;
     let n = settings.batch_steps;
     let dt = sys.dt;
+    let bounds: Vec<_> = sys.controls.effects.iter().map(|e| e.bound).collect();
     for a in (0..horizon).step_by(n) {
         let knots = free_knots(&schedule, a, a + n);
         let ne = params.len();
@@ -143,7 +145,7 @@ pub fn gradient_control(
                     for c in 0..3 {
                         let mhat = m1[e][i][c] / c1;
                         let vhat = m2[e][i][c] / c2;
-                        params[e][j][c] -= lr * mhat / (vhat.sqrt() + 1e-12);
+                        params[e][j][c] -= lr * bounds[e][c] * mhat / (vhat.sqrt() + 1e-12);
                     }
                 }
             }

@@ -86,7 +86,7 @@ impl Default for RopeConfig {
             steps: 1000,
             clamp_cells: 1,
             kernel: KernelKind::Quadratic,
-            actuation: Actuation::Clamp,
+            actuation: Actuation::TipForce,
             interpolation: Interpolation::Linear,
             control_interval: 10,
             initial_angle_deg: 40.0,
@@ -221,9 +221,9 @@ impl RopeConfig {
             (true, ClampMode::Position) => self.max_clamp_offset,
             (true, ClampMode::Velocity) => self.max_clamp_speed * horizon,
         };
-        // The rope (10% stretch allowed) swings through a full circle around the clamp.
+        // The rope (30% stretch allowed) swings through a full circle around the clamp.
         let margin = 4.0 * dx;
-        let reach = 1.1 * self.length + drift + margin;
+        let reach = 1.3 * self.length + drift + margin;
         let top = drift + margin + half_t;
         let cells_x = (2.0 * reach / dx).ceil() as usize;
         let cells_y = ((reach + top) / dx).ceil() as usize;
@@ -234,18 +234,18 @@ impl RopeConfig {
             cells: [cells_x, cells_y, cells_z.max(4)],
         };
         let mut effects = Vec::new();
-        if use_clamp {
-            let (kind, b) = match self.clamp_mode {
-                ClampMode::Position => (ControlKind::PrescribedPosition, self.max_clamp_offset),
-                ClampMode::Velocity => (ControlKind::PrescribedVelocity, self.max_clamp_speed),
-            };
-            effects.push(ControlEffect {
-                kind,
-                name: "clamp".into(),
-                particles: clamped,
-                bound: Vector3::new(b, b, 0.0),
-            });
-        }
+        // The clamp is always there; without clamp actuation it holds still (bound 0).
+        let (kind, b) = match self.clamp_mode {
+            ClampMode::Position => (ControlKind::PrescribedPosition, self.max_clamp_offset),
+            ClampMode::Velocity => (ControlKind::PrescribedVelocity, self.max_clamp_speed),
+        };
+        let b = if use_clamp { b } else { 0.0 };
+        effects.push(ControlEffect {
+            kind,
+            name: "clamp".into(),
+            particles: clamped,
+            bound: Vector3::new(b, b, 0.0),
+        });
         if use_tip {
             effects.push(ControlEffect {
                 kind: ControlKind::BodyForce,
