@@ -13,11 +13,20 @@ fn main() {
     for it in 0..iters {
         let mut s = rope.initial.clone();
         let mut tape = Rk4Tape::default();
-        let e = sys.run(&mut s, &params, 0, n, Some(&mut tape), |_, _| {}).unwrap();
+        let e = sys
+            .run(&mut s, &params, 0, n, Some(&mut tape), |_, _| {})
+            .unwrap();
         let cost: f64 = sys.dt * e.iter().sum::<f64>();
         let g = sys.kinetic_cost_gradient(&tape, &params, &s, sys.dt, None);
-        let gn: f64 = g.params[0].iter().map(|v| v.norm_squared()).sum::<f64>().sqrt();
-        println!("it {it} cost {cost:.6e} |g| {gn:.3e} final KE {:.4e}", e[n - 1]);
+        let gn: f64 = g.params[0]
+            .iter()
+            .map(|v| v.norm_squared())
+            .sum::<f64>()
+            .sqrt();
+        println!(
+            "it {it} cost {cost:.6e} |g| {gn:.3e} final KE {:.4e}",
+            e[n - 1]
+        );
         let t = (it + 1) as i32;
         for j in 0..params[0].len() {
             let gj = g.params[0][j];

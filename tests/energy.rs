@@ -139,11 +139,18 @@ fn rk4_keeps_far_more_energy_than_the_euler_step() {
     let (e_rk4, t_rk4) = rk4(&b, DT);
     let (e_eu, t_eu) = euler(&b, DT);
     let (e_eu4, t_eu4) = euler(&b, DT / 4.0);
-    println!("energy kept after {SIM_TIME} s ({} particles, dx {:.4}):", b.x.len(), b.grid.dx);
+    println!(
+        "energy kept after {SIM_TIME} s ({} particles, dx {:.4}):",
+        b.x.len(),
+        b.grid.dx
+    );
     println!("| integrator | dt | energy kept | wall s |\n|---|---|---|---|");
     println!("| RK4 (ODE form) | {DT} | {e_rk4:.4} | {t_rk4:.3} |");
     println!("| symplectic Euler MLS-MPM | {DT} | {e_eu:.4} | {t_eu:.3} |");
-    println!("| symplectic Euler MLS-MPM | {} | {e_eu4:.4} | {t_eu4:.3} |", DT / 4.0);
+    println!(
+        "| symplectic Euler MLS-MPM | {} | {e_eu4:.4} | {t_eu4:.3} |",
+        DT / 4.0
+    );
     assert!(e_rk4.is_finite() && e_eu.is_finite() && e_eu4.is_finite());
     // RK4 must neither gain energy (instability) nor lose much.
     assert!(e_rk4 < 1.01, "RK4 gained energy: {e_rk4}");
