@@ -186,6 +186,62 @@ impl OdeSystem {
         }
     }
 
+    /// Kinetic energy of the motion, `1/2 sum m_p |dx_p/dt|^2` with `dx_p/dt = sum w v_i` the
+    /// velocity particles actually move with (the prescribed one for clamped particles). The
+    /// state's `v_p` may also hold modes the grid cannot see (FLIP's null space): they move
+    /// nothing and no grid force can remove them, so they are not counted as motion.
+    pub fn motion_energy(
+        &self,
+        s: &OdeState,
+        values: &[Vector3<f64>],
+        step: usize,
+    ) -> Result<f64, SimError> {
+        let mut d = OdeState::zeros(0);
+        self.rhs(s, values, step, &mut d)?;
+        Ok(d.x
+            .iter()
+            .zip(&self.mass)
+            .map(|(v, m)| 0.5 * m * v.norm_squared())
+            .sum())
+    }
+
+    /// Reverse of [`OdeSystem::motion_energy`] scaled by `weight`.
+    pub fn motion_energy_reverse(
+        &self,
+        s: &OdeState,
+        values: &[Vector3<f64>],
+        weight: f64,
+    ) -> RhsGrad {
+        let mut d = OdeState::zeros(0);
+        self.rhs(s, values, 0, &mut d)
+            .expect("reverse pass replays a forward evaluation that succeeded");
+        let n = s.len();
+        let seed = OdeState {
+            x: d.x.iter().zip(&self.mass).map(|(v, m)| weight * m * v).collect(),
+            v: vec![Vector3::zeros(); n],
+            f: vec![Matrix3::zeros(); n],
+        };
+        self.rhs_reverse(s, values, &seed)
+    }
+
+    /// Kinetic energy of the grid velocity field, `1/2 sum_i m_i |v_i|^2`: the part of the
+    /// particles' kinetic energy the grid sees (the rest sits in particle velocity modes the
+    /// transfers cannot represent, which no grid force can change).
+    pub fn grid_kinetic_energy(&self, s: &OdeState, values: &[Vector3<f64>]) -> Result<f64, SimError> {
+        let fw = match self.kernel {
+            KernelKind::Quadratic => self.forward_grid::<3>(s, values, 0)?,
+            KernelKind::Cubic => self.forward_grid::<4>(s, values, 0)?,
+        };
+        let mut ids = fw.buf.active.clone();
+        ids.sort_unstable();
+        let e = ids
+            .iter()
+            .map(|&i| 0.5 * fw.buf.nodes[i as usize][0] * fw.buf.grid_v[i as usize].norm_squared())
+            .sum();
+        self.pool.put(fw.buf);
+        Ok(e)
+    }
+
     /// Elastic energy `sum V psi(F)`.
     pub fn elastic_energy(&self, s: &OdeState) -> f64 {
         s.f.iter()

@@ -1,7 +1,8 @@
 //! Multi-step RK4 runs and the gradient of a kinetic-energy cost through them.
 //!
 //! The cost of a run of steps `k = first .. first + n` is `sum_k KE(S_{k+1})`, the kinetic
-//! energy at the end of every step (clamped particles at their prescribed velocity), the
+//! energy of the motion at the end of every step ([`OdeSystem::motion_energy`]: particles at
+//! the velocity they move with, clamped ones at their prescribed velocity), the
 //! active-damping objective.
 
 use super::controls::ControlParams;
@@ -42,7 +43,7 @@ impl OdeSystem {
             if let (Some(t), Some(st)) = (tape.as_deref_mut(), stages) {
                 t.steps.push(st);
             }
-            energy.push(self.kinetic_energy(s, &self.control_values(params, k, 1.0)));
+            energy.push(self.motion_energy(s, &self.control_values(params, k, 1.0), k)?);
             on_step(k, s);
         }
         Ok(energy)
@@ -61,7 +62,6 @@ impl OdeSystem {
         let n = last.len();
         let mut adj = grad_last.cloned().unwrap_or_else(|| OdeState::zeros(n));
         let mut grad_params = self.controls.zero_params();
-        let ne = self.controls.effects.len();
         for i in (0..tape.steps.len()).rev() {
             let k = tape.first_step + i;
             // The state after step k: the next step's first stage, or the run's last state.
@@ -71,10 +71,10 @@ impl OdeSystem {
                 last
             };
             let values = self.control_values(params, k, 1.0);
-            let mut grad_values = vec![nalgebra::Vector3::zeros(); ne];
-            self.kinetic_energy_reverse(after, &values, weight, &mut adj.v, &mut grad_values);
+            let g = self.motion_energy_reverse(after, &values, weight);
+            adj.axpy(1.0, &g.state);
             self.controls
-                .values_reverse(k, 1.0, self.dt, &grad_values, &mut grad_params);
+                .values_reverse(k, 1.0, self.dt, &g.controls, &mut grad_params);
             self.rk4_step_reverse(&tape.steps[i], params, k, &mut adj, &mut grad_params);
         }
         RunGradient {
