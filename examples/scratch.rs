@@ -6,19 +6,33 @@ fn main() {
     s.gradient.batch_steps = a[1].parse().unwrap();
     s.gradient.learning_rate = a[2].parse().unwrap();
     s.gradient.iterations = a[3].parse().unwrap();
-    let rope = s.rope.build().unwrap();
-    let sys = &rope.system;
-    let r = gradient_control(sys, &rope.initial, &s.gradient, s.rope.steps, |_| {}).unwrap();
-    let zero = sys.controls.zero_params();
-    for (name, p) in [("uncontrolled", &zero), ("gradient", &r.params)] {
-        let mut st = rope.initial.clone();
-        let mut out = vec![];
-        sys.run(&mut st, p, 0, s.rope.steps, None, |k, st| {
-            if (k + 1) % 100 == 0 {
-                let v = sys.control_values(p, k, 1.0);
-                out.push(format!("{:.2e}/{:.2e}", sys.kinetic_energy(st, &v), sys.grid_kinetic_energy(st, &v).unwrap()));
-            }
-        }).unwrap();
-        println!("{name}: particle/grid KE every 100 steps: {}", out.join(" "));
+    s.gradient.lookahead_steps = a[4].parse().unwrap();
+    if std::env::var("SEG").is_ok() {
+        s.rope.actuation = morph::control::rope::Actuation::Segments;
     }
+    let rope = s.rope.build().unwrap();
+    let r = gradient_control(
+        &rope.system,
+        &rope.initial,
+        &s.gradient,
+        s.rope.steps,
+        |_| {},
+    )
+    .unwrap();
+    let e: Vec<f64> = r.committed.iter().map(|c| c.energy).collect();
+    let n = e.len();
+    let tail: f64 = e[3 * n / 4..].iter().sum::<f64>() / (n / 4) as f64;
+    let t_low = e.iter().rposition(|&x| x > 0.01165).map_or(0, |i| i + 1) as f64 * 0.002;
+    println!(
+        "N {} lr {} it {} L {}: last {:.3e} tail {:.3e} cost {:.4e} t_low {:.3} compute {:.2}",
+        a[1],
+        a[2],
+        a[3],
+        a[4],
+        e[n - 1],
+        tail,
+        0.002 * e.iter().sum::<f64>(),
+        t_low,
+        r.compute_s
+    );
 }

@@ -495,7 +495,7 @@ struct RopeArgs {
     #[arg(long, default_value_t = 1.0e5)]
     youngs_modulus: f64,
     /// What the controllers move.
-    #[arg(long, value_enum, default_value = "tip-force")]
+    #[arg(long, value_enum, default_value = "segments")]
     actuation: morph::control::rope::Actuation,
     /// Steps per control interval.
     #[arg(long, default_value_t = 10)]
@@ -512,17 +512,20 @@ struct RopeArgs {
     /// Gradient controller: steps per inner batch (N).
     #[arg(long, default_value_t = 50)]
     batch: i64,
+    /// Gradient controller: extra steps simulated and costed after each batch.
+    #[arg(long, default_value_t = 50)]
+    lookahead: i64,
     /// Gradient controller: Adam iterations per batch.
-    #[arg(long, default_value_t = 6)]
+    #[arg(long, default_value_t = 5)]
     iterations: i64,
-    /// Gradient controller: Adam learning rate (control units).
-    #[arg(long, default_value_t = 0.1)]
+    /// Gradient controller: Adam step, as a fraction of each control's bound.
+    #[arg(long, default_value_t = 0.3)]
     lr: f64,
     /// MPPI: samples per update (K).
-    #[arg(long, default_value_t = 64)]
+    #[arg(long, default_value_t = 256)]
     samples: i64,
     /// MPPI: planning horizon (steps).
-    #[arg(long, default_value_t = 100)]
+    #[arg(long, default_value_t = 50)]
     mppi_horizon: i64,
     /// MPPI: steps committed per replanning.
     #[arg(long, default_value_t = 10)]
@@ -534,7 +537,7 @@ struct RopeArgs {
     #[arg(long, default_value_t = 0.1)]
     lambda: f64,
     /// MPPI: noise standard deviation, as a fraction of the bound.
-    #[arg(long, default_value_t = 0.3)]
+    #[arg(long, default_value_t = 0.6)]
     noise: f64,
     /// MPPI: random seed.
     #[arg(long, default_value_t = 1)]
@@ -543,7 +546,7 @@ struct RopeArgs {
     #[arg(long, default_value_t = 10)]
     frame_every: i64,
     /// Low energy = this fraction of the uncontrolled peak kinetic energy.
-    #[arg(long, default_value_t = 0.05)]
+    #[arg(long, default_value_t = 0.01)]
     low_energy: f64,
 }
 
@@ -570,6 +573,7 @@ fn rope_settings(a: &RopeArgs) -> Result<morph::control::compare::RopeSettings, 
     s.rope.max_tip_acceleration = a.max_tip_acceleration;
     s.gradient.batch_steps = count("batch", a.batch, 1)?;
     s.gradient.iterations = count("iterations", a.iterations, 1)?;
+    s.gradient.lookahead_steps = count("lookahead", a.lookahead, 0)?;
     s.gradient.learning_rate = a.lr;
     s.mppi.samples = count("samples", a.samples, 2)?;
     s.mppi.horizon_steps = count("mppi-horizon", a.mppi_horizon, 1)?;
@@ -608,10 +612,8 @@ fn run_rope(args: &RopeArgs) -> ExitCode {
     });
     let steps = settings.rope.steps as u64;
     let on_event = |e: ControlEvent| {
-        if args.json {
-            if let Ok(line) = serde_json::to_string(&e) {
-                println!("{line}");
-            }
+        if let (true, Ok(line)) = (args.json, serde_json::to_string(&e)) {
+            println!("{line}");
         }
         if let Some(b) = &bar {
             let ControlEvent::Window {

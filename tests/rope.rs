@@ -28,6 +28,11 @@ fn bad_control_settings_are_clear_errors() {
         (&["--batch", "35"], "multiple of the control interval"),
         (&["--batch", "0"], "--batch must be at least 1"),
         (
+            &["--lookahead", "15"],
+            "lookahead (15) must be a multiple of the control interval",
+        ),
+        (&["--lookahead", "-1"], "--lookahead must be at least 0"),
+        (
             &["--control-interval", "7"],
             "must be >= 1 and divide the horizon",
         ),
@@ -145,9 +150,15 @@ fn rope_run_writes_report_plot_and_frames() {
         assert_eq!(energy.len(), 100, "{method}");
         assert!(energy.iter().all(|e| e.as_f64().unwrap().is_finite()));
         assert_eq!(
-            m["final_energy"].as_f64().unwrap(),
+            m["last_step_energy"].as_f64().unwrap(),
             energy[99].as_f64().unwrap()
         );
+        let tail: f64 = energy[75..]
+            .iter()
+            .map(|e| e.as_f64().unwrap())
+            .sum::<f64>()
+            / 25.0;
+        assert!((m["final_energy"].as_f64().unwrap() - tail).abs() <= 1e-12 * tail.abs());
         assert!(m["compute_s"].as_f64().unwrap() >= 0.0);
         let frames = m["frames"].as_array().unwrap();
         assert_eq!(frames.len(), 3, "{method}: frames at steps 0, 50, 100");

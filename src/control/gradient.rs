@@ -1,9 +1,10 @@
 //! The gradient controller: Adam on the control knots, with the horizon split into inner
 //! batches of N steps. Each batch is optimized from the state the previous one ended in: a
 //! forward RK4 run of the batch with a tape, the exact gradient of its kinetic-energy cost
-//! through that run, an Adam step on the batch's own knots, projected onto the bounds. After
-//! the iterations the best evaluated controls of the batch are committed and its end state
-//! carried over.
+//! through that run, an Adam step on the batch's own knots, projected onto the bounds. A step
+//! that raises the cost is undone and the step size halved (near rest, a full Adam step
+//! would only add energy). After the iterations the best evaluated controls of the batch are
+//! committed and its end state carried over.
 
 use super::{Committed, ControlEvent, free_knots};
 use crate::mpm::SimError;
@@ -16,6 +17,10 @@ use std::time::Instant;
 pub struct GradientSettings {
     /// Steps per inner batch (N).
     pub batch_steps: usize,
+    /// Extra steps simulated (and costed) after each batch, whose controls are optimized
+    /// too but only committed by the next batch: without them the knots near a batch's end
+    /// see almost none of their effect and hand the next batch a body they stir up.
+    pub lookahead_steps: usize,
     /// Adam iterations per batch.
     pub iterations: usize,
     /// Adam step size, as a fraction of each control's bound (so one setting suits offsets,
@@ -29,8 +34,9 @@ impl Default for GradientSettings {
     fn default() -> Self {
         GradientSettings {
             batch_steps: 50,
-            iterations: 6,
-            learning_rate: 0.1,
+            lookahead_steps: 50,
+            iterations: 5,
+            learning_rate: 0.3,
             beta1: 0.9,
             beta2: 0.999,
         }
@@ -60,6 +66,12 @@ impl GradientSettings {
             return bad(format!(
                 "gradient batch N ({} steps) is larger than the horizon ({horizon} steps)",
                 self.batch_steps
+            ));
+        }
+        if !self.lookahead_steps.is_multiple_of(interval) {
+            return bad(format!(
+                "gradient lookahead ({}) must be a multiple of the control interval ({interval})",
+                self.lookahead_steps
             ));
         }
         if !self.batch_steps.is_multiple_of(interval) || !horizon.is_multiple_of(self.batch_steps) {
@@ -106,18 +118,27 @@ pub fn gradient_control(
     let dt = sys.dt;
     let bounds: Vec<_> = sys.controls.effects.iter().map(|e| e.bound).collect();
     for a in (0..horizon).step_by(n) {
-        let knots = free_knots(&schedule, a, a + n);
+        let len = (n + settings.lookahead_steps).min(horizon - a);
+        let knots = free_knots(&schedule, a, a + len);
+        let commit_knots = free_knots(&schedule, a, a + n);
         let ne = params.len();
         let mut m1 = vec![vec![Vector3::zeros(); knots.len()]; ne];
         let mut m2 = vec![vec![Vector3::zeros(); knots.len()]; ne];
         let mut best: Option<(f64, ControlParams, OdeState, Vec<f64>)> = None;
         let mut lr = settings.learning_rate;
         let mut t = 0;
+        let mut failures = 0;
         for _ in 0..settings.iterations {
             let mut s = state.clone();
             let mut tape = Rk4Tape::default();
-            simulated_steps += n;
-            let energy = match sys.run(&mut s, &params, a, n, Some(&mut tape), |_, _| {}) {
+            simulated_steps += len;
+            let mut mid = None;
+            let run = sys.run(&mut s, &params, a, len, Some(&mut tape), |k, st| {
+                if k + 1 == a + n {
+                    mid = Some(st.clone());
+                }
+            });
+            let energy = match run {
                 Ok(e) => e,
                 Err(_) if best.is_some() => {
                     // The step left the stable region: go back to the best and halve it.
@@ -130,7 +151,19 @@ pub fn gradient_control(
             let cost = dt * energy.iter().sum::<f64>();
             evaluations.push((started.elapsed().as_secs_f64(), cost));
             if best.as_ref().is_none_or(|b| cost < b.0) {
-                best = Some((cost, params.clone(), s.clone(), energy));
+                let mid = mid.expect("the run passes the batch's end");
+                best = Some((cost, params.clone(), mid, energy[..n].to_vec()));
+                failures = 0;
+            } else {
+                // The step made things worse: go back to the best controls, shorten the step;
+                // after two failures in a row the batch has converged.
+                params = best.as_ref().unwrap().1.clone();
+                lr *= 0.5;
+                failures += 1;
+                if failures == 2 {
+                    break;
+                }
+                continue;
             }
             let grad = sys.kinetic_cost_gradient(&tape, &params, &s, dt, None);
             // Adam on this batch's knots, then projection onto the bounds.
@@ -152,12 +185,13 @@ pub fn gradient_control(
             sys.controls.project(&mut params);
         }
         let (cost, best_params, end, energy) = best.expect("at least one evaluation");
-        // Commit the batch's best knots (later knots keep their warm start).
+        // Commit the batch's best knots; the lookahead's knots are the next batch's warm
+        // start, and knots past the window hold the window's last value.
+        debug_assert!(commit_knots.end <= knots.end);
         for e in 0..params.len() {
             for j in knots.clone() {
                 params[e][j] = best_params[e][j];
             }
-            // Warm start of the next batch: hold the last committed value.
             let next = knots.end.min(params[e].len());
             for j in next..params[e].len() {
                 params[e][j] = best_params[e][knots.end - 1];

@@ -40,12 +40,12 @@ pub struct MppiSettings {
 impl Default for MppiSettings {
     fn default() -> Self {
         MppiSettings {
-            samples: 64,
-            horizon_steps: 100,
+            samples: 256,
+            horizon_steps: 50,
             replan_steps: 10,
             refinements: 1,
             lambda: 0.1,
-            noise: 0.3,
+            noise: 0.6,
             seed: 1,
         }
     }
@@ -197,10 +197,10 @@ pub fn mppi_control(
                 energy: *e,
             });
         }
-        for e in 0..params.len() {
-            let last = params[e][knots.end - 1];
-            for j in knots.end..params[e].len() {
-                params[e][j] = last;
+        for knots_e in params.iter_mut() {
+            let last = knots_e[knots.end - 1];
+            for k in knots_e[knots.end..].iter_mut() {
+                *k = last;
             }
         }
         on_event(ControlEvent::Window {

@@ -24,6 +24,9 @@ pub enum Actuation {
     TipForce,
     /// Both.
     Both,
+    /// Body forces on each quarter of the rope, independently (distributed actuation: four
+    /// controls, eight numbers per knot).
+    Segments,
 }
 
 /// How the clamp is driven.
@@ -86,7 +89,7 @@ impl Default for RopeConfig {
             steps: 1000,
             clamp_cells: 1,
             kernel: KernelKind::Quadratic,
-            actuation: Actuation::TipForce,
+            actuation: Actuation::Segments,
             interpolation: Interpolation::Linear,
             control_interval: 10,
             initial_angle_deg: 40.0,
@@ -164,7 +167,7 @@ impl RopeConfig {
         if self.steps == 0 {
             return bad("the horizon must have at least one step".into());
         }
-        if self.control_interval == 0 || self.steps % self.control_interval != 0 {
+        if self.control_interval == 0 || !self.steps.is_multiple_of(self.control_interval) {
             return bad(format!(
                 "the control interval ({} steps) must be >= 1 and divide the horizon ({} steps)",
                 self.control_interval, self.steps
@@ -190,6 +193,7 @@ impl RopeConfig {
         let mut x = Vec::with_capacity(nl * nt * nt);
         let mut clamped = Vec::new();
         let mut tip = Vec::new();
+        let mut quarters: [Vec<usize>; 4] = Default::default();
         for i in 0..nl {
             let s_along = (i as f64 + 0.5) * h;
             for j in 0..nt {
@@ -203,6 +207,8 @@ impl RopeConfig {
                     if s_along > 0.75 * self.length {
                         tip.push(x.len());
                     }
+                    let q = ((4.0 * s_along / self.length) as usize).min(3);
+                    quarters[q].push(x.len());
                     x.push(p);
                 }
             }
@@ -214,6 +220,7 @@ impl RopeConfig {
             Actuation::Clamp => (true, false),
             Actuation::TipForce => (false, true),
             Actuation::Both => (true, true),
+            Actuation::Segments => (false, false),
         };
         // How far the clamp can get from its start.
         let drift = match (use_clamp, self.clamp_mode) {
@@ -253,6 +260,17 @@ impl RopeConfig {
                 particles: tip,
                 bound: Vector3::new(self.max_tip_acceleration, self.max_tip_acceleration, 0.0),
             });
+        }
+        if self.actuation == Actuation::Segments {
+            for (q, set) in quarters.into_iter().enumerate() {
+                let b = self.max_tip_acceleration;
+                effects.push(ControlEffect {
+                    kind: ControlKind::BodyForce,
+                    name: format!("segment-{q}"),
+                    particles: set,
+                    bound: Vector3::new(b, b, 0.0),
+                });
+            }
         }
         let plan = ControlPlan {
             schedule: Schedule {

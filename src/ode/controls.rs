@@ -207,10 +207,8 @@ impl ControlPlan {
                     k[a] = k[a].clamp(-e.bound[a], e.bound[a]);
                 }
             }
-            if e.kind == ControlKind::PrescribedPosition {
-                if let Some(k0) = knots.first_mut() {
-                    *k0 = Vector3::zeros();
-                }
+            if let (ControlKind::PrescribedPosition, Some(k0)) = (e.kind, knots.first_mut()) {
+                *k0 = Vector3::zeros();
             }
         }
     }

@@ -49,6 +49,7 @@ pub struct RhsGrad {
 }
 
 impl OdeSystem {
+    #[allow(clippy::too_many_arguments)]
     pub fn new(
         grid: GridSpec,
         kernel: KernelKind,
@@ -167,25 +168,6 @@ impl OdeSystem {
             .sum()
     }
 
-    /// Reverse of [`OdeSystem::kinetic_energy`] scaled by `weight`: adds into `grad_v` and the
-    /// control-value gradients.
-    pub fn kinetic_energy_reverse(
-        &self,
-        s: &OdeState,
-        values: &[Vector3<f64>],
-        weight: f64,
-        grad_v: &mut [Vector3<f64>],
-        grad_values: &mut [Vector3<f64>],
-    ) {
-        for p in 0..s.len() {
-            let g = weight * self.mass[p] * self.transfer_velocity(s, values, p);
-            match self.clamp_of[p] {
-                FREE => grad_v[p] += g,
-                e => grad_values[e as usize] += g,
-            }
-        }
-    }
-
     /// Kinetic energy of the motion, `1/2 sum m_p |dx_p/dt|^2` with `dx_p/dt = sum w v_i` the
     /// velocity particles actually move with (the prescribed one for clamped particles). The
     /// state's `v_p` may also hold modes the grid cannot see (FLIP's null space): they move
@@ -217,7 +199,11 @@ impl OdeSystem {
             .expect("reverse pass replays a forward evaluation that succeeded");
         let n = s.len();
         let seed = OdeState {
-            x: d.x.iter().zip(&self.mass).map(|(v, m)| weight * m * v).collect(),
+            x: d.x
+                .iter()
+                .zip(&self.mass)
+                .map(|(v, m)| weight * m * v)
+                .collect(),
             v: vec![Vector3::zeros(); n],
             f: vec![Matrix3::zeros(); n],
         };
@@ -227,7 +213,11 @@ impl OdeSystem {
     /// Kinetic energy of the grid velocity field, `1/2 sum_i m_i |v_i|^2`: the part of the
     /// particles' kinetic energy the grid sees (the rest sits in particle velocity modes the
     /// transfers cannot represent, which no grid force can change).
-    pub fn grid_kinetic_energy(&self, s: &OdeState, values: &[Vector3<f64>]) -> Result<f64, SimError> {
+    pub fn grid_kinetic_energy(
+        &self,
+        s: &OdeState,
+        values: &[Vector3<f64>],
+    ) -> Result<f64, SimError> {
         let fw = match self.kernel {
             KernelKind::Quadratic => self.forward_grid::<3>(s, values, 0)?,
             KernelKind::Cubic => self.forward_grid::<4>(s, values, 0)?,
