@@ -66,6 +66,9 @@ pub struct MethodReport {
     pub final_energy: f64,
     /// Kinetic energy at the very last step (J).
     pub last_step_energy: f64,
+    /// `1/2 sum m |v_p|^2` of the particle velocities at the last step (J): the motion's
+    /// energy plus what sits in velocity modes the grid cannot see (see docs/control.md).
+    pub last_step_particle_energy: f64,
     /// The cost both controllers minimize: dt * sum of kinetic energy over steps (J s).
     pub cost: f64,
     /// Wall seconds spent deciding the controls (0 for the uncontrolled run).
@@ -138,7 +141,7 @@ fn replay(
     rope: &Rope,
     params: &ControlParams,
     frame_every: usize,
-) -> Result<(Vec<f64>, Frames, f64), SimError> {
+) -> Result<(Vec<f64>, Frames, f64, f64), SimError> {
     let sys = &rope.system;
     let steps = rope.config.steps;
     let mut s = rope.initial.clone();
@@ -149,7 +152,11 @@ fn replay(
         frames.push((0, s.clone()));
     }
     let mut max_offset = 0.0f64;
+    let mut particle_energy = 0.0;
     let energy = sys.run(&mut s, params, 0, steps, None, |k, st| {
+        if k + 1 == steps {
+            particle_energy = sys.kinetic_energy(st, &sys.control_values(params, k, 1.0));
+        }
         if let Some((&p, x0)) = clamp.first().zip(start.first()) {
             max_offset = max_offset.max((st.x[p] - x0).norm());
         }
@@ -157,7 +164,7 @@ fn replay(
             frames.push((k + 1, st.clone()));
         }
     })?;
-    Ok((energy, frames, max_offset))
+    Ok((energy, frames, max_offset, particle_energy))
 }
 
 fn time_to_low(energy: &[f64], threshold: f64, dt: f64) -> Option<f64> {
@@ -177,7 +184,8 @@ fn method_report(
     run: Option<&ControllerRun>,
     frame_every: usize,
 ) -> Result<(MethodReport, Vec<(usize, OdeState)>), SimError> {
-    let (energy, frames, max_clamp_offset) = replay(rope, params, frame_every)?;
+    let (energy, frames, max_clamp_offset, last_step_particle_energy) =
+        replay(rope, params, frame_every)?;
     let dt = rope.system.dt;
     let quarter = (energy.len() / 4).max(1);
     let tail = &energy[energy.len() - quarter..];
@@ -201,6 +209,7 @@ fn method_report(
         MethodReport {
             final_energy: tail.iter().sum::<f64>() / tail.len() as f64,
             last_step_energy: *energy.last().unwrap_or(&0.0),
+            last_step_particle_energy,
             cost: dt * energy.iter().sum::<f64>(),
             compute_s: run.map_or(0.0, |r| r.compute_s),
             simulated_steps: run.map_or(0, |r| r.simulated_steps),

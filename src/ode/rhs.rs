@@ -161,7 +161,9 @@ impl OdeSystem {
         }
     }
 
-    /// Kinetic energy `1/2 sum m |v~|^2` (clamped particles at their prescribed velocity).
+    /// Kinetic energy of the particle velocities `1/2 sum m |v~|^2` (clamped particles at their
+    /// prescribed velocity). Unlike [`OdeSystem::motion_energy`] it includes the velocity modes
+    /// the grid cannot see; the report gives both.
     pub fn kinetic_energy(&self, s: &OdeState, values: &[Vector3<f64>]) -> f64 {
         (0..s.len())
             .map(|p| 0.5 * self.mass[p] * self.transfer_velocity(s, values, p).norm_squared())
@@ -208,28 +210,6 @@ impl OdeSystem {
             f: vec![Matrix3::zeros(); n],
         };
         self.rhs_reverse(s, values, &seed)
-    }
-
-    /// Kinetic energy of the grid velocity field, `1/2 sum_i m_i |v_i|^2`: the part of the
-    /// particles' kinetic energy the grid sees (the rest sits in particle velocity modes the
-    /// transfers cannot represent, which no grid force can change).
-    pub fn grid_kinetic_energy(
-        &self,
-        s: &OdeState,
-        values: &[Vector3<f64>],
-    ) -> Result<f64, SimError> {
-        let fw = match self.kernel {
-            KernelKind::Quadratic => self.forward_grid::<3>(s, values, 0)?,
-            KernelKind::Cubic => self.forward_grid::<4>(s, values, 0)?,
-        };
-        let mut ids = fw.buf.active.clone();
-        ids.sort_unstable();
-        let e = ids
-            .iter()
-            .map(|&i| 0.5 * fw.buf.nodes[i as usize][0] * fw.buf.grid_v[i as usize].norm_squared())
-            .sum();
-        self.pool.put(fw.buf);
-        Ok(e)
     }
 
     /// Elastic energy `sum V psi(F)`.
