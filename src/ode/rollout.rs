@@ -10,6 +10,7 @@ use super::rhs::OdeSystem;
 use super::rk4::Rk4Tape;
 use super::state::OdeState;
 use crate::mpm::SimError;
+use rayon::prelude::*;
 
 /// dL/d(initial state) and dL/d(control knots) of a run.
 #[derive(Clone, Debug)]
@@ -38,13 +39,28 @@ impl OdeSystem {
             t.steps.clear();
         }
         let mut energy = Vec::with_capacity(n_steps);
+        let taped = tape.is_some();
         for k in first_step..first_step + n_steps {
-            let stages = self.rk4_step(s, params, k, tape.is_some())?;
+            let stages = self.rk4_step(s, params, k, taped)?;
             if let (Some(t), Some(st)) = (tape.as_deref_mut(), stages) {
                 t.steps.push(st);
             }
-            energy.push(self.motion_energy(s, &self.control_values(params, k, 1.0), k)?);
+            if !taped {
+                energy.push(self.motion_energy(s, &self.control_values(params, k, 1.0), k)?);
+            }
             on_step(k, s);
+        }
+        if let Some(t) = tape {
+            // With a tape every state is kept, so the energies can be evaluated afterwards in
+            // parallel (the same evaluations, so the same bits).
+            energy = (0..n_steps)
+                .into_par_iter()
+                .map(|i| {
+                    let k = first_step + i;
+                    let after = t.steps.get(i + 1).map_or(&*s, |st| &st[0]);
+                    self.motion_energy(after, &self.control_values(params, k, 1.0), k)
+                })
+                .collect::<Result<_, _>>()?;
         }
         Ok(energy)
     }
@@ -62,16 +78,24 @@ impl OdeSystem {
         let n = last.len();
         let mut adj = grad_last.cloned().unwrap_or_else(|| OdeState::zeros(n));
         let mut grad_params = self.controls.zero_params();
-        for i in (0..tape.steps.len()).rev() {
-            let k = tape.first_step + i;
-            // The state after step k: the next step's first stage, or the run's last state.
-            let after = if i + 1 < tape.steps.len() {
+        // The energy terms' adjoints do not depend on the sweep: evaluate them in parallel first.
+        let after = |i: usize| {
+            if i + 1 < tape.steps.len() {
                 &tape.steps[i + 1][0]
             } else {
                 last
-            };
-            let values = self.control_values(params, k, 1.0);
-            let g = self.motion_energy_reverse(after, &values, weight);
+            }
+        };
+        let energy_grads: Vec<_> = (0..tape.steps.len())
+            .into_par_iter()
+            .map(|i| {
+                let k = tape.first_step + i;
+                let values = self.control_values(params, k, 1.0);
+                self.motion_energy_reverse(after(i), &values, weight)
+            })
+            .collect();
+        for (i, g) in energy_grads.iter().enumerate().rev() {
+            let k = tape.first_step + i;
             adj.axpy(1.0, &g.state);
             self.controls
                 .values_reverse(k, 1.0, self.dt, &g.controls, &mut grad_params);
