@@ -199,13 +199,7 @@ pub fn gradient_control(
         }
         state = end;
         let now = started.elapsed().as_secs_f64();
-        for (i, e) in energy.iter().enumerate() {
-            committed.push(Committed {
-                step: a + i,
-                compute_s: now,
-                energy: *e,
-            });
-        }
+        super::commit(&mut committed, a, now, &energy);
         on_event(ControlEvent::Window {
             method: "gradient",
             step: a + n,

@@ -36,6 +36,15 @@ pub struct Committed {
     pub energy: f64,
 }
 
+/// Records steps `first..` of a window as committed at compute time `now`.
+pub(crate) fn commit(out: &mut Vec<Committed>, first: usize, now: f64, energy: &[f64]) {
+    out.extend(energy.iter().enumerate().map(|(i, &e)| Committed {
+        step: first + i,
+        compute_s: now,
+        energy: e,
+    }));
+}
+
 /// Progress reports of the controllers (for progress bars and `--json`).
 #[derive(Clone, Debug, Serialize)]
 #[serde(tag = "event", rename_all = "snake_case")]

@@ -8,7 +8,7 @@
 //! generator, so runs are identical whatever the thread count.
 
 use super::gradient::ControllerRun;
-use super::{Committed, ControlEvent, free_knots};
+use super::{ControlEvent, free_knots};
 use crate::mpm::SimError;
 use crate::ode::{ControlParams, OdeState, OdeSystem};
 use rand::SeedableRng;
@@ -190,13 +190,7 @@ pub fn mppi_control(
         let energy = sys.run(&mut state, &params, k, commit, None, |_, _| {})?;
         simulated_steps += commit;
         let now = started.elapsed().as_secs_f64();
-        for (i, e) in energy.iter().enumerate() {
-            committed.push(Committed {
-                step: k + i,
-                compute_s: now,
-                energy: *e,
-            });
-        }
+        super::commit(&mut committed, k, now, &energy);
         for knots_e in params.iter_mut() {
             let last = knots_e[knots.end - 1];
             for k in knots_e[knots.end..].iter_mut() {

@@ -457,8 +457,8 @@ impl OdeSystem {
                     acceleration: grad_out.v[p],
                     grad_v: g_df * s.f[p].transpose(),
                 };
-                // SAFETY: each particle is visited exactly once.
                 if self.clamp_of[p] != FREE {
+                    // SAFETY: each particle is visited exactly once.
                     unsafe { *gu.get(p) += g.velocity };
                     g.velocity = Vector3::zeros();
                     g.acceleration = Vector3::zeros();
@@ -467,6 +467,7 @@ impl OdeSystem {
                 let d = transfer::gather_reverse(
                     &st, &strides, grid_v, grid_a, inv_d, &g, g_out, &ggv, &gga,
                 );
+                // SAFETY: each particle is visited exactly once.
                 unsafe {
                     *gx.get(p) += d;
                     *gf.get(p) += g_out.grad_v.transpose() * g_df;
@@ -663,9 +664,7 @@ impl Buffers {
         self.active.clear();
         for xp in x {
             let st = Stencil::<N>::new(xp, origin, dx);
-            let i0 = st.base[0] as usize * strides[0]
-                + st.base[1] as usize * strides[1]
-                + st.base[2] as usize;
+            let i0 = crate::mpm::p2g::base_index(&st, strides);
             for a in 0..N {
                 for b in 0..N {
                     let row = i0 + a * strides[0] + b * strides[1];

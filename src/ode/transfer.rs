@@ -9,15 +9,11 @@
 
 use crate::mpm::grid::SharedMut;
 use crate::mpm::kernel::Stencil;
+use crate::mpm::p2g::base_index;
 use nalgebra::{Matrix3, Vector3};
 
 /// Node data of the ODE scatter: mass, momentum, force.
 pub type Node = [f64; 7];
-
-#[inline(always)]
-fn base_index<const N: usize>(s: &Stencil<N>, strides: &[usize; 3]) -> usize {
-    s.base[0] as usize * strides[0] + s.base[1] as usize * strides[1] + s.base[2] as usize
-}
 
 #[inline(always)]
 fn grad_w<const N: usize>(s: &Stencil<N>, a: usize, b: usize, c: usize) -> Vector3<f64> {
