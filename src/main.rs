@@ -4,10 +4,13 @@ use clap::{Args, Parser, Subcommand};
 use morph::geometry::TargetFit;
 use morph::loss::MassLossKind;
 use morph::morph::segment::Optimizer;
+use morph::morph::settings::limits;
 use morph::morph::{MorphError, MorphEvent, MorphSettings, Preset};
 use morph::mpm::KernelKind;
 use std::path::PathBuf;
 use std::process::ExitCode;
+use std::sync::Arc;
+use std::sync::atomic::AtomicUsize;
 
 const LONG_ABOUT: &str = "\
 morph turns the shape in SOURCE into the shape in TARGET: SOURCE is filled with particles of an
@@ -19,7 +22,7 @@ SOURCE and TARGET are OBJ or PLY meshes in any units and position; open meshes (
 accepted. TARGET is scaled to SOURCE's volume and centred on it unless --target-fit as-given.";
 
 const AFTER_LONG_HELP: &str = "\
-OUTPUT (folder -o, written as OUT.partial and renamed when complete):
+OUTPUT (folder -o, written in the locked OUT.partial and put in place when complete):
   frames/frame_0001.ply ...  binary PLY points per frame: x y z vx vy vz J, source units
   meshes/frame_0001.obj ...  closed surface per frame, source units
   final_mass.mgrid           final nodal mass grid; compare two with `morph compare`
@@ -33,12 +36,16 @@ PRESETS (segments x 30 steps, passes, iterations per segment):
   Any of --segments --steps --passes --iterations overrides its preset value.
 
 EXIT CODES:
-  0  success            1  the run failed (bad mesh, simulation, writing)
-  2  bad command line or option value
+  0    success (every written file checked finite)
+  1    the run failed (bad mesh, simulation, writing, output folder in use)
+  2    bad command line, option value or output folder (refused before any work)
+  130  interrupted by SIGINT (Ctrl-C), 143 by SIGTERM: completed segments are kept in
+       OUT.partial; the same command with --resume continues bit for bit
 
 EXAMPLES:
   morph assets/sphere.obj assets/two-lobes.obj -o out
   morph sphere.obj bunny.obj -o bunny_morph --preset final --json > log.jsonl
+  morph sphere.obj bunny.obj -o bunny_morph --preset final --resume   # after an interruption
   morph compare out/final_mass.mgrid golden/final_mass.mgrid --rtol 1e-6";
 
 /// morph - turn one 3D shape into another with a differentiable Material Point Method.
@@ -63,6 +70,19 @@ struct Cli {
     morph: MorphArgs,
 }
 
+/// `--help` text for an option: what it does, its range, its default (read from the library's
+/// default preset and limits, so the help cannot drift from what runs).
+fn help(what: &str, range: Option<std::ops::RangeInclusive<usize>>, default: impl std::fmt::Display) -> String {
+    match range {
+        Some(r) => format!("{what} [range {}-{}; default {default}]", r.start(), r.end()),
+        None => format!("{what} [default {default}]"),
+    }
+}
+
+fn defaults() -> MorphSettings {
+    MorphSettings::preset(Preset::Default)
+}
+
 /// The main job: `morph SOURCE TARGET [options]`.
 #[derive(Args, Debug)]
 struct MorphArgs {
@@ -72,64 +92,59 @@ struct MorphArgs {
     /// Mesh to become (OBJ or PLY).
     #[arg(required = true)]
     target: Option<PathBuf>,
-    /// Output folder.
+    /// Output folder (a new folder, an empty one, or an earlier morph output with --overwrite).
     #[arg(short, long, default_value = "morph-out")]
     output: PathBuf,
-    /// Replace the output folder if it exists.
+    /// Replace the output folder if it holds an earlier morph output (nothing else is ever
+    /// replaced); also starts over from an interrupted run's OUT.partial.
     #[arg(long)]
     overwrite: bool,
+    /// Continue an interrupted run (same inputs and settings) from OUT.partial; starts afresh
+    /// when there is nothing to continue, and does nothing when OUT is already complete.
+    #[arg(long)]
+    resume: bool,
     /// Effort preset; the options below override its values.
     #[arg(long, value_enum, default_value_t = Preset::Default)]
     preset: Preset,
-    /// Grid cells across the domain's longest side.
-    #[arg(long)]
+    #[arg(long, help = help("Grid cells across the domain's longest side", Some(limits::RESOLUTION), defaults().resolution))]
     resolution: Option<usize>,
-    /// Segments in the chain.
-    #[arg(long)]
+    #[arg(long, help = help("Segments in the chain", Some(limits::SEGMENTS), "by preset: draft 6, default 12, final 40"))]
     segments: Option<usize>,
-    /// Simulation steps per segment (dt 1/120 s at the reference resolution).
-    #[arg(long)]
+    #[arg(long, help = help("Simulation steps per segment (dt 1/120 s at the reference resolution)", Some(limits::STEPS), defaults().steps_per_segment))]
     steps: Option<usize>,
-    /// Steps between control layers in a segment.
-    #[arg(long)]
+    #[arg(long, help = help("Steps between control layers in a segment", Some(1..=defaults().steps_per_segment), format!("{} (at most --steps)", defaults().control_stride)))]
     control_stride: Option<usize>,
-    /// Passes over the chain (later passes refine the earlier controls).
-    #[arg(long)]
+    #[arg(long, help = help("Passes over the chain (later passes refine the earlier controls)", Some(limits::PASSES), "by preset: draft 1, default 2, final 3"))]
     passes: Option<usize>,
-    /// Optimizer evaluations per segment (Adam) or per control layer (line search).
-    #[arg(long)]
+    #[arg(long, help = help("Optimizer evaluations per segment (Adam) or per control layer (line search)", Some(limits::ITERATIONS), "by preset: draft 10, default 12, final 25"))]
     iterations: Option<usize>,
-    /// Optimizer.
+    /// Optimizer [default adam].
     #[arg(long, value_enum)]
     optimizer: Option<Optimizer>,
-    /// Step size (Adam: per control entry; line search: initial normalized step).
-    #[arg(long)]
+    #[arg(long, help = help("Step size (Adam: per control entry; line search: initial normalized step), > 0", None, format!("{} (line search 0.1)", defaults().optimizer.learning_rate)))]
     learning_rate: Option<f64>,
     /// Mass loss on the grid.
     #[arg(long, value_enum, default_value_t = MassLossKind::Log)]
     loss: MassLossKind,
-    /// Weight of the kinetic energy left at each segment's end.
-    #[arg(long)]
+    #[arg(long, help = help("Weight of the kinetic energy left at each segment's end, >= 0", None, defaults().arrival_weight))]
     arrival_weight: Option<f64>,
     /// How the target is placed.
     #[arg(long, value_enum, default_value_t = TargetFit::MatchVolume)]
     target_fit: TargetFit,
-    /// Particles per cell along each axis (k^3 per cell).
-    #[arg(long)]
+    #[arg(long, help = help("Particles per cell along each axis (k^3 per cell)", Some(limits::PARTICLES_PER_CELL), defaults().particles_per_cell))]
     particles_per_cell: Option<usize>,
-    /// Random particle offsets, in particle spacings (0..1).
-    #[arg(long)]
+    #[arg(long, help = help("Random particle offsets, in particle spacings, 0 to 1", None, defaults().jitter))]
     jitter: Option<f64>,
     /// Seed for the jitter.
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Export every n-th simulation step as a frame.
-    #[arg(long)]
+    #[arg(long, help = help("Export every n-th simulation step as a frame", Some(limits::FRAME_EVERY), defaults().frame_every))]
     frame_every: Option<usize>,
     /// Skip the per-frame surface meshes (points only).
     #[arg(long)]
     no_surfaces: bool,
-    /// Print one JSON object per event on stdout (for farm logs) instead of progress bars.
+    /// Print one JSON object per event on stdout (for farm logs) instead of progress bars;
+    /// a failure ends the stream with an `error` event.
     #[arg(long)]
     json: bool,
     /// Print nothing but errors.
@@ -223,9 +238,10 @@ enum Command {
     Inspect {
         /// The mesh file.
         mesh: std::path::PathBuf,
-        /// Grid cells across the domain's longest side.
-        #[arg(long, default_value_t = 32)]
-        resolution: usize,
+        #[arg(long, default_value_t = defaults().resolution as u16,
+              value_parser = clap::value_parser!(u16).range(*limits::RESOLUTION.start() as i64..=*limits::RESOLUTION.end() as i64),
+              help = help("Grid cells across the domain's longest side", Some(limits::RESOLUTION), defaults().resolution))]
+        resolution: u16,
     },
     /// Compare two nodal mass grids (final_mass.mgrid); exit 0 if equal within tolerance.
     ///
@@ -259,19 +275,56 @@ enum Command {
     },
 }
 
+/// Prints a failure: one line `morph: error: ...` on stderr and, in `--json` mode, an `error`
+/// event as the last line on stdout.
+fn fail(json: bool, code: u8, message: &str) -> ExitCode {
+    eprintln!("morph: error: {message}");
+    if json {
+        println!(
+            "{}",
+            serde_json::json!({ "event": "error", "message": message, "exit_code": code })
+        );
+    }
+    ExitCode::from(code)
+}
+
+/// A command-line parse error as one line (clap's message spans several with usage notes).
+fn parse_error(e: clap::Error, json: bool) -> ExitCode {
+    use clap::error::ErrorKind;
+    if matches!(e.kind(), ErrorKind::DisplayHelp | ErrorKind::DisplayVersion) {
+        let _ = e.print();
+        return ExitCode::SUCCESS;
+    }
+    let text = e.render().to_string();
+    let mut parts = Vec::new();
+    for line in text.lines() {
+        let line = line.trim();
+        if line.starts_with("Usage:") || line.starts_with("For more information") {
+            break;
+        }
+        if !line.is_empty() {
+            parts.push(line.trim_start_matches("error:").trim().to_string());
+        }
+    }
+    let message = format!("{} (see morph --help)", parts.join(" "));
+    fail(json, 2, &message)
+}
+
 fn main() -> ExitCode {
-    let cli = Cli::parse();
+    let json = std::env::args_os().any(|a| a == "--json");
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => return parse_error(e, json),
+    };
     if let Some(t) = cli.threads {
         if t == 0 || t > 1024 {
-            eprintln!("morph: error: --threads must be between 1 and 1024, got {t}");
-            return ExitCode::from(2);
+            return fail(json, 2, &format!("--threads must be between 1 and 1024, got {t}"));
         }
         if let Err(e) = rayon::ThreadPoolBuilder::new()
             .num_threads(t)
             .build_global()
         {
-            eprintln!("morph: error: cannot start {t} threads: {e}");
-            return ExitCode::from(2);
+            return fail(json, 1, &format!("cannot start {t} threads: {e}"));
         }
     }
     let result = match cli.command {
@@ -282,9 +335,12 @@ fn main() -> ExitCode {
             thread_counts,
             kernels,
         }) => {
-            if steps == 0 || thread_counts.contains(&0) {
-                eprintln!("morph: error: --steps and --thread-counts must be positive");
-                return ExitCode::from(2);
+            if steps == 0 || repeats == 0 || thread_counts.contains(&0) {
+                return fail(
+                    false,
+                    2,
+                    "--steps, --repeats and --thread-counts must be positive",
+                );
             }
             morph::bench::run(steps, repeats, &thread_counts, &kernels)
         }
@@ -292,16 +348,41 @@ fn main() -> ExitCode {
             meshes,
             resolutions,
             repeats,
-        }) => morph::bench::geometry::run(&meshes, &resolutions, repeats),
-        Some(Command::Inspect { mesh, resolution }) => morph::geometry::inspect(&mesh, resolution)
-            .map_err(anyhow::Error::from)
-            .and_then(|report| {
-                for w in &report.warnings {
-                    eprintln!("morph: warning: {w}");
+        }) => {
+            if let Some(r) = resolutions.iter().find(|r| !limits::RESOLUTION.contains(r)) {
+                return fail(
+                    false,
+                    2,
+                    &format!(
+                        "--resolutions must each be between {} and {}, got {r}",
+                        limits::RESOLUTION.start(),
+                        limits::RESOLUTION.end()
+                    ),
+                );
+            }
+            if repeats == 0 {
+                return fail(false, 2, "--repeats must be at least 1");
+            }
+            morph::bench::geometry::run(&meshes, &resolutions, repeats)
+        }
+        Some(Command::Inspect { mesh, resolution }) => {
+            match morph::geometry::inspect(&mesh, resolution as usize) {
+                Ok(report) => {
+                    for w in &report.warnings {
+                        eprintln!("morph: warning: {w}");
+                    }
+                    println!(
+                        "{}",
+                        serde_json::to_string_pretty(&report).expect("plain report")
+                    );
+                    Ok(())
                 }
-                println!("{}", serde_json::to_string_pretty(&report)?);
-                Ok(())
-            }),
+                Err(e @ morph::geometry::MeshError::BadOption(_)) => {
+                    return fail(false, 2, &e.to_string());
+                }
+                Err(e) => Err(e.into()),
+            }
+        }
         Some(Command::Compare { a, b, rtol, atol }) => return compare(&a, &b, rtol, atol),
         Some(Command::Rope(args)) => return run_rope(&args),
         Some(Command::Assets { output }) => morph::geometry::assets::write_builtin(&output)
@@ -314,10 +395,7 @@ fn main() -> ExitCode {
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("morph: error: {e:#}");
-            ExitCode::FAILURE
-        }
+        Err(e) => fail(false, 1, &format!("{e:#}")),
     }
 }
 
@@ -354,19 +432,43 @@ fn compare(a: &std::path::Path, b: &std::path::Path, rtol: f64, atol: f64) -> Ex
     }
 }
 
+/// SIGINT and SIGTERM set `stop` to the signal's number: the run stops at its next
+/// evaluation and keeps its checkpoint. A second signal while stopping exits at once.
+fn stop_on_signals() -> std::io::Result<Arc<AtomicUsize>> {
+    use signal_hook::consts::{SIGINT, SIGTERM};
+    let stop = Arc::new(AtomicUsize::new(0));
+    let stopping = Arc::new(std::sync::atomic::AtomicBool::new(false));
+    for sig in [SIGINT, SIGTERM] {
+        signal_hook::flag::register_conditional_shutdown(sig, 128 + sig, Arc::clone(&stopping))?;
+        signal_hook::flag::register(sig, Arc::clone(&stopping))?;
+        signal_hook::flag::register_usize(sig, Arc::clone(&stop), sig as usize)?;
+    }
+    Ok(stop)
+}
+
+fn signal_name(signal: usize) -> &'static str {
+    match signal as i32 {
+        signal_hook::consts::SIGINT => "SIGINT",
+        signal_hook::consts::SIGTERM => "SIGTERM",
+        _ => "a signal",
+    }
+}
+
 /// `morph SOURCE TARGET`: progress bars on a terminal, JSON lines with --json.
 fn run_morph(args: &MorphArgs) -> ExitCode {
     use indicatif::{ProgressBar, ProgressStyle};
     use std::io::IsTerminal;
     let (Some(source), Some(target)) = (&args.source, &args.target) else {
-        eprintln!("morph: error: give a SOURCE and a TARGET mesh (see morph --help)");
-        return ExitCode::from(2);
+        return fail(args.json, 2, "give a SOURCE and a TARGET mesh (see morph --help)");
     };
     let settings = args.settings();
     if let Err(e) = settings.validate() {
-        eprintln!("morph: error: {e}");
-        return ExitCode::from(2);
+        return fail(args.json, 2, &e);
     }
+    let stop = match stop_on_signals() {
+        Ok(s) => s,
+        Err(e) => return fail(args.json, 1, &format!("cannot watch for signals: {e}")),
+    };
     let show_bar = !args.quiet && !args.json && std::io::stderr().is_terminal();
     let bar = ProgressBar::hidden();
     let mut last_loss = f64::NAN;
@@ -425,14 +527,14 @@ fn run_morph(args: &MorphArgs) -> ExitCode {
             MorphEvent::Segment { .. } | MorphEvent::Done { .. } => {}
         }
     };
-    let result = morph::morph::output::morph_to_folder(
-        &settings,
-        source,
-        target,
-        &args.output,
-        args.overwrite,
-        on_event,
-    );
+    let request = morph::morph::output::OutputRequest {
+        out: &args.output,
+        overwrite: args.overwrite,
+        resume: args.resume,
+        stop: Some(&stop),
+    };
+    let result =
+        morph::morph::output::morph_to_folder(&settings, source, target, &request, on_event);
     bar.finish_and_clear();
     match result {
         Ok(summary) => {
@@ -442,6 +544,16 @@ fn run_morph(args: &MorphArgs) -> ExitCode {
                     serde_json::json!({ "event": "written", "summary": summary })
                 );
             } else if !args.quiet {
+                if summary.already_complete {
+                    println!(
+                        "{} is already complete for these inputs and settings; nothing to do",
+                        summary.output.display()
+                    );
+                    return ExitCode::SUCCESS;
+                }
+                if let Some(from) = &summary.resumed_from {
+                    println!("resumed from the checkpoint ({from})");
+                }
                 println!(
                     "wrote {}: {} frames of {} particles; loss {:.4e} -> {:.4e}; target cells filled {:.1}%, particles outside {:.2}% (ejected {:.2}%); {:.1} s",
                     summary.output.display(),
@@ -457,12 +569,29 @@ fn run_morph(args: &MorphArgs) -> ExitCode {
             }
             ExitCode::SUCCESS
         }
-        Err(e) => {
-            eprintln!("morph: error: {e}");
-            match e {
-                MorphError::Settings(_) => ExitCode::from(2),
-                _ => ExitCode::FAILURE,
+        Err(MorphError::Interrupted { signal }) => {
+            let code = (128 + signal).min(255) as u8;
+            let staging = morph::io::outdir::partial_dir(&args.output);
+            let message = format!(
+                "interrupted by {}: completed segments are kept in '{}'; run the same command with --resume to continue",
+                signal_name(signal),
+                staging.display()
+            );
+            eprintln!("morph: {message}");
+            if args.json {
+                println!(
+                    "{}",
+                    serde_json::json!({ "event": "interrupted", "signal": signal_name(signal), "message": message, "exit_code": code })
+                );
             }
+            ExitCode::from(code)
+        }
+        Err(e) => {
+            let code = match e {
+                MorphError::Settings(_) | MorphError::Mesh(morph::geometry::MeshError::BadOption(_)) => 2,
+                _ => 1,
+            };
+            fail(args.json, code, &e.to_string())
         }
     }
 }

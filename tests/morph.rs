@@ -93,7 +93,7 @@ fn small_morph_end_to_end_and_thread_independent() {
     assert!(fin <= 0.2 * initial, "loss {initial} -> {fin}");
 
     // Layout and contents.
-    assert!(!morph::morph::output::partial_dir(a).exists());
+    assert!(!morph::io::outdir::partial_dir(a).exists());
     let frames = m["frames"].as_array().unwrap();
     assert_eq!(frames.len(), 2 * 30 / 10 + 1);
     let cells = m["grid_cells"].as_array().unwrap();
@@ -294,7 +294,7 @@ fn command_line_errors() {
     let err = String::from_utf8_lossy(&r.stderr);
     assert_eq!(err.lines().count(), 1, "{err}");
     assert!(err.contains("no/such.obj"));
-    assert!(!out.exists() && !morph::morph::output::partial_dir(&out).exists());
+    assert!(!out.exists() && !morph::io::outdir::partial_dir(&out).exists());
 
     std::fs::create_dir_all(&out).unwrap();
     std::fs::write(out.join("keep.txt"), "mine").unwrap();

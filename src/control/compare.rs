@@ -1,6 +1,6 @@
 //! `morph rope`: the uncontrolled rope, MPPI and the gradient controller on the same scene,
-//! with the same control knots, bounds and cost. Writes (into `OUT.partial`, renamed at the
-//! end):
+//! with the same control knots, bounds and cost. Writes (into the locked `OUT.partial`, put
+//! in place when complete; see [`crate::io::outdir`]):
 //!
 //! ```text
 //! OUT/report.json                    per method: final_energy, compute_s, energy per step, ...
@@ -15,7 +15,8 @@ use super::{Committed, ControlEvent};
 use crate::io::frames::write_points_ply;
 use crate::io::images::{PALETTE, Series, write_two_panels};
 use crate::io::write_atomically;
-use crate::morph::output::partial_dir;
+use crate::io::outdir;
+use std::io::Write;
 use crate::mpm::SimError;
 use crate::ode::{ControlParams, OdeState};
 use serde::Serialize;
@@ -320,49 +321,42 @@ fn out_err(what: &str, path: &Path, e: impl std::fmt::Display) -> RopeError {
     RopeError::Output(format!("cannot write {what} '{}': {e}", path.display()))
 }
 
-/// Runs [`run_rope`] and writes the folder `out` (refusing a non-empty one unless
-/// `overwrite`).
+/// Runs [`run_rope`] and writes the folder `out`, guarded like a morph's
+/// ([`crate::io::outdir`]): `-o` is checked before the run, an existing folder is replaced
+/// only with `overwrite` and only when it holds a rope `report.json`, and the staging folder
+/// is locked. A rope run is not resumable: a leftover staging folder of an earlier rope run
+/// (marked by its `run.json`) is scratch and is cleared.
 pub fn rope_to_folder(
     settings: &RopeSettings,
     out: &Path,
     overwrite: bool,
     on_event: impl FnMut(ControlEvent),
 ) -> Result<RopeReport, RopeError> {
-    if out.exists()
-        && !overwrite
-        && std::fs::read_dir(out)
-            .map(|mut d| d.next().is_some())
-            .unwrap_or(true)
-    {
-        return Err(RopeError::Settings(format!(
-            "output folder '{}' already exists; pass --overwrite to replace it",
-            out.display()
-        )));
-    }
     settings.validate()?;
-    let mut result = run_rope(settings, on_event)?;
-    let staging = partial_dir(out);
-    let written = write_folder(&mut result, &staging);
+    let plan = outdir::plan(out, &[], overwrite, "report.json").map_err(RopeError::Settings)?;
+    let mut staging = outdir::Staging::take(&plan, "run.json").map_err(RopeError::Output)?;
+    staging.clear().map_err(RopeError::Output)?;
+    let marker = staging.dir.join("run.json");
+    write_atomically(&marker, |w| w.write_all(b"{\"tool\": \"morph rope\"}\n"))
+        .map_err(|e| out_err("run marker", &marker, e))?;
+    let written = run_rope(settings, on_event).and_then(|mut result| {
+        write_folder(&mut result, &staging.dir)?;
+        Ok(result.report)
+    });
     match written {
-        Ok(()) => {
-            if out.exists() {
-                std::fs::remove_dir_all(out).map_err(|e| out_err("over folder", out, e))?;
-            }
-            std::fs::rename(&staging, out).map_err(|e| out_err("folder", out, e))?;
-            Ok(result.report)
+        Ok(report) => {
+            let _ = std::fs::remove_file(&marker);
+            staging.commit(&plan).map_err(RopeError::Output)?;
+            Ok(report)
         }
         Err(e) => {
-            let _ = std::fs::remove_dir_all(&staging);
+            staging.discard();
             Err(e)
         }
     }
 }
 
 fn write_folder(result: &mut RopeResult, dir: &Path) -> Result<(), RopeError> {
-    if dir.exists() {
-        std::fs::remove_dir_all(dir).map_err(|e| out_err("folder", dir, e))?;
-    }
-    std::fs::create_dir_all(dir).map_err(|e| out_err("folder", dir, e))?;
     let report = &mut result.report;
     let frames = &result.frames;
     let reports = [

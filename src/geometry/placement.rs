@@ -146,9 +146,12 @@ impl Default for PlacementOptions {
 
 impl PlacementOptions {
     pub fn validate(&self) -> Result<(), MeshError> {
-        if !(8..=256).contains(&self.resolution) {
+        let range = crate::morph::settings::limits::RESOLUTION;
+        if !range.contains(&self.resolution) {
             return Err(MeshError::BadOption(format!(
-                "--resolution must be between 8 and 256 cells, got {}",
+                "--resolution must be between {} and {} cells, got {}",
+                range.start(),
+                range.end(),
                 self.resolution
             )));
         }

@@ -5,6 +5,7 @@
 pub mod frames;
 pub mod images;
 pub mod massgrid;
+pub mod outdir;
 
 pub use crate::geometry::mesh::write_atomically;
 

@@ -9,10 +9,10 @@
 
 use crate::mpm::GridSpec;
 use nalgebra::Vector3;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::collections::HashSet;
 
-#[derive(Clone, Copy, Debug, Serialize, PartialEq)]
+#[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq)]
 pub struct FillMetrics {
     pub target_cells: usize,
     pub target_cells_filled: f64,

@@ -6,6 +6,7 @@
 //! and re-optimize them from the (now different) state the chain reaches. Frames come from
 //! the accepted rollouts of the last pass.
 
+pub mod checkpoint;
 pub mod metrics;
 pub mod output;
 pub mod segment;
@@ -16,8 +17,8 @@ use crate::loss::MassLoss;
 use crate::mpm::{SimError, Simulator, State};
 use crate::scene::{EffectConfig, SceneConfig};
 use nalgebra::Matrix3;
-use segment::Segment;
-use serde::Serialize;
+use segment::{Layers, Segment};
+use serde::{Deserialize, Serialize};
 pub use settings::{MorphSettings, Preset};
 use std::path::Path;
 use std::time::Instant;
@@ -60,23 +61,32 @@ pub enum MorphEvent {
     },
 }
 
+/// JSON has no infinity: serde_json writes it as null, and null reads back as infinity.
+fn null_is_infinite<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::INFINITY))
+}
+
 /// One optimizer evaluation, for the manifest and the loss plot.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct IterationRecord {
     pub pass: usize,
     pub segment: usize,
     pub iteration: usize,
+    /// Infinite (written as null) for a step that blew the simulation up and was undone.
+    #[serde(deserialize_with = "null_is_infinite")]
     pub loss: f64,
     /// Wall seconds since the optimization started.
     pub seconds: f64,
 }
 
 /// Summary of one optimized segment.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct SegmentRecord {
     pub pass: usize,
     pub segment: usize,
+    #[serde(deserialize_with = "null_is_infinite")]
     pub initial_loss: f64,
+    #[serde(deserialize_with = "null_is_infinite")]
     pub loss: f64,
     pub evaluations: usize,
     pub seconds: f64,
@@ -102,6 +112,12 @@ pub enum MorphError {
     Sim(#[from] SimError),
     #[error("{0}")]
     Output(String),
+    /// A refused or impossible `--resume`.
+    #[error("{0}")]
+    Resume(String),
+    /// Stopped on request (the value is the signal number when a signal asked).
+    #[error("interrupted")]
+    Interrupted { signal: usize },
 }
 
 impl Prepared {
@@ -182,11 +198,50 @@ impl Prepared {
     }
 }
 
+/// Where a chain stands after a completed segment: everything a bitwise continuation needs.
+/// Adam's moments and step size live within one segment's optimization, so the controls of
+/// every segment and the particle state are the whole optimizer state between segments.
+#[derive(Clone, Debug)]
+pub struct RunProgress {
+    pub pass: usize,
+    /// Segments of `pass` completed.
+    pub segments_done: usize,
+    /// The full particle state at the end of the last completed segment.
+    pub state: State,
+    /// Controls per segment, per layer, per particle.
+    pub controls: Vec<Layers>,
+    pub iterations: Vec<IterationRecord>,
+    pub segments: Vec<SegmentRecord>,
+    /// Frames exported so far.
+    pub frames: usize,
+    /// Wall seconds spent optimizing before this run (earlier, interrupted runs).
+    pub elapsed_s: f64,
+}
+
+/// What watches a chain run: progress events, exported frames, completed segments (to
+/// checkpoint them) and whether to stop.
+pub trait Observer {
+    fn event(&mut self, _event: &MorphEvent) {}
+    /// Exported frame `index` (0-based) at global step `step`.
+    fn frame(&mut self, _index: usize, _step: usize, _state: &State) -> Result<(), MorphError> {
+        Ok(())
+    }
+    /// A segment is complete; `segment` is the index whose controls changed.
+    fn segment_done(&mut self, _progress: &RunProgress, _segment: usize) -> Result<(), MorphError> {
+        Ok(())
+    }
+    /// A nonzero value stops the run at the next evaluation with [`MorphError::Interrupted`]
+    /// carrying it (the CLI stores the signal number).
+    fn stop_requested(&self) -> usize {
+        0
+    }
+}
+
 /// Result of a whole morph.
 pub struct MorphResult {
     pub final_state: State,
     /// Controls per segment, per layer, per particle (of the last pass).
-    pub controls: Vec<Vec<Vec<Matrix3<f64>>>>,
+    pub controls: Vec<Layers>,
     pub iterations: Vec<IterationRecord>,
     pub segments: Vec<SegmentRecord>,
     pub initial_loss: f64,
@@ -194,16 +249,18 @@ pub struct MorphResult {
     pub seconds: f64,
 }
 
-/// Runs the chain. `on_event` sees progress; `on_frame(index, step, state)` receives every
-/// exported frame of the last pass, in order, as soon as its segment is final.
+/// Runs the chain, from the start or from `resume` (a checkpoint of an earlier run with the
+/// same inputs and settings, which then continues bit for bit). The observer sees progress,
+/// receives every exported frame of the last pass in order as soon as its segment is final,
+/// and every completed segment.
 pub fn run(
     prep: &Prepared,
-    mut on_event: impl FnMut(&MorphEvent),
-    mut on_frame: impl FnMut(usize, usize, &State) -> Result<(), MorphError>,
+    resume: Option<RunProgress>,
+    observer: &mut dyn Observer,
 ) -> Result<MorphResult, MorphError> {
     let s = &prep.settings;
     let clock = Instant::now();
-    on_event(&MorphEvent::Setup {
+    observer.event(&MorphEvent::Setup {
         particles: prep.initial.len(),
         target_particles: prep.geometry.target.positions.len(),
         grid_cells: prep.sim.grid.cells,
@@ -218,49 +275,77 @@ pub fn run(
     let initial_loss = prep.loss_of(&prep.initial)?;
     let n = prep.initial.len();
     let layers_per_segment = s.steps_per_segment.div_ceil(s.control_stride);
-    let mut controls: Vec<Vec<Vec<Matrix3<f64>>>> =
-        vec![vec![vec![Matrix3::zeros(); n]; layers_per_segment]; s.segments];
-    let mut iterations = Vec::new();
-    let mut segments = Vec::new();
-    let mut state = prep.initial.clone();
-    let mut frame = 0;
-    for pass in 0..s.passes {
-        let last_pass = pass + 1 == s.passes;
-        state = prep.initial.clone();
-        if last_pass {
-            on_frame(frame, 0, &state)?;
-            frame += 1;
+    let mut progress = match resume {
+        Some(p) => {
+            p.check(s, n)?;
+            p
         }
-        #[allow(clippy::needless_range_loop)] // k also numbers steps, events and records
-        for k in 0..s.segments {
+        None => RunProgress {
+            pass: 0,
+            segments_done: 0,
+            state: prep.initial.clone(),
+            controls: vec![vec![vec![Matrix3::zeros(); n]; layers_per_segment]; s.segments],
+            iterations: Vec::new(),
+            segments: Vec::new(),
+            frames: 0,
+            elapsed_s: 0.0,
+        },
+    };
+    if progress.segments_done == s.segments && progress.pass + 1 < s.passes {
+        progress.pass += 1;
+        progress.segments_done = 0;
+    }
+    let offset_s = progress.elapsed_s;
+    let seconds = |clock: &Instant| offset_s + clock.elapsed().as_secs_f64();
+    let (first_pass, first_segment) = (progress.pass, progress.segments_done);
+    for pass in first_pass..s.passes {
+        let last_pass = pass + 1 == s.passes;
+        progress.pass = pass;
+        let from = if pass == first_pass { first_segment } else { 0 };
+        if from == 0 {
+            progress.state = prep.initial.clone();
+            progress.segments_done = 0;
+            if last_pass {
+                observer.frame(progress.frames, 0, &progress.state)?;
+                progress.frames += 1;
+            }
+        }
+        for k in from..s.segments {
             let seg_clock = Instant::now();
             let segment = Segment {
                 sim: &prep.sim,
                 loss: &prep.loss,
-                start: &state,
+                start: &progress.state,
                 first_step: k * s.steps_per_segment,
                 steps: s.steps_per_segment,
                 stride: s.control_stride,
                 arrival_weight: s.arrival_weight,
             };
-            let init = std::mem::take(&mut controls[k]);
+            let init = progress.controls[k].clone();
+            let mut stop = observer.stop_requested();
+            let iterations = &mut progress.iterations;
             let result = segment.optimize(init, &s.optimizer, |iteration, loss| {
-                let seconds = clock.elapsed().as_secs_f64();
+                let at = seconds(&clock);
                 iterations.push(IterationRecord {
                     pass,
                     segment: k,
                     iteration,
                     loss,
-                    seconds,
+                    seconds: at,
                 });
-                on_event(&MorphEvent::Iteration {
+                observer.event(&MorphEvent::Iteration {
                     pass,
                     segment: k,
                     iteration,
                     loss,
-                    seconds,
+                    seconds: at,
                 });
+                stop = observer.stop_requested();
+                stop == 0
             })?;
+            let Some(result) = result.filter(|_| stop == 0) else {
+                return Err(MorphError::Interrupted { signal: stop });
+            };
             let record = SegmentRecord {
                 pass,
                 segment: k,
@@ -269,7 +354,7 @@ pub fn run(
                 evaluations: result.evaluations,
                 seconds: seg_clock.elapsed().as_secs_f64(),
             };
-            on_event(&MorphEvent::Segment {
+            observer.event(&MorphEvent::Segment {
                 pass,
                 segment: k,
                 initial_loss: record.initial_loss,
@@ -277,7 +362,7 @@ pub fn run(
                 evaluations: record.evaluations,
                 seconds: record.seconds,
             });
-            segments.push(record);
+            progress.segments.push(record);
             if last_pass {
                 // States after local steps 1..=T: the next step's start state, then `last`.
                 let tape = &result.tape;
@@ -289,29 +374,55 @@ pub fn run(
                         } else {
                             &tape.last
                         };
-                        on_frame(frame, global, st)?;
-                        frame += 1;
+                        observer.frame(progress.frames, global, st)?;
+                        progress.frames += 1;
                     }
                 }
             }
-            controls[k] = result.layers;
-            state = result.tape.last;
+            progress.controls[k] = result.layers;
+            progress.state = result.tape.last;
+            progress.segments_done = k + 1;
+            progress.elapsed_s = seconds(&clock);
+            observer.segment_done(&progress, k)?;
         }
     }
-    let final_loss = prep.loss_of(&state)?;
-    let seconds = clock.elapsed().as_secs_f64();
-    on_event(&MorphEvent::Done {
+    let final_loss = prep.loss_of(&progress.state)?;
+    let seconds = seconds(&clock);
+    observer.event(&MorphEvent::Done {
         seconds,
         loss: final_loss,
-        frames: frame,
+        frames: progress.frames,
     });
     Ok(MorphResult {
-        final_state: state,
-        controls,
-        iterations,
-        segments,
+        final_state: progress.state,
+        controls: progress.controls,
+        iterations: progress.iterations,
+        segments: progress.segments,
         initial_loss,
         final_loss,
         seconds,
     })
+}
+
+impl RunProgress {
+    /// A checkpoint must fit the run it continues (the identity hash already says the inputs
+    /// and settings are the same; this guards against a damaged checkpoint).
+    fn check(&self, s: &MorphSettings, particles: usize) -> Result<(), MorphError> {
+        let layers = s.steps_per_segment.div_ceil(s.control_stride);
+        let fits = self.pass < s.passes
+            && self.segments_done <= s.segments
+            && self.state.len() == particles
+            && self.controls.len() == s.segments
+            && self
+                .controls
+                .iter()
+                .all(|l| l.len() == layers && l.iter().all(|p| p.len() == particles));
+        if fits {
+            Ok(())
+        } else {
+            Err(MorphError::Resume(
+                "the checkpoint does not fit this run (damaged?); start over with --overwrite".into(),
+            ))
+        }
+    }
 }

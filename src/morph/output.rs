@@ -8,31 +8,44 @@
 //! OUT/loss.png, OUT/preview.png
 //! ```
 //!
-//! Everything is written into `OUT.partial/` and renamed to `OUT` at the end, so a folder
-//! named `OUT` is always complete; a failed run removes its partial folder.
+//! `-o` is checked before any work and everything is written into the locked staging folder
+//! `OUT.partial/` (see [`crate::io::outdir`]), which is put in place of `OUT` atomically when
+//! complete. Each completed segment leaves a checkpoint there ([`super::checkpoint`]); an
+//! interrupted run keeps it and `--resume` continues bit for bit.
 
 use super::metrics::{FillMetrics, fill_metrics};
-use super::{IterationRecord, MorphError, MorphEvent, MorphSettings, Prepared, SegmentRecord, run};
+use super::{
+    IterationRecord, MorphError, MorphEvent, MorphSettings, Observer, Prepared, RunProgress,
+    SegmentRecord, checkpoint, run,
+};
 use crate::geometry::{Similarity, extract_surface};
+use crate::io::outdir::{self, Previous, Staging};
 use crate::io::{frames::write_points_ply, images, massgrid::MassGrid, sha256_file};
+use crate::mpm::State;
 use nalgebra::Vector3;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
-#[derive(Serialize)]
+/// The file that marks a folder as a morph output (and lets `--overwrite` replace it).
+pub const MANIFEST: &str = "manifest.json";
+/// The file that marks a staging folder as a run's, with what the run is.
+pub const RUN_FILE: &str = "run.json";
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 struct InputFile {
     path: String,
     sha256: String,
 }
 
-#[derive(Serialize)]
+#[derive(Serialize, Deserialize)]
 struct TargetPlacement {
     scale: f64,
     translation: [f64; 3],
 }
 
-#[derive(Serialize)]
+#[derive(Serialize, Deserialize)]
 struct FrameEntry {
     index: usize,
     step: usize,
@@ -42,12 +55,94 @@ struct FrameEntry {
     mesh: Option<String>,
 }
 
-#[derive(Serialize)]
-struct Manifest<'a> {
-    tool: &'static str,
-    version: &'static str,
+/// Who a run is: what decides its result bit for bit. Two runs with equal identities write
+/// the same frames and mass grid; `--resume` continues only a run with the same identity.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RunIdentity {
+    tool: String,
+    version: String,
     inputs: [InputFile; 2],
-    settings: &'a MorphSettings,
+    settings: MorphSettings,
+}
+
+impl RunIdentity {
+    fn new(settings: &MorphSettings, source: &Path, target: &Path) -> Result<Self, MorphError> {
+        let input = |p: &Path| -> Result<InputFile, MorphError> {
+            Ok(InputFile {
+                path: p.display().to_string(),
+                sha256: sha256_file(p).map_err(|e| {
+                    MorphError::Mesh(crate::geometry::MeshError::Unreadable {
+                        path: p.into(),
+                        reason: e.to_string(),
+                    })
+                })?,
+            })
+        };
+        Ok(RunIdentity {
+            tool: "morph".into(),
+            version: env!("CARGO_PKG_VERSION").into(),
+            inputs: [input(source)?, input(target)?],
+            settings: settings.clone(),
+        })
+    }
+
+    /// What differs from `other`, one phrase per difference (input paths may differ: the
+    /// content decides).
+    fn differences(&self, other: &RunIdentity) -> Vec<String> {
+        let mut out = Vec::new();
+        if self.version != other.version {
+            out.push(format!("morph version {} vs {}", other.version, self.version));
+        }
+        for (i, which) in ["source", "target"].iter().enumerate() {
+            if self.inputs[i].sha256 != other.inputs[i].sha256 {
+                out.push(format!(
+                    "{which} mesh content ('{}' vs '{}')",
+                    other.inputs[i].path, self.inputs[i].path
+                ));
+            }
+        }
+        let (a, b) = (
+            serde_json::to_value(&other.settings).unwrap_or_default(),
+            serde_json::to_value(&self.settings).unwrap_or_default(),
+        );
+        let mut diff = Vec::new();
+        json_diff("", &a, &b, &mut diff);
+        out.extend(diff);
+        out
+    }
+}
+
+/// Leaf-by-leaf differences of two JSON values, as `path: old -> new`.
+fn json_diff(at: &str, a: &serde_json::Value, b: &serde_json::Value, out: &mut Vec<String>) {
+    use serde_json::Value;
+    match (a, b) {
+        (Value::Object(x), Value::Object(y)) => {
+            let mut keys: Vec<&String> = x.keys().chain(y.keys()).collect();
+            keys.sort();
+            keys.dedup();
+            for k in keys {
+                let sub = if at.is_empty() { k.clone() } else { format!("{at}.{k}") };
+                json_diff(
+                    &sub,
+                    x.get(k).unwrap_or(&Value::Null),
+                    y.get(k).unwrap_or(&Value::Null),
+                    out,
+                );
+            }
+        }
+        _ if a != b => out.push(format!("{at}: {a} -> {b}")),
+        _ => {}
+    }
+}
+
+#[derive(Serialize, Deserialize)]
+struct Manifest {
+    tool: String,
+    version: String,
+    /// SHA-256 of the run identity (tool version, input hashes, settings).
+    run_id: String,
+    inputs: [InputFile; 2],
+    settings: MorphSettings,
     grid_cells: [usize; 3],
     dx_sim: f64,
     dt: f64,
@@ -60,15 +155,15 @@ struct Manifest<'a> {
     initial_loss: f64,
     final_loss: f64,
     fill: FillMetrics,
-    iterations: &'a [IterationRecord],
-    segments: &'a [SegmentRecord],
+    iterations: Vec<IterationRecord>,
+    segments: Vec<SegmentRecord>,
     timings: Timings,
     frames: Vec<FrameEntry>,
-    final_mass: &'static str,
-    warnings: &'a [String],
+    final_mass: String,
+    warnings: Vec<String>,
 }
 
-#[derive(Clone, Copy, Serialize)]
+#[derive(Clone, Copy, Serialize, Deserialize)]
 pub struct Timings {
     pub setup_s: f64,
     pub optimize_s: f64,
@@ -85,137 +180,297 @@ pub struct Summary {
     pub final_loss: f64,
     pub fill: FillMetrics,
     pub seconds: f64,
+    /// Where the run continued from (`--resume`), e.g. "pass 2 of 2, 5 of 12 segments done".
+    pub resumed_from: Option<String>,
+    /// `--resume` found the output already complete for these inputs and settings.
+    pub already_complete: bool,
 }
 
 fn out_err(what: &str, path: &Path, e: impl std::fmt::Display) -> MorphError {
     MorphError::Output(format!("cannot write {what} '{}': {e}", path.display()))
 }
 
-/// The staging folder next to `out`.
-pub fn partial_dir(out: &Path) -> PathBuf {
-    let mut s = out.as_os_str().to_owned();
-    s.push(".partial");
-    PathBuf::from(s)
+/// Where and how a morph writes its folder.
+#[derive(Clone, Copy, Debug)]
+pub struct OutputRequest<'a> {
+    pub out: &'a Path,
+    /// Replace an existing morph output folder.
+    pub overwrite: bool,
+    /// Continue an interrupted run of the same inputs and settings from its checkpoint
+    /// (starting afresh when there is none); a complete output of the same run is left as is.
+    pub resume: bool,
+    /// When it holds a nonzero value, the run stops at the next evaluation, keeps its
+    /// checkpoint and returns [`MorphError::Interrupted`] with that value (the CLI stores the
+    /// signal number here).
+    pub stop: Option<&'a AtomicUsize>,
 }
 
-/// Morphs `source` into `target` and writes the folder `out`. Refuses an existing non-empty
-/// `out` unless `overwrite`.
+/// The name of frame `index` (0-based) when there are `count` frames: zero-padded to the
+/// width the count needs (at least 4), so names sort in frame order.
+pub fn frame_name(index: usize, count: usize) -> String {
+    let width = count.to_string().len().max(4);
+    format!("frame_{:0width$}", index + 1)
+}
+
+/// Morphs `source` into `target` and writes the folder `request.out`; see the module docs.
 pub fn morph_to_folder(
     settings: &MorphSettings,
     source: &Path,
     target: &Path,
-    out: &Path,
-    overwrite: bool,
+    request: &OutputRequest,
     mut on_event: impl FnMut(&MorphEvent),
 ) -> Result<Summary, MorphError> {
     let clock = Instant::now();
     settings.validate().map_err(MorphError::Settings)?;
-    if out.exists()
-        && !overwrite
-        && std::fs::read_dir(out)
-            .map(|mut d| d.next().is_some())
-            .unwrap_or(true)
-    {
-        return Err(MorphError::Settings(format!(
-            "output folder '{}' already exists; pass --overwrite to replace it",
-            out.display()
-        )));
+    let plan = outdir::plan(
+        request.out,
+        &[source, target],
+        request.overwrite || request.resume,
+        MANIFEST,
+    )
+    .map_err(MorphError::Settings)?;
+    let identity = RunIdentity::new(settings, source, target)?;
+    let run_id = sha256_hex(&serde_json::to_vec(&identity).expect("plain data"));
+    if plan.existing == outdir::Existing::Ours {
+        let done = read_manifest(&plan.out.join(MANIFEST));
+        match done {
+            Some(m) if request.resume && m.run_id == run_id => {
+                return Ok(Summary {
+                    output: plan.out.clone(),
+                    particles: m.particles,
+                    frames: m.frames.len(),
+                    initial_loss: m.initial_loss,
+                    final_loss: m.final_loss,
+                    fill: m.fill,
+                    seconds: 0.0,
+                    resumed_from: None,
+                    already_complete: true,
+                });
+            }
+            _ if !request.overwrite => {
+                return Err(MorphError::Settings(format!(
+                    "output folder '{}' holds a different run; pass --overwrite to replace it",
+                    plan.out.display()
+                )));
+            }
+            _ => {}
+        }
     }
-    let prep = Prepared::new(settings, source, target)?;
-    let setup_s = clock.elapsed().as_secs_f64();
-    let staging = partial_dir(out);
-    let result = write_run(
-        &prep,
-        settings,
-        source,
-        target,
-        &staging,
-        setup_s,
-        clock,
-        &mut on_event,
-    );
+    let mut staging = Staging::take(&plan, RUN_FILE).map_err(MorphError::Output)?;
+    let run_path = staging.dir.join(RUN_FILE);
+    let mut resuming = false;
+    if staging.previous == Previous::Run {
+        let earlier: Option<RunIdentity> = std::fs::read(&run_path)
+            .ok()
+            .and_then(|b| serde_json::from_slice(&b).ok());
+        let shown = staging.dir.display().to_string();
+        if request.resume {
+            let Some(earlier) = earlier else {
+                return Err(MorphError::Resume(format!(
+                    "'{shown}' has an unreadable {RUN_FILE}; start over with --overwrite"
+                )));
+            };
+            let diff = identity.differences(&earlier);
+            if !diff.is_empty() {
+                return Err(MorphError::Resume(format!(
+                    "cannot resume '{shown}': it is a run of other inputs or settings ({}); start over with --overwrite",
+                    diff.join("; ")
+                )));
+            }
+            resuming = true;
+        } else if request.overwrite {
+            staging.clear().map_err(MorphError::Output)?;
+        } else {
+            return Err(MorphError::Settings(format!(
+                "'{shown}' holds an interrupted run; continue it with --resume or start over with --overwrite"
+            )));
+        }
+    }
+    if !resuming {
+        let json = serde_json::to_vec_pretty(&identity).expect("plain data");
+        crate::io::write_atomically(&run_path, |w| std::io::Write::write_all(w, &json))
+            .map_err(|e| out_err("run identity", &run_path, e))?;
+    }
+    let result = Prepared::new(settings, source, target).and_then(|prep| {
+        let setup_s = clock.elapsed().as_secs_f64();
+        let resume = if resuming {
+            checkpoint::load(
+                &staging.dir,
+                prep.initial.len(),
+                settings.segments,
+                settings.steps_per_segment.div_ceil(settings.control_stride),
+            )?
+        } else {
+            None
+        };
+        write_run(
+            &prep,
+            &identity,
+            &run_id,
+            &staging.dir,
+            resume,
+            request.stop,
+            setup_s,
+            clock,
+            &mut on_event,
+        )
+    });
     match result {
         Ok(mut summary) => {
-            if out.exists() {
-                std::fs::remove_dir_all(out).map_err(|e| out_err("over folder", out, e))?;
-            }
-            std::fs::rename(&staging, out).map_err(|e| out_err("folder", out, e))?;
-            summary.output = out.to_path_buf();
+            staging.commit(&plan).map_err(MorphError::Output)?;
+            summary.output = plan.out.clone();
             Ok(summary)
         }
         Err(e) => {
-            let _ = std::fs::remove_dir_all(&staging);
+            // Keep whatever a later --resume can use; remove a staging folder with nothing in it.
+            if !checkpoint::exists(&staging.dir) && !matches!(e, MorphError::Interrupted { .. }) {
+                staging.discard();
+            }
             Err(e)
         }
+    }
+}
+
+fn read_manifest(path: &Path) -> Option<Manifest> {
+    serde_json::from_slice(&std::fs::read(path).ok()?).ok()
+}
+
+fn sha256_hex(bytes: &[u8]) -> String {
+    use sha2::{Digest, Sha256};
+    Sha256::digest(bytes)
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
+}
+
+/// Writes frames as the chain produces them, checkpoints completed segments, and passes on
+/// events and stop requests.
+struct FolderWriter<'a> {
+    dir: &'a Path,
+    settings: &'a MorphSettings,
+    to_world: Similarity,
+    spacing: f64,
+    rest_volume: f64,
+    particles: usize,
+    n_frames: usize,
+    preview_at: Vec<usize>,
+    preview: Vec<(usize, Vec<Vector3<f64>>)>,
+    stop: Option<&'a AtomicUsize>,
+    on_event: &'a mut dyn FnMut(&MorphEvent),
+}
+
+impl FolderWriter<'_> {
+    fn preview_path(&self, index: usize) -> PathBuf {
+        self.dir
+            .join(checkpoint::FOLDER)
+            .join(format!("preview_{index:06}.bin"))
+    }
+
+    /// Preview frames written before an interruption come back from the checkpoint folder.
+    fn restore_preview(&mut self, frames_done: usize) -> Result<(), MorphError> {
+        for &index in self.preview_at.iter().filter(|&&i| i < frames_done) {
+            let path = self.preview_path(index);
+            let data = checkpoint::read_f64s(&path, 3 * self.particles)
+                .map_err(|e| MorphError::Resume(format!("checkpoint '{}': {e}", path.display())))?;
+            let x = data.chunks_exact(3).map(Vector3::from_column_slice).collect();
+            self.preview.push((index + 1, x));
+        }
+        Ok(())
+    }
+
+}
+
+impl Observer for FolderWriter<'_> {
+    fn event(&mut self, event: &MorphEvent) {
+        (self.on_event)(event);
+    }
+
+    fn frame(&mut self, index: usize, _step: usize, state: &State) -> Result<(), MorphError> {
+        let (s, shift) = (self.to_world.scale, Vector3::from(self.to_world.translation));
+        let name = frame_name(index, self.n_frames);
+        let x: Vec<Vector3<f64>> = state.x.iter().map(|p| s * p + shift).collect();
+        let v: Vec<Vector3<f64>> = state.v.iter().map(|v| s * v).collect();
+        let j: Vec<f64> = state.f.iter().map(|f| f.determinant()).collect();
+        let points = self.dir.join("frames").join(format!("{name}.ply"));
+        write_points_ply(&points, &x, &v, &j).map_err(|e| out_err("frame", &points, e))?;
+        if self.settings.surfaces {
+            let volumes: Vec<f64> = j.iter().map(|j| self.rest_volume * j.max(0.0)).collect();
+            let surface = extract_surface(&state.x, &volumes, self.spacing)
+                .map_err(|e| MorphError::Output(e.to_string()))?;
+            let path = self.dir.join("meshes").join(format!("{name}.obj"));
+            self.to_world
+                .apply_mesh(&surface)
+                .write_obj(&path)
+                .map_err(|e| out_err("surface", &path, e))?;
+        }
+        if self.preview_at.contains(&index) {
+            let path = self.preview_path(index);
+            let flat: Vec<f64> = x.iter().flat_map(|p| p.iter().copied()).collect();
+            checkpoint::write_f64s(&path, &flat).map_err(|e| out_err("checkpoint", &path, e))?;
+            self.preview.push((index + 1, x));
+        }
+        Ok(())
+    }
+
+    fn segment_done(&mut self, progress: &RunProgress, segment: usize) -> Result<(), MorphError> {
+        checkpoint::save(self.dir, progress, segment)
+    }
+
+    fn stop_requested(&self) -> usize {
+        self.stop.map_or(0, |s| s.load(Ordering::Relaxed))
     }
 }
 
 #[allow(clippy::too_many_arguments)]
 fn write_run(
     prep: &Prepared,
-    settings: &MorphSettings,
-    source: &Path,
-    target: &Path,
+    identity: &RunIdentity,
+    run_id: &str,
     dir: &Path,
+    resume: Option<RunProgress>,
+    stop: Option<&AtomicUsize>,
     setup_s: f64,
     clock: Instant,
     on_event: &mut dyn FnMut(&MorphEvent),
 ) -> Result<Summary, MorphError> {
-    if dir.exists() {
-        std::fs::remove_dir_all(dir).map_err(|e| out_err("folder", dir, e))?;
-    }
-    for sub in ["frames", "meshes"] {
-        let d = dir.join(sub);
+    let settings = &prep.settings;
+    for sub in ["frames", "meshes", checkpoint::FOLDER] {
         if sub == "meshes" && !settings.surfaces {
             continue;
         }
+        let d = dir.join(sub);
         std::fs::create_dir_all(&d).map_err(|e| out_err("folder", &d, e))?;
     }
     let to_world = prep.geometry.placement.sim_to_world();
-    let s = to_world.scale;
-    let shift = Vector3::from(to_world.translation);
     let spacing = prep.sim.grid.dx / settings.particles_per_cell as f64;
-    let rest_volume = prep.geometry.source.volume;
     let n_frames = prep.frame_count();
-    let preview_at: Vec<usize> = (0..6).map(|i| i * (n_frames - 1) / 5).collect();
-    let mut preview = Vec::new();
-    let mut frames = Vec::new();
-    let dt = prep.sim.dt;
-    let result = run(prep, &mut *on_event, |index, step, state| {
-        let name = format!("frame_{:04}", index + 1);
-        let x: Vec<Vector3<f64>> = state.x.iter().map(|p| s * p + shift).collect();
-        let v: Vec<Vector3<f64>> = state.v.iter().map(|v| s * v).collect();
-        let j: Vec<f64> = state.f.iter().map(|f| f.determinant()).collect();
-        let points = dir.join("frames").join(format!("{name}.ply"));
-        write_points_ply(&points, &x, &v, &j).map_err(|e| out_err("frame", &points, e))?;
-        let mesh = if settings.surfaces {
-            let volumes: Vec<f64> = j.iter().map(|j| rest_volume * j.max(0.0)).collect();
-            let surface = extract_surface(&state.x, &volumes, spacing)
-                .map_err(|e| MorphError::Output(e.to_string()))?;
-            let path = dir.join("meshes").join(format!("{name}.obj"));
-            to_world
-                .apply_mesh(&surface)
-                .write_obj(&path)
-                .map_err(|e| out_err("surface", &path, e))?;
-            Some(format!("meshes/{name}.obj"))
-        } else {
-            None
-        };
-        if preview_at.contains(&index) {
-            preview.push((index + 1, x));
-        }
-        frames.push(FrameEntry {
-            index: index + 1,
-            step,
-            time: step as f64 * dt,
-            points: format!("frames/{name}.ply"),
-            mesh,
-        });
-        Ok(())
-    })?;
+    let resumed_from = resume
+        .as_ref()
+        .map(|p| checkpoint::describe(p, settings.passes, settings.segments));
+    let mut writer = FolderWriter {
+        dir,
+        settings,
+        to_world,
+        spacing,
+        rest_volume: prep.geometry.source.volume,
+        particles: prep.initial.len(),
+        n_frames,
+        preview_at: (0..6).map(|i| i * (n_frames - 1) / 5).collect(),
+        preview: Vec::new(),
+        stop,
+        on_event,
+    };
+    if let Some(p) = &resume
+        && p.pass + 1 == settings.passes
+    {
+        writer.restore_preview(p.frames)?;
+    }
+    let result = run(prep, resume, &mut writer)?;
+    let preview = std::mem::take(&mut writer.preview);
     let optimize_s = clock.elapsed().as_secs_f64() - setup_s;
 
     // Final nodal mass grid, on world coordinates.
+    let s = to_world.scale;
     let mass = prep.sim.mass_grid(&result.final_state.x)?;
     let g = &prep.sim.grid;
     let origin = to_world.apply(&g.origin_vec());
@@ -242,24 +497,30 @@ fn write_run(
     images::write_preview(&preview_png, &preview, 0.5 * spacing * s)
         .map_err(|e| out_err("preview", &preview_png, e))?;
 
-    let input = |p: &Path| -> Result<InputFile, MorphError> {
-        Ok(InputFile {
-            path: p.display().to_string(),
-            sha256: sha256_file(p)
-                .map_err(|e| MorphError::Output(format!("cannot hash '{}': {e}", p.display())))?,
+    let frames: Vec<FrameEntry> = (0..n_frames)
+        .map(|i| {
+            let name = frame_name(i, n_frames);
+            let step = i * settings.frame_every;
+            FrameEntry {
+                index: i + 1,
+                step,
+                time: step as f64 * prep.sim.dt,
+                points: format!("frames/{name}.ply"),
+                mesh: settings.surfaces.then(|| format!("meshes/{name}.obj")),
+            }
         })
-    };
+        .collect();
     let t = prep.geometry.placement.target_to_world;
     let total_s = clock.elapsed().as_secs_f64();
-    let n_written = frames.len();
     let manifest = Manifest {
-        tool: "morph",
-        version: env!("CARGO_PKG_VERSION"),
-        inputs: [input(source)?, input(target)?],
-        settings,
+        tool: "morph".into(),
+        version: env!("CARGO_PKG_VERSION").into(),
+        run_id: run_id.into(),
+        inputs: identity.inputs.clone(),
+        settings: settings.clone(),
         grid_cells: g.cells,
         dx_sim: g.dx,
-        dt,
+        dt: prep.sim.dt,
         sim_to_world: to_world,
         target: TargetPlacement {
             scale: t.scale,
@@ -270,29 +531,34 @@ fn write_run(
         initial_loss: result.initial_loss,
         final_loss: result.final_loss,
         fill,
-        iterations: &result.iterations,
-        segments: &result.segments,
+        iterations: result.iterations,
+        segments: result.segments,
         timings: Timings {
             setup_s,
             optimize_s,
             total_s,
         },
         frames,
-        final_mass: "final_mass.mgrid",
-        warnings: &prep.geometry.warnings,
+        final_mass: "final_mass.mgrid".into(),
+        warnings: prep.geometry.warnings.clone(),
     };
-    let manifest_path = dir.join("manifest.json");
+    let manifest_path = dir.join(MANIFEST);
     let json =
         serde_json::to_vec_pretty(&manifest).map_err(|e| MorphError::Output(e.to_string()))?;
     crate::io::write_atomically(&manifest_path, |w| std::io::Write::write_all(w, &json))
         .map_err(|e| out_err("manifest", &manifest_path, e))?;
+    // The folder is complete: the checkpoint has served its purpose.
+    let ck = dir.join(checkpoint::FOLDER);
+    std::fs::remove_dir_all(&ck).map_err(|e| out_err("(removing) checkpoint", &ck, e))?;
     Ok(Summary {
         output: dir.to_path_buf(),
         particles: prep.initial.len(),
-        frames: n_written,
+        frames: n_frames,
         initial_loss: result.initial_loss,
         final_loss: result.final_loss,
         fill,
         seconds: total_s,
+        resumed_from,
+        already_complete: false,
     })
 }

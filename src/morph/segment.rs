@@ -150,13 +150,14 @@ impl Segment<'_> {
     }
 
     /// Optimizes the segment from `initial` controls (one per layer). `on_iteration` gets the
-    /// loss of every accepted evaluation.
+    /// loss of every accepted evaluation and returns whether to go on: `Ok(None)` when it
+    /// asked to stop.
     pub fn optimize(
         &self,
         initial: Layers,
         settings: &OptimizerSettings,
-        mut on_iteration: impl FnMut(usize, f64),
-    ) -> Result<SegmentResult, SimError> {
+        mut on_iteration: impl FnMut(usize, f64) -> bool,
+    ) -> Result<Option<SegmentResult>, SimError> {
         assert_eq!(initial.len(), self.num_layers());
         match settings.kind {
             Optimizer::Adam => self.adam(initial, settings, &mut on_iteration),
@@ -168,8 +169,8 @@ impl Segment<'_> {
         &self,
         mut layers: Layers,
         s: &OptimizerSettings,
-        on_iteration: &mut dyn FnMut(usize, f64),
-    ) -> Result<SegmentResult, SimError> {
+        on_iteration: &mut dyn FnMut(usize, f64) -> bool,
+    ) -> Result<Option<SegmentResult>, SimError> {
         const BETA1: f64 = 0.9;
         const BETA2: f64 = 0.999;
         const EPS: f64 = 1e-12;
@@ -185,7 +186,9 @@ impl Segment<'_> {
         let mut t = 0;
         let mut iteration = 0;
         'outer: loop {
-            on_iteration(iteration, current.loss);
+            if !on_iteration(iteration, current.loss) {
+                return Ok(None);
+            }
             let grad = if iteration + 1 < iterations {
                 Some(self.gradient(&current, &layers, 0)?)
             } else {
@@ -220,7 +223,9 @@ impl Segment<'_> {
                         // The step blew the simulation up: undo it, retry with half the step.
                         (layers, m1, m2) = saved.clone();
                         lr *= 0.5;
-                        on_iteration(iteration, f64::INFINITY);
+                        if !on_iteration(iteration, f64::INFINITY) {
+                            return Ok(None);
+                        }
                         if iteration + 1 >= iterations {
                             break 'outer;
                         }
@@ -230,25 +235,27 @@ impl Segment<'_> {
             }
         }
         let (layers, rollout) = best.expect("at least one evaluation");
-        Ok(SegmentResult {
+        Ok(Some(SegmentResult {
             layers,
             loss: rollout.loss,
             initial_loss,
             tape: rollout.tape,
             evaluations,
-        })
+        }))
     }
 
     fn line_search(
         &self,
         mut layers: Layers,
         s: &OptimizerSettings,
-        on_iteration: &mut dyn FnMut(usize, f64),
-    ) -> Result<SegmentResult, SimError> {
+        on_iteration: &mut dyn FnMut(usize, f64) -> bool,
+    ) -> Result<Option<SegmentResult>, SimError> {
         // The accepted rollout of the whole segment, and the state at each layer's start.
         let mut accepted = self.rollout(self.start, &layers, 0)?;
         let initial_loss = accepted.loss;
-        on_iteration(0, accepted.loss);
+        if !on_iteration(0, accepted.loss) {
+            return Ok(None);
+        }
         let mut evaluations = 1;
         let mut iteration = 1;
         for layer in 0..layers.len() {
@@ -301,7 +308,9 @@ impl Segment<'_> {
                         accepted.tape.steps.extend(r.tape.steps);
                         accepted.tape.last = r.tape.last;
                         accepted.loss = r.loss;
-                        on_iteration(iteration, r.loss);
+                        if !on_iteration(iteration, r.loss) {
+                            return Ok(None);
+                        }
                         iteration += 1;
                     }
                     // Line search failed: the accepted rollout is untouched; next layer.
@@ -309,13 +318,13 @@ impl Segment<'_> {
                 }
             }
         }
-        Ok(SegmentResult {
+        Ok(Some(SegmentResult {
             layers,
             loss: accepted.loss,
             initial_loss,
             tape: accepted.tape,
             evaluations,
-        })
+        }))
     }
 }
 

@@ -7,6 +7,19 @@ use crate::mpm::KernelKind;
 use crate::scene::MaterialConfig;
 use serde::{Deserialize, Serialize};
 
+/// Allowed ranges of the count settings; [`MorphSettings::validate`] and the CLI's `--help`
+/// both read them.
+pub mod limits {
+    use std::ops::RangeInclusive;
+    pub const RESOLUTION: RangeInclusive<usize> = 8..=256;
+    pub const PARTICLES_PER_CELL: RangeInclusive<usize> = 1..=4;
+    pub const SEGMENTS: RangeInclusive<usize> = 1..=10_000;
+    pub const STEPS: RangeInclusive<usize> = 1..=10_000;
+    pub const PASSES: RangeInclusive<usize> = 1..=100;
+    pub const ITERATIONS: RangeInclusive<usize> = 1..=100_000;
+    pub const FRAME_EVERY: RangeInclusive<usize> = 1..=1_000_000;
+}
+
 /// Named bundles of chain length and effort. See `docs/morph.md`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum, Default)]
 #[serde(rename_all = "lowercase")]
@@ -96,26 +109,33 @@ impl MorphSettings {
 
     /// Checks every setting; the message names the option.
     pub fn validate(&self) -> Result<(), String> {
-        let range = |name: &str, v: usize, lo: usize, hi: usize| {
-            if (lo..=hi).contains(&v) {
+        let range = |name: &str, v: usize, r: std::ops::RangeInclusive<usize>| {
+            if r.contains(&v) {
                 Ok(())
             } else {
-                Err(format!("--{name} must be between {lo} and {hi}, got {v}"))
+                Err(format!(
+                    "--{name} must be between {} and {}, got {v}",
+                    r.start(),
+                    r.end()
+                ))
             }
         };
-        range("resolution", self.resolution, 8, 256)?;
-        range("particles-per-cell", self.particles_per_cell, 1, 4)?;
-        range("segments", self.segments, 1, 10_000)?;
-        range("steps", self.steps_per_segment, 1, 10_000)?;
+        range("resolution", self.resolution, limits::RESOLUTION)?;
+        range(
+            "particles-per-cell",
+            self.particles_per_cell,
+            limits::PARTICLES_PER_CELL,
+        )?;
+        range("segments", self.segments, limits::SEGMENTS)?;
+        range("steps", self.steps_per_segment, limits::STEPS)?;
         range(
             "control-stride",
             self.control_stride,
-            1,
-            self.steps_per_segment,
+            1..=self.steps_per_segment,
         )?;
-        range("passes", self.passes, 1, 100)?;
-        range("iterations", self.optimizer.iterations, 1, 100_000)?;
-        range("frame-every", self.frame_every, 1, 1_000_000)?;
+        range("passes", self.passes, limits::PASSES)?;
+        range("iterations", self.optimizer.iterations, limits::ITERATIONS)?;
+        range("frame-every", self.frame_every, limits::FRAME_EVERY)?;
         let positive = |name: &str, v: f64| {
             if v.is_finite() && v > 0.0 {
                 Ok(())
