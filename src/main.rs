@@ -415,6 +415,12 @@ fn compare(a: &std::path::Path, b: &std::path::Path, rtol: f64, atol: f64) -> Ex
     match compare(&ga, &gb, rtol, atol) {
         Ok(c) => {
             println!("{}", serde_json::to_string(&c).expect("plain struct"));
+            if let Some(n) = &c.non_finite {
+                eprintln!(
+                    "morph: error: non-finite mass at node {:?} (index {}): {} vs {} ({} such nodes)",
+                    n.node, n.index, n.a, n.b, n.count
+                );
+            }
             if c.within_tolerance {
                 ExitCode::SUCCESS
             } else {
@@ -426,7 +432,7 @@ fn compare(a: &std::path::Path, b: &std::path::Path, rtol: f64, atol: f64) -> Ex
                 "{}",
                 serde_json::json!({ "within_tolerance": false, "error": e })
             );
-            eprintln!("morph: {e}");
+            eprintln!("morph: error: {e}");
             ExitCode::FAILURE
         }
     }

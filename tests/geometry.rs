@@ -277,7 +277,7 @@ fn cli_reports_bad_mesh_in_one_line() {
                 "--resolution".into(),
                 "3".into(),
             ],
-            1,
+            2, // a bad option, as in every subcommand
         ),
     ] {
         let out = std::process::Command::new(env!("CARGO_BIN_EXE_morph"))

@@ -298,9 +298,14 @@ fn command_line_errors() {
 
     std::fs::create_dir_all(&out).unwrap();
     std::fs::write(out.join("keep.txt"), "mine").unwrap();
-    let r = morph(&["assets/sphere.obj", "assets/cube.obj", "-o", o]);
-    assert_eq!(r.status.code(), Some(2));
-    assert!(String::from_utf8_lossy(&r.stderr).contains("--overwrite"));
+    // A folder that is not a morph output is refused, with or without --overwrite.
+    for extra in [None, Some("--overwrite")] {
+        let mut args = vec!["assets/sphere.obj", "assets/cube.obj", "-o", o];
+        args.extend(extra);
+        let r = morph(&args);
+        assert_eq!(r.status.code(), Some(2));
+        assert!(String::from_utf8_lossy(&r.stderr).contains("not a morph output"));
+    }
     assert_eq!(
         std::fs::read_to_string(out.join("keep.txt")).unwrap(),
         "mine"

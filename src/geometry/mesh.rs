@@ -242,6 +242,16 @@ impl TriMesh {
     /// Writes a Wavefront OBJ (vertices and faces only) atomically: to a temporary name in
     /// the same folder, then renamed over `path`.
     pub fn write_obj(&self, path: &Path) -> std::io::Result<()> {
+        if let Some(i) = self
+            .vertices
+            .iter()
+            .position(|v| !v.iter().all(|&c| (c as f32).is_finite()))
+        {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::InvalidData,
+                format!("vertex {} is not finite in 32-bit floats", i + 1),
+            ));
+        }
         write_atomically(path, |w| {
             writeln!(w, "# written by morph {}", env!("CARGO_PKG_VERSION"))?;
             for v in &self.vertices {

@@ -67,6 +67,7 @@ impl MorphGeometry {
         let source_solid = Solid::measure(&src.mesh, source_path)?;
         let target_solid = Solid::measure(&tgt.mesh, target_path)?;
         let placement = Placement::new(&source_solid, &target_solid, options)?;
+        placement.check_output_range(source_path, per_cell)?;
         let source_sim = placement.world_to_sim.apply_mesh(&src.mesh);
         let target_sim = placement.target_to_sim().apply_mesh(&tgt.mesh);
         let source = particles_in(&source_sim, &placement.grid, per_cell, jitter);
@@ -129,8 +130,9 @@ pub struct MeshReport {
     pub genus: Option<i64>,
     pub bounds_min: [f64; 3],
     pub bounds_max: [f64; 3],
-    /// Inside volume in the mesh's units (winding-number voxelization).
-    pub volume: f64,
+    /// Inside volume in the mesh's units (winding-number voxelization); null when it is
+    /// beyond f64 (a warning gives its order of magnitude).
+    pub volume: Option<f64>,
     pub centroid: [f64; 3],
     pub resolution: usize,
     /// Particles at `resolution` cells across, 2x2x2 per cell, placed as a morph source.
@@ -154,6 +156,17 @@ pub fn inspect(path: &Path, resolution: usize) -> Result<MeshReport, MeshError> 
         2,
         None,
     );
+    let mut warnings = loaded.warnings;
+    if !(solid.volume.is_finite() && solid.volume > 0.0) {
+        warnings.push(format!(
+            "{}: its volume (about 1e{:.0} cubic units) is beyond 64-bit floats; only its shape is used as a target",
+            path.display(),
+            solid.log10_volume()
+        ));
+    }
+    if let Err(e) = placement.check_output_range(path, 2) {
+        warnings.push(e.to_string());
+    }
     let topo = mesh.topology();
     let genus = topo.is_closed().then(|| {
         let chi = mesh.vertices.len() as i64 - topo.edges as i64 + mesh.triangles.len() as i64;
@@ -169,10 +182,10 @@ pub fn inspect(path: &Path, resolution: usize) -> Result<MeshReport, MeshError> 
         genus,
         bounds_min: solid.bounds_min,
         bounds_max: solid.bounds_max,
-        volume: solid.volume,
+        volume: (solid.volume.is_finite() && solid.volume > 0.0).then_some(solid.volume),
         centroid: solid.centroid,
         resolution,
         particles: particles.positions.len(),
-        warnings: loaded.warnings,
+        warnings,
     })
 }

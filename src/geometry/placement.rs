@@ -63,20 +63,30 @@ impl Similarity {
 /// What a mesh encloses, measured by voxelization (valid for open meshes too).
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Solid {
+    /// Inside volume in the mesh's units; it over- or underflows f64 for meshes in extreme
+    /// units (a 1e300-unit mesh), which is why placement uses `unit_volume` and `length`.
     pub volume: f64,
     pub centroid: [f64; 3],
     pub bounds_min: [f64; 3],
     pub bounds_max: [f64; 3],
+    /// The longest side of the bounding box.
+    pub length: f64,
+    /// The inside volume with the longest side scaled to 1 (always a plain number).
+    pub unit_volume: f64,
 }
 
 impl Solid {
     /// Measures the inside of `mesh` (named `path` in errors) on a lattice of
     /// `MEASURE_SAMPLES` across its longest side. Fails when nothing is inside, or when the
     /// winding number is near 1/2 for more samples than are inside (an open sheet, not a
-    /// solid).
+    /// solid). The mesh is first brought to unit size about its box centre in f64, so meshes
+    /// in any units measure alike.
     pub fn measure(mesh: &TriMesh, path: &Path) -> Result<Solid, MeshError> {
         let bounds = mesh.bounds();
-        let vox = voxelize(mesh, &Lattice::covering(&bounds, MEASURE_SAMPLES));
+        let centre = bounds.centre();
+        let length = bounds.longest_side();
+        let unit = mesh.transformed(1.0 / length, &(-centre / length));
+        let vox = voxelize(&unit, &Lattice::covering(&unit.bounds(), MEASURE_SAMPLES));
         let s = vox.stats;
         if s.inside == 0 {
             return Err(MeshError::NoInside {
@@ -96,12 +106,26 @@ impl Solid {
         }
         let points = vox.inside_points();
         let centroid = points.iter().sum::<Vector3<f64>>() / points.len() as f64;
+        let unit_volume = vox.volume();
         Ok(Solid {
-            volume: vox.volume(),
-            centroid: centroid.into(),
+            volume: unit_volume * length.powi(3),
+            centroid: (centre + length * centroid).into(),
             bounds_min: bounds.min.into(),
             bounds_max: bounds.max.into(),
+            length,
+            unit_volume,
         })
+    }
+
+    /// The uniform scale that gives `self` the volume of `other`, computed without forming
+    /// either volume (which may not fit in f64).
+    pub fn scale_to_volume_of(&self, other: &Solid) -> f64 {
+        (other.length / self.length) * (other.unit_volume / self.unit_volume).cbrt()
+    }
+
+    /// log10 of the volume, finite even where the volume itself is not representable.
+    pub fn log10_volume(&self) -> f64 {
+        self.unit_volume.log10() + 3.0 * self.length.log10()
     }
 
     fn bounds(&self) -> Aabb {
@@ -190,7 +214,7 @@ impl Placement {
         let target_to_world = match options.target_fit {
             TargetFit::AsGiven => Similarity::identity(),
             TargetFit::MatchVolume => {
-                let scale = (source.volume / target.volume).cbrt();
+                let scale = target.scale_to_volume_of(source);
                 let t = Vector3::from(source.centroid) - scale * Vector3::from(target.centroid);
                 Similarity {
                     scale,
@@ -240,5 +264,40 @@ impl Placement {
 
     pub fn sim_to_world(&self) -> Similarity {
         self.world_to_sim.inverse()
+    }
+}
+
+impl Placement {
+    /// Frames are written as 32-bit floats in the source's units: refuses a source (named
+    /// `path`) whose domain those cannot hold, or whose particle spacing (`per_cell`
+    /// particles per cell axis) they cannot resolve at those coordinates.
+    pub fn check_output_range(&self, path: &Path, per_cell: usize) -> Result<(), MeshError> {
+        let w = self.sim_to_world();
+        let g = &self.grid;
+        let lo = w.apply(&Vector3::from(g.origin));
+        let hi = w.apply(&(Vector3::from(g.origin) + g.dx * Vector3::from(g.cells.map(|c| c as f64))));
+        let reach = lo.abs().max().max(hi.abs().max());
+        let spacing = w.scale * g.dx / per_cell as f64;
+        // Velocities reach a few domain sizes per second: keep three decades of headroom.
+        const MAX_REACH: f64 = 1e35;
+        // At least 64 float32 steps per particle spacing, and far from subnormal numbers.
+        let min_spacing = (reach * 64.0 * f32::EPSILON as f64).max(1e-30);
+        let invalid = |reason: String| {
+            Err(MeshError::Invalid {
+                path: path.into(),
+                reason,
+            })
+        };
+        if !(reach <= MAX_REACH) {
+            return invalid(format!(
+                "as a source its coordinates reach {reach:.1e}, beyond what the 32-bit float frames can hold (about {MAX_REACH:.0e}); rescale the mesh"
+            ));
+        }
+        if !(spacing >= min_spacing) {
+            return invalid(format!(
+                "as a source its particle spacing ({spacing:.1e} units) is below what 32-bit float frames resolve at coordinates up to {reach:.1e}; rescale the mesh or move it nearer the origin"
+            ));
+        }
+        Ok(())
     }
 }

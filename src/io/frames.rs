@@ -19,6 +19,19 @@ pub fn write_points_ply(
 ) -> std::io::Result<()> {
     assert_eq!(positions.len(), velocities.len());
     assert_eq!(positions.len(), volume_ratio.len());
+    // Exit 0 means every written value is finite: refuse what float32 cannot hold.
+    for p in 0..positions.len() {
+        let values = positions[p].iter().chain(velocities[p].iter());
+        if !values
+            .chain(std::iter::once(&volume_ratio[p]))
+            .all(|&c| (c as f32).is_finite())
+        {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::InvalidData,
+                format!("particle {p} has a value that is not a finite 32-bit float"),
+            ));
+        }
+    }
     write_atomically(path, |w| {
         write!(
             w,

@@ -53,6 +53,12 @@ impl MassGrid {
     }
 
     pub fn write(&self, path: &Path) -> std::io::Result<()> {
+        if let Some(i) = self.values.iter().position(|v| !v.is_finite()) {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::InvalidData,
+                format!("node {:?} has a non-finite mass", self.node(i)),
+            ));
+        }
         let header = serde_json::to_vec(&self.header).map_err(std::io::Error::other)?;
         write_atomically(path, |w| {
             w.write_all(MAGIC)?;
@@ -64,6 +70,12 @@ impl MassGrid {
             }
             w.write_all(&buf)
         })
+    }
+
+    /// The (i, j, k) of flat index `index`.
+    pub fn node(&self, index: usize) -> [usize; 3] {
+        let [_, ny, nz] = self.header.dims;
+        [index / (ny * nz), (index / nz) % ny, index % nz]
     }
 
     /// Reads and checks a mass grid file; errors name the file and the problem.
@@ -112,6 +124,21 @@ pub struct Comparison {
     /// Largest |a - b| / (atol + rtol |b|): 1 or less means within tolerance.
     pub worst_ratio: f64,
     pub within_tolerance: bool,
+    /// The first node where either grid holds NaN or infinity (then never within tolerance).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub non_finite: Option<NonFinite>,
+}
+
+/// A node where a grid holds a non-finite value.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct NonFinite {
+    pub node: [usize; 3],
+    pub index: usize,
+    /// The values as text ("NaN", "inf", or the number), since JSON has no NaN.
+    pub a: String,
+    pub b: String,
+    /// Nodes with a non-finite value in either grid.
+    pub count: usize,
 }
 
 /// Compares `a` with the reference `b`: equal when every node has
@@ -135,13 +162,25 @@ pub fn compare(a: &MassGrid, b: &MassGrid, rtol: f64, atol: f64) -> Result<Compa
     let mut max_abs: f64 = 0.0;
     let mut sum = crate::loss::CompensatedSum::default();
     let mut worst: f64 = 0.0;
-    for (&x, &y) in a.values.iter().zip(&b.values) {
-        let d = (x - y).abs();
-        if d.is_nan() {
+    let mut non_finite: Option<NonFinite> = None;
+    for (i, (&x, &y)) in a.values.iter().zip(&b.values).enumerate() {
+        if !(x.is_finite() && y.is_finite()) {
             worst = f64::INFINITY;
-            max_abs = f64::NAN;
+            match &mut non_finite {
+                Some(n) => n.count += 1,
+                None => {
+                    non_finite = Some(NonFinite {
+                        node: a.node(i),
+                        index: i,
+                        a: x.to_string(),
+                        b: y.to_string(),
+                        count: 1,
+                    })
+                }
+            }
             continue;
         }
+        let d = (x - y).abs();
         max_abs = max_abs.max(d);
         sum.add(d);
         let allowed = atol + rtol * y.abs();
@@ -159,6 +198,7 @@ pub fn compare(a: &MassGrid, b: &MassGrid, rtol: f64, atol: f64) -> Result<Compa
         max_abs_diff: max_abs,
         mean_abs_diff: sum.value() / nodes.max(1) as f64,
         worst_ratio: worst,
-        within_tolerance: worst <= 1.0,
+        within_tolerance: worst <= 1.0 && non_finite.is_none(),
+        non_finite,
     })
 }
