@@ -74,6 +74,20 @@ pub struct Topology {
     pub misoriented_edges: usize,
 }
 
+/// One connected part of a mesh.
+#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct PartTopology {
+    pub triangles: usize,
+    pub vertices: usize,
+    pub boundary_edges: usize,
+    pub non_manifold_edges: usize,
+    /// V - E + F of the part.
+    pub euler_characteristic: i64,
+    /// Holes through the part (a sphere 0, a torus 1), for a closed, consistently oriented
+    /// manifold part; absent otherwise (then the Euler characteristic is what is known).
+    pub genus: Option<i64>,
+}
+
 impl Topology {
     /// Closed: every edge is shared by exactly two triangles.
     pub fn is_closed(&self) -> bool {
@@ -145,6 +159,116 @@ impl TriMesh {
             }
         }
         topo
+    }
+
+    /// Merges vertices closer than `tolerance` (the first in file order is kept) and drops the
+    /// triangles that collapse. Returns the merged and dropped counts. Unwelded exports (each
+    /// face with its own corners, or vertices split at UV seams) become one connected
+    /// surface, so the topology checks and the orientation repair see the real shape.
+    pub fn weld(&mut self, tolerance: f64) -> (usize, usize) {
+        if self.vertices.is_empty() || !(tolerance > 0.0) {
+            return (0, 0);
+        }
+        let origin = self.bounds().min;
+        let key = |v: &Vector3<f64>| ((v - origin) / tolerance).map(|c| c.floor() as i64);
+        let mut cells: HashMap<[i64; 3], Vec<u32>> = HashMap::with_capacity(self.vertices.len());
+        let mut remap = Vec::with_capacity(self.vertices.len());
+        let mut kept: Vec<Vector3<f64>> = Vec::with_capacity(self.vertices.len());
+        for v in &self.vertices {
+            let k = key(v);
+            let mut found = None;
+            'search: for dx in -1..=1 {
+                for dy in -1..=1 {
+                    for dz in -1..=1 {
+                        if let Some(list) = cells.get(&[k.x + dx, k.y + dy, k.z + dz]) {
+                            if let Some(&i) = list
+                                .iter()
+                                .find(|&&i| (kept[i as usize] - v).norm() <= tolerance)
+                            {
+                                found = Some(i);
+                                break 'search;
+                            }
+                        }
+                    }
+                }
+            }
+            let index = found.unwrap_or_else(|| {
+                let i = kept.len() as u32;
+                kept.push(*v);
+                cells.entry([k.x, k.y, k.z]).or_default().push(i);
+                i
+            });
+            remap.push(index);
+        }
+        let merged = self.vertices.len() - kept.len();
+        let before = self.triangles.len();
+        self.triangles = self
+            .triangles
+            .iter()
+            .map(|t| t.map(|i| remap[i as usize]))
+            .filter(|t| t[0] != t[1] && t[1] != t[2] && t[0] != t[2])
+            .collect();
+        self.vertices = kept;
+        (merged, before - self.triangles.len())
+    }
+
+    /// The connected parts (triangles sharing vertices), each with its own topology.
+    pub fn parts(&self) -> Vec<PartTopology> {
+        let nv = self.vertices.len();
+        let mut parent: Vec<u32> = (0..nv as u32).collect();
+        fn find(parent: &mut [u32], mut i: u32) -> u32 {
+            while parent[i as usize] != i {
+                parent[i as usize] = parent[parent[i as usize] as usize];
+                i = parent[i as usize];
+            }
+            i
+        }
+        for t in &self.triangles {
+            let a = find(&mut parent, t[0]);
+            for &v in &t[1..] {
+                let b = find(&mut parent, v);
+                if a != b {
+                    parent[b as usize] = a;
+                }
+            }
+        }
+        // Parts numbered in order of their first triangle.
+        let mut part_of_root: HashMap<u32, usize> = HashMap::new();
+        let mut parts: Vec<TriMesh> = Vec::new();
+        let mut local: Vec<HashMap<u32, u32>> = Vec::new();
+        for t in &self.triangles {
+            let root = find(&mut parent, t[0]);
+            let p = *part_of_root.entry(root).or_insert_with(|| {
+                parts.push(TriMesh::default());
+                local.push(HashMap::new());
+                parts.len() - 1
+            });
+            let (mesh, map) = (&mut parts[p], &mut local[p]);
+            let tri = t.map(|v| {
+                *map.entry(v).or_insert_with(|| {
+                    mesh.vertices.push(self.vertices[v as usize]);
+                    (mesh.vertices.len() - 1) as u32
+                })
+            });
+            mesh.triangles.push(tri);
+        }
+        parts
+            .iter()
+            .map(|m| {
+                let topo = m.topology();
+                let euler =
+                    m.vertices.len() as i64 - topo.edges as i64 + m.triangles.len() as i64;
+                let closed = topo.is_closed() && topo.misoriented_edges == 0;
+                PartTopology {
+                    triangles: m.triangles.len(),
+                    vertices: m.vertices.len(),
+                    boundary_edges: topo.boundary_edges,
+                    non_manifold_edges: topo.non_manifold_edges,
+                    euler_characteristic: euler,
+                    genus: (closed && euler % 2 == 0).then_some((2 - euler) / 2),
+                }
+            })
+            .collect()
     }
 
     /// Makes the orientation consistent across every manifold edge (flood fill per connected
@@ -291,7 +415,13 @@ pub fn write_atomically(
 pub struct LoadedMesh {
     pub mesh: TriMesh,
     pub warnings: Vec<String>,
+    /// Vertices merged by welding, and triangles that collapsed doing so.
+    pub welded_vertices: usize,
+    pub collapsed_triangles: usize,
 }
+
+/// Vertices closer than this fraction of the bounding-box diagonal are one vertex.
+pub const WELD_TOLERANCE: f64 = 1e-7;
 
 /// File formats morph reads.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -333,7 +463,17 @@ pub fn load_mesh(path: &Path) -> Result<LoadedMesh, MeshError> {
         MeshFormat::Ply => (parse_ply(path, &bytes)?, Vec::new()),
     };
     validate(path, &mesh)?;
+    let diagonal = mesh.bounds().extent().norm();
+    let (welded_vertices, collapsed_triangles) = mesh.weld(WELD_TOLERANCE * diagonal);
+    validate(path, &mesh)?;
     let topo = mesh.topology();
+    if topo.non_manifold_edges > 0 {
+        warnings.push(format!(
+            "{}: {} non-manifold edges (shared by three or more faces); inside is decided by winding number",
+            path.display(),
+            topo.non_manifold_edges
+        ));
+    }
     if topo.boundary_edges > 0 {
         warnings.push(format!(
             "{}: mesh is open ({} boundary edges); inside is decided by winding number",
@@ -349,7 +489,12 @@ pub fn load_mesh(path: &Path) -> Result<LoadedMesh, MeshError> {
             mesh.triangles.len()
         ));
     }
-    Ok(LoadedMesh { mesh, warnings })
+    Ok(LoadedMesh {
+        mesh,
+        warnings,
+        welded_vertices,
+        collapsed_triangles,
+    })
 }
 
 /// Checks that apply to any mesh however it was made.

@@ -126,8 +126,14 @@ pub struct MeshReport {
     pub closed: bool,
     pub boundary_edges: usize,
     pub non_manifold_edges: usize,
-    /// Genus from the Euler characteristic, for closed single-shell meshes.
+    /// Vertices merged because they coincide (within 1e-7 of the box diagonal), and
+    /// triangles that collapsed doing so; the counts above are after welding.
+    pub welded_vertices: usize,
+    pub collapsed_triangles: usize,
+    /// Genus of a one-part closed mesh (see `parts` for each part of a multi-part mesh).
     pub genus: Option<i64>,
+    /// Connected parts, each with its own counts, Euler characteristic and genus.
+    pub parts: Vec<mesh::PartTopology>,
     pub bounds_min: [f64; 3],
     pub bounds_max: [f64; 3],
     /// Inside volume in the mesh's units (winding-number voxelization); null when it is
@@ -156,7 +162,7 @@ pub fn inspect(path: &Path, resolution: usize) -> Result<MeshReport, MeshError> 
         2,
         None,
     );
-    let mut warnings = loaded.warnings;
+    let mut warnings = loaded.warnings.clone();
     if !(solid.volume.is_finite() && solid.volume > 0.0) {
         warnings.push(format!(
             "{}: its volume (about 1e{:.0} cubic units) is beyond 64-bit floats; only its shape is used as a target",
@@ -168,10 +174,11 @@ pub fn inspect(path: &Path, resolution: usize) -> Result<MeshReport, MeshError> 
         warnings.push(e.to_string());
     }
     let topo = mesh.topology();
-    let genus = topo.is_closed().then(|| {
-        let chi = mesh.vertices.len() as i64 - topo.edges as i64 + mesh.triangles.len() as i64;
-        (2 - chi) / 2
-    });
+    let parts = mesh.parts();
+    let genus = match parts.as_slice() {
+        [one] => one.genus,
+        _ => None,
+    };
     Ok(MeshReport {
         path: path.display().to_string(),
         vertices: mesh.vertices.len(),
@@ -179,7 +186,10 @@ pub fn inspect(path: &Path, resolution: usize) -> Result<MeshReport, MeshError> 
         closed: topo.is_closed(),
         boundary_edges: topo.boundary_edges,
         non_manifold_edges: topo.non_manifold_edges,
+        welded_vertices: loaded.welded_vertices,
+        collapsed_triangles: loaded.collapsed_triangles,
         genus,
+        parts,
         bounds_min: solid.bounds_min,
         bounds_max: solid.bounds_max,
         volume: (solid.volume.is_finite() && solid.volume > 0.0).then_some(solid.volume),
