@@ -370,8 +370,10 @@ fn write_folder(result: &mut RopeResult, dir: &Path) -> Result<(), RopeError> {
         }
         let sub: PathBuf = dir.join("frames").join(name);
         std::fs::create_dir_all(&sub).map_err(|e| out_err("folder", &sub, e))?;
+        // Zero-padded to the width the count needs, so names sort in frame order.
+        let width = fr.len().saturating_sub(1).to_string().len().max(4);
         for (i, (_, s)) in fr.iter().enumerate() {
-            let rel = format!("frames/{name}/frame_{i:04}.ply");
+            let rel = format!("frames/{name}/frame_{i:0width$}.ply");
             let path = dir.join(&rel);
             let j: Vec<f64> = s.f.iter().map(|f| f.determinant()).collect();
             write_points_ply(&path, &s.x, &s.v, &j).map_err(|e| out_err("frame", &path, e))?;

@@ -453,14 +453,20 @@ pub fn load_mesh(path: &Path) -> Result<LoadedMesh, MeshError> {
         path: path.into(),
         reason: e.to_string(),
     })?;
+    parse_mesh(path, &bytes)
+}
+
+/// [`load_mesh`] on bytes already read; `path` names the mesh in messages and, by its
+/// extension, the format.
+pub fn parse_mesh(path: &Path, bytes: &[u8]) -> Result<LoadedMesh, MeshError> {
     if bytes.is_empty() {
         return Err(MeshError::Empty { path: path.into() });
     }
-    let format = MeshFormat::detect(path, &bytes)
+    let format = MeshFormat::detect(path, bytes)
         .ok_or_else(|| MeshError::UnknownFormat { path: path.into() })?;
     let (mut mesh, mut warnings) = match format {
-        MeshFormat::Obj => parse_obj(path, &bytes)?,
-        MeshFormat::Ply => (parse_ply(path, &bytes)?, Vec::new()),
+        MeshFormat::Obj => parse_obj(path, bytes)?,
+        MeshFormat::Ply => (parse_ply(path, bytes)?, Vec::new()),
     };
     validate(path, &mesh)?;
     let diagonal = mesh.bounds().extent().norm();

@@ -11,7 +11,7 @@ pub mod voxelize;
 pub mod winding;
 
 pub use error::MeshError;
-pub use mesh::{Aabb, LoadedMesh, TriMesh, load_mesh};
+pub use mesh::{Aabb, LoadedMesh, TriMesh, load_mesh, parse_mesh};
 pub use placement::{Placement, PlacementOptions, Similarity, Solid, TargetFit};
 pub use surface::{SurfaceError, extract_surface};
 pub use voxelize::{Jitter, Lattice, Particles, Voxelization, particles_in, voxelize};

@@ -80,8 +80,14 @@ impl MassGrid {
 
     /// Reads and checks a mass grid file; errors name the file and the problem.
     pub fn read(path: &Path) -> Result<MassGrid, String> {
+        let bytes =
+            std::fs::read(path).map_err(|e| format!("cannot read '{}': {e}", path.display()))?;
+        MassGrid::from_bytes(path, &bytes)
+    }
+
+    /// [`MassGrid::read`] on bytes already read; `path` names the file in messages.
+    pub fn from_bytes(path: &Path, bytes: &[u8]) -> Result<MassGrid, String> {
         let name = path.display();
-        let bytes = std::fs::read(path).map_err(|e| format!("cannot read '{name}': {e}"))?;
         if bytes.len() < 12 || &bytes[..8] != MAGIC {
             return Err(format!("'{name}' is not a morph mass grid (bad magic)"));
         }
@@ -100,7 +106,7 @@ impl MassGrid {
             .iter()
             .try_fold(1usize, |a, &d| a.checked_mul(d))
             .ok_or_else(|| format!("'{name}': dims {:?} overflow", header.dims))?;
-        if bytes.len() - body != n * 8 {
+        if n.checked_mul(8) != Some(bytes.len() - body) {
             return Err(format!(
                 "'{name}': {} data bytes for {n} nodes (expected {})",
                 bytes.len() - body,

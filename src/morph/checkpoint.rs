@@ -41,6 +41,16 @@ struct ProgressFile {
     segments: Vec<SegmentRecord>,
 }
 
+/// A file name this module writes: a plain name, never a path (a damaged or edited
+/// `progress.json` must not make a run read or delete anything outside its folder).
+fn is_checkpoint_name(name: &str) -> bool {
+    (name.starts_with("state_") || name.starts_with("controls_"))
+        && name.ends_with(".bin")
+        && name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '.')
+}
+
 fn io_err(what: &str, path: &Path, e: impl std::fmt::Display) -> MorphError {
     MorphError::Output(format!("cannot {what} checkpoint '{}': {e}", path.display()))
 }
@@ -146,7 +156,7 @@ pub fn save(dir: &Path, p: &RunProgress, changed: usize) -> Result<(), MorphErro
             .chain(file.controls.iter().flatten())
             .collect();
         for stale in std::iter::once(&old.state).chain(old.controls.iter().flatten()) {
-            if !keep.contains(&stale) {
+            if !keep.contains(&stale) && is_checkpoint_name(stale) {
                 let _ = std::fs::remove_file(folder.join(stale));
             }
         }
@@ -186,6 +196,10 @@ pub fn load(
             &progress_path,
             "format or segment count differs".into(),
         ));
+    }
+    let names = std::iter::once(&file.state).chain(file.controls.iter().flatten());
+    if let Some(bad) = names.into_iter().find(|n| !is_checkpoint_name(n)) {
+        return Err(damaged(&progress_path, format!("bad file name {bad:?}")));
     }
     let path = folder.join(&file.state);
     let state = unflatten_state(
