@@ -183,7 +183,7 @@ impl TriMesh {
                         if let Some(list) = cells.get(&[k.x + dx, k.y + dy, k.z + dz]) {
                             if let Some(&i) = list
                                 .iter()
-                                .find(|&&i| (kept[i as usize] - v).norm() <= tolerance)
+                                .find(|&&i| ((kept[i as usize] - v) / tolerance).norm() <= 1.0)
                             {
                                 found = Some(i);
                                 break 'search;
@@ -329,13 +329,16 @@ impl TriMesh {
             }
             components.push(members);
         }
-        let centre = self.bounds().centre();
+        // Only the sign of each part's volume matters: measure at unit size, so meshes in
+        // extreme units (1e300) do not overflow.
+        let bounds = self.bounds();
+        let (centre, unit) = (bounds.centre(), 1.0 / bounds.longest_side());
         let mut flipped = 0;
         for members in &components {
             let mut vol = 0.0;
             for &ti in members {
                 let t = self.triangles[ti as usize];
-                let [a, b, c] = self.corners(&t).map(|p| p - centre);
+                let [a, b, c] = self.corners(&t).map(|p| (p - centre) * unit);
                 let v = a.dot(&b.cross(&c));
                 vol += if flip[ti as usize] { -v } else { v };
             }
@@ -469,7 +472,9 @@ pub fn parse_mesh(path: &Path, bytes: &[u8]) -> Result<LoadedMesh, MeshError> {
         MeshFormat::Ply => (parse_ply(path, bytes)?, Vec::new()),
     };
     validate(path, &mesh)?;
-    let diagonal = mesh.bounds().extent().norm();
+    // The diagonal formed at unit size: squaring 1e300-unit extents would overflow.
+    let extent = mesh.bounds().extent();
+    let diagonal = extent.max() * (extent / extent.max()).norm();
     let (welded_vertices, collapsed_triangles) = mesh.weld(WELD_TOLERANCE * diagonal);
     validate(path, &mesh)?;
     let topo = mesh.topology();
@@ -625,6 +630,7 @@ fn parse_ply(path: &Path, bytes: &[u8]) -> Result<TriMesh, MeshError> {
         format: "PLY",
         reason: one_line(&reason),
     };
+    check_ply_counts(bytes).map_err(malformed)?;
     let mut reader = std::io::Cursor::new(bytes);
     let ply = Parser::<DefaultElement>::new()
         .read_ply(&mut reader)
@@ -689,6 +695,68 @@ fn parse_ply(path: &Path, bytes: &[u8]) -> Result<TriMesh, MeshError> {
         }
     }
     Ok(mesh)
+}
+
+/// Refuses a PLY header whose element counts the file's data cannot hold, before the parser
+/// allocates for them (found by fuzzing: `element vertex 4294967295` in a small file made
+/// the parser exhaust memory). Headers this check cannot read are left to the parser.
+fn check_ply_counts(bytes: &[u8]) -> Result<(), String> {
+    let marker = b"end_header";
+    let Some(at) = bytes.windows(marker.len()).position(|w| w == marker) else {
+        return Ok(());
+    };
+    let body = bytes.len().saturating_sub(at + marker.len() + 1) as u128;
+    let header = String::from_utf8_lossy(&bytes[..at]);
+    let binary = header.lines().any(|l| l.trim_start().starts_with("format binary"));
+    let size = |t: &str| -> u128 {
+        match t {
+            "char" | "uchar" | "int8" | "uint8" => 1,
+            "short" | "ushort" | "int16" | "uint16" => 2,
+            "int" | "uint" | "float" | "int32" | "uint32" | "float32" => 4,
+            "double" | "float64" => 8,
+            _ => 1,
+        }
+    };
+    // (name, count, least bytes one element takes)
+    let mut elements: Vec<(String, u128, u128)> = Vec::new();
+    for line in header.lines() {
+        let words: Vec<&str> = line.split_whitespace().collect();
+        match words.as_slice() {
+            ["element", name, count] => {
+                let count: u128 = count.parse().unwrap_or(0);
+                elements.push((name.to_string(), count, 0));
+            }
+            ["property", "list", count_type, _, _] => {
+                if let Some(e) = elements.last_mut() {
+                    e.2 += if binary { size(count_type) } else { 2 };
+                }
+            }
+            ["property", t, _] => {
+                if let Some(e) = elements.last_mut() {
+                    e.2 += if binary { size(t) } else { 2 };
+                }
+            }
+            _ => {}
+        }
+    }
+    let mut least = 0u128;
+    for (name, count, per) in &elements {
+        // An element of no properties takes no bytes; still, no file has more of them
+        // than it has bytes.
+        if *count > body.max(1) && *per == 0 || count * per.max(&1) > body.max(1) * 2 {
+            return Err(format!(
+                "the header declares {count} '{name}' elements, more than its {body} bytes of data can hold"
+            ));
+        }
+        least += count * per;
+    }
+    // ASCII separators are counted in `per` (2 per value), so allow for a missing last one.
+    if least > body + 1 {
+        return Err(format!(
+            "the header's elements need at least {least} bytes of data, the file has {body}"
+        ));
+    }
+    Ok(())
 }
 
 /// Parser messages can span lines and end in a debug dump; errors are printed on one line.
