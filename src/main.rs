@@ -72,9 +72,17 @@ struct Cli {
 
 /// `--help` text for an option: what it does, its range, its default (read from the library's
 /// default preset and limits, so the help cannot drift from what runs).
-fn help(what: &str, range: Option<std::ops::RangeInclusive<usize>>, default: impl std::fmt::Display) -> String {
+fn help(
+    what: &str,
+    range: Option<std::ops::RangeInclusive<usize>>,
+    default: impl std::fmt::Display,
+) -> String {
     match range {
-        Some(r) => format!("{what} [range {}-{}; default {default}]", r.start(), r.end()),
+        Some(r) => format!(
+            "{what} [range {}-{}; default {default}]",
+            r.start(),
+            r.end()
+        ),
         None => format!("{what} [default {default}]"),
     }
 }
@@ -318,7 +326,11 @@ fn main() -> ExitCode {
     };
     if let Some(t) = cli.threads {
         if t == 0 || t > 1024 {
-            return fail(json, 2, &format!("--threads must be between 1 and 1024, got {t}"));
+            return fail(
+                json,
+                2,
+                &format!("--threads must be between 1 and 1024, got {t}"),
+            );
         }
         if let Err(e) = rayon::ThreadPoolBuilder::new()
             .num_threads(t)
@@ -465,7 +477,11 @@ fn run_morph(args: &MorphArgs) -> ExitCode {
     use indicatif::{ProgressBar, ProgressStyle};
     use std::io::IsTerminal;
     let (Some(source), Some(target)) = (&args.source, &args.target) else {
-        return fail(args.json, 2, "give a SOURCE and a TARGET mesh (see morph --help)");
+        return fail(
+            args.json,
+            2,
+            "give a SOURCE and a TARGET mesh (see morph --help)",
+        );
     };
     let settings = args.settings();
     if let Err(e) = settings.validate() {
@@ -594,7 +610,8 @@ fn run_morph(args: &MorphArgs) -> ExitCode {
         }
         Err(e) => {
             let code = match e {
-                MorphError::Settings(_) | MorphError::Mesh(morph::geometry::MeshError::BadOption(_)) => 2,
+                MorphError::Settings(_)
+                | MorphError::Mesh(morph::geometry::MeshError::BadOption(_)) => 2,
                 _ => 1,
             };
             fail(args.json, code, &e.to_string())
@@ -727,14 +744,10 @@ fn run_rope(args: &RopeArgs) -> ExitCode {
     use morph::control::compare::{RopeError, rope_to_folder, table};
     let settings = match rope_settings(args) {
         Ok(s) => s,
-        Err(e) => {
-            eprintln!("morph: error: {e}");
-            return ExitCode::from(2);
-        }
+        Err(e) => return fail(args.json, 2, &e),
     };
     if let Err(e) = settings.validate() {
-        eprintln!("morph: error: {e}");
-        return ExitCode::from(2);
+        return fail(args.json, 2, &e.to_string());
     }
     let show = !args.quiet && !args.json && std::io::IsTerminal::is_terminal(&std::io::stderr());
     let bar = show.then(|| {
@@ -779,12 +792,12 @@ fn run_rope(args: &RopeArgs) -> ExitCode {
             if let Some(b) = &bar {
                 b.finish_and_clear();
             }
-            eprintln!("morph: error: {e}");
-            ExitCode::from(if matches!(e, RopeError::Settings(_)) {
+            let code = if matches!(e, RopeError::Settings(_)) {
                 2
             } else {
                 1
-            })
+            };
+            fail(args.json, code, &e.to_string())
         }
     }
 }

@@ -26,15 +26,56 @@ fn cases() -> u32 {
 
 /// Tokens that have broken parsers before: extreme numbers, bad indices, header lines.
 const TOKENS: &[&str] = &[
-    "nan", "inf", "-inf", "-1", "0", "1e308", "1e-320", "4294967295", "-2147483648",
-    "18446744073709551615", "999999999999", "\n", " ", "/", "//", "#", "\\\n", "f ", "v ",
-    "vt ", "vn ", "o ", "g ", "mtllib x.mtl\n", "f 1 2\n", "f 0 0 0\n", "f -9 -8 -7\n",
-    "element vertex 4294967295\n", "element face 999999999\n", "element vertex 0\n",
-    "property list uchar int vertex_indices\n", "property list uint uint vertex_indices\n",
-    "property double x\n", "property float y\n", "end_header\n",
-    "format binary_little_endian 1.0\n", "format binary_big_endian 1.0\n",
-    "format ascii 1.0\n", "\u{0}", "\u{ff}", "{", "}", "[", "]", "\"dims\"", "\"dx\"",
-    "null", "true", "1e400", "[4294967295,4294967295,4294967295]",
+    "nan",
+    "inf",
+    "-inf",
+    "-1",
+    "0",
+    "1e308",
+    "1e-320",
+    "4294967295",
+    "-2147483648",
+    "18446744073709551615",
+    "999999999999",
+    "\n",
+    " ",
+    "/",
+    "//",
+    "#",
+    "\\\n",
+    "f ",
+    "v ",
+    "vt ",
+    "vn ",
+    "o ",
+    "g ",
+    "mtllib x.mtl\n",
+    "f 1 2\n",
+    "f 0 0 0\n",
+    "f -9 -8 -7\n",
+    "element vertex 4294967295\n",
+    "element face 999999999\n",
+    "element vertex 0\n",
+    "property list uchar int vertex_indices\n",
+    "property list uint uint vertex_indices\n",
+    "property double x\n",
+    "property float y\n",
+    "end_header\n",
+    "format binary_little_endian 1.0\n",
+    "format binary_big_endian 1.0\n",
+    "format ascii 1.0\n",
+    "\u{0}",
+    "\u{ff}",
+    "{",
+    "}",
+    "[",
+    "]",
+    "\"dims\"",
+    "\"dx\"",
+    "null",
+    "true",
+    "1e400",
+    "[4294967295,4294967295,4294967295]",
 ];
 
 /// One byte-level edit: (kind, position, length, byte or token).
@@ -93,11 +134,7 @@ fn inputs(seeds: Vec<Vec<u8>>) -> impl Strategy<Value = Vec<u8>> {
 }
 
 /// Runs `check` on `cases()` inputs; each must finish within 1 s and refuse in one line.
-fn fuzz(
-    name: &str,
-    seeds: Vec<Vec<u8>>,
-    check: impl Fn(&[u8]) -> Result<(), String>,
-) {
+fn fuzz(name: &str, seeds: Vec<Vec<u8>>, check: impl Fn(&[u8]) -> Result<(), String>) {
     let n = cases();
     let mut runner = TestRunner::new(Config {
         cases: n,
@@ -150,11 +187,22 @@ const OCTA_OBJ: &str = "v 1 0 0\nv -1 0 0\nv 0 1 0\nv 0 -1 0\nv 0 0 1\nv 0 0 -1\
 
 fn cube_ply(format: &str) -> Vec<u8> {
     let v: [[f32; 3]; 8] = [
-        [0., 0., 0.], [1., 0., 0.], [1., 1., 0.], [0., 1., 0.],
-        [0., 0., 1.], [1., 0., 1.], [1., 1., 1.], [0., 1., 1.],
+        [0., 0., 0.],
+        [1., 0., 0.],
+        [1., 1., 0.],
+        [0., 1., 0.],
+        [0., 0., 1.],
+        [1., 0., 1.],
+        [1., 1., 1.],
+        [0., 1., 1.],
     ];
     let f: [[i32; 4]; 6] = [
-        [0, 3, 2, 1], [4, 5, 6, 7], [0, 1, 5, 4], [1, 2, 6, 5], [2, 3, 7, 6], [3, 0, 4, 7],
+        [0, 3, 2, 1],
+        [4, 5, 6, 7],
+        [0, 1, 5, 4],
+        [1, 2, 6, 5],
+        [2, 3, 7, 6],
+        [3, 0, 4, 7],
     ];
     let mut out = format!(
         "ply\nformat {format} 1.0\nelement vertex 8\nproperty float x\nproperty float y\nproperty float z\nelement face 6\nproperty list uchar int vertex_indices\nend_header\n"
@@ -215,7 +263,12 @@ fn ply_reader() {
 
 #[test]
 fn mgrid_reader() {
-    let grid = MassGrid::new([2, 3, 2], [0.5, -1.0, 2.0], 0.25, (0..12).map(|i| i as f64 * 0.1).collect());
+    let grid = MassGrid::new(
+        [2, 3, 2],
+        [0.5, -1.0, 2.0],
+        0.25,
+        (0..12).map(|i| i as f64 * 0.1).collect(),
+    );
     let path = std::env::temp_dir().join(format!("morph-fuzz-{}.mgrid", std::process::id()));
     grid.write(&path).unwrap();
     let seed = std::fs::read(&path).unwrap();

@@ -14,12 +14,12 @@ use super::rope::{Rope, RopeConfig};
 use super::{Committed, ControlEvent};
 use crate::io::frames::write_points_ply;
 use crate::io::images::{PALETTE, Series, write_two_panels};
-use crate::io::write_atomically;
 use crate::io::outdir;
-use std::io::Write;
+use crate::io::write_atomically;
 use crate::mpm::SimError;
 use crate::ode::{ControlParams, OdeState};
 use serde::Serialize;
+use std::io::Write;
 use std::path::{Path, PathBuf};
 use thiserror::Error;
 

@@ -166,7 +166,7 @@ impl TriMesh {
     /// face with its own corners, or vertices split at UV seams) become one connected
     /// surface, so the topology checks and the orientation repair see the real shape.
     pub fn weld(&mut self, tolerance: f64) -> (usize, usize) {
-        if self.vertices.is_empty() || !(tolerance > 0.0) {
+        if self.vertices.is_empty() || tolerance.is_nan() || tolerance <= 0.0 {
             return (0, 0);
         }
         let origin = self.bounds().min;
@@ -180,14 +180,13 @@ impl TriMesh {
             'search: for dx in -1..=1 {
                 for dy in -1..=1 {
                     for dz in -1..=1 {
-                        if let Some(list) = cells.get(&[k.x + dx, k.y + dy, k.z + dz]) {
-                            if let Some(&i) = list
-                                .iter()
+                        let near = cells.get(&[k.x + dx, k.y + dy, k.z + dz]).and_then(|list| {
+                            list.iter()
                                 .find(|&&i| ((kept[i as usize] - v) / tolerance).norm() <= 1.0)
-                            {
-                                found = Some(i);
-                                break 'search;
-                            }
+                        });
+                        if let Some(&i) = near {
+                            found = Some(i);
+                            break 'search;
                         }
                     }
                 }
@@ -256,8 +255,7 @@ impl TriMesh {
             .iter()
             .map(|m| {
                 let topo = m.topology();
-                let euler =
-                    m.vertices.len() as i64 - topo.edges as i64 + m.triangles.len() as i64;
+                let euler = m.vertices.len() as i64 - topo.edges as i64 + m.triangles.len() as i64;
                 let closed = topo.is_closed() && topo.misoriented_edges == 0;
                 PartTopology {
                     triangles: m.triangles.len(),
@@ -707,7 +705,9 @@ fn check_ply_counts(bytes: &[u8]) -> Result<(), String> {
     };
     let body = bytes.len().saturating_sub(at + marker.len() + 1) as u128;
     let header = String::from_utf8_lossy(&bytes[..at]);
-    let binary = header.lines().any(|l| l.trim_start().starts_with("format binary"));
+    let binary = header
+        .lines()
+        .any(|l| l.trim_start().starts_with("format binary"));
     let size = |t: &str| -> u128 {
         match t {
             "char" | "uchar" | "int8" | "uint8" => 1,

@@ -275,7 +275,8 @@ impl Placement {
         let w = self.sim_to_world();
         let g = &self.grid;
         let lo = w.apply(&Vector3::from(g.origin));
-        let hi = w.apply(&(Vector3::from(g.origin) + g.dx * Vector3::from(g.cells.map(|c| c as f64))));
+        let hi =
+            w.apply(&(Vector3::from(g.origin) + g.dx * Vector3::from(g.cells.map(|c| c as f64))));
         let reach = lo.abs().max().max(hi.abs().max());
         let spacing = w.scale * g.dx / per_cell as f64;
         // Velocities reach a few domain sizes per second: keep three decades of headroom.
@@ -288,12 +289,12 @@ impl Placement {
                 reason,
             })
         };
-        if !(reach <= MAX_REACH) {
+        if reach.is_nan() || reach > MAX_REACH {
             return invalid(format!(
                 "as a source its coordinates reach {reach:.1e}, beyond what the 32-bit float frames can hold (about {MAX_REACH:.0e}); rescale the mesh"
             ));
         }
-        if !(spacing >= min_spacing) {
+        if spacing.is_nan() || spacing < min_spacing {
             return invalid(format!(
                 "as a source its particle spacing ({spacing:.1e} units) is below what 32-bit float frames resolve at coordinates up to {reach:.1e}; rescale the mesh or move it nearer the origin"
             ));

@@ -58,7 +58,8 @@ fn normalise(out: &Path) -> PathBuf {
 /// `path` made absolute and free of `.` and `..`, resolving symbolic links of the part that
 /// exists.
 fn resolve(path: &Path) -> Result<PathBuf, String> {
-    let cwd = std::env::current_dir().map_err(|e| format!("cannot read the working folder: {e}"))?;
+    let cwd =
+        std::env::current_dir().map_err(|e| format!("cannot read the working folder: {e}"))?;
     let mut abs = PathBuf::new();
     for c in cwd.join(path).components() {
         match c {

@@ -52,7 +52,10 @@ fn is_checkpoint_name(name: &str) -> bool {
 }
 
 fn io_err(what: &str, path: &Path, e: impl std::fmt::Display) -> MorphError {
-    MorphError::Output(format!("cannot {what} checkpoint '{}': {e}", path.display()))
+    MorphError::Output(format!(
+        "cannot {what} checkpoint '{}': {e}",
+        path.display()
+    ))
 }
 
 /// Writes `values` as a checkpoint array.
@@ -188,7 +191,8 @@ pub fn load(
             what.display()
         ))
     };
-    let bytes = std::fs::read(&progress_path).map_err(|e| damaged(&progress_path, e.to_string()))?;
+    let bytes =
+        std::fs::read(&progress_path).map_err(|e| damaged(&progress_path, e.to_string()))?;
     let file: ProgressFile =
         serde_json::from_slice(&bytes).map_err(|e| damaged(&progress_path, e.to_string()))?;
     if file.format != FORMAT || file.controls.len() != segments {

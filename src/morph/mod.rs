@@ -421,7 +421,8 @@ impl RunProgress {
             Ok(())
         } else {
             Err(MorphError::Resume(
-                "the checkpoint does not fit this run (damaged?); start over with --overwrite".into(),
+                "the checkpoint does not fit this run (damaged?); start over with --overwrite"
+                    .into(),
             ))
         }
     }

@@ -86,12 +86,27 @@ impl RunIdentity {
         })
     }
 
+    /// SHA-256 of what decides the result: the version, the inputs' content (not their
+    /// paths) and the settings.
+    fn id(&self) -> String {
+        let decisive = (
+            &self.tool,
+            &self.version,
+            [&self.inputs[0].sha256, &self.inputs[1].sha256],
+            &self.settings,
+        );
+        sha256_hex(&serde_json::to_vec(&decisive).expect("plain data"))
+    }
+
     /// What differs from `other`, one phrase per difference (input paths may differ: the
     /// content decides).
     fn differences(&self, other: &RunIdentity) -> Vec<String> {
         let mut out = Vec::new();
         if self.version != other.version {
-            out.push(format!("morph version {} vs {}", other.version, self.version));
+            out.push(format!(
+                "morph version {} vs {}",
+                other.version, self.version
+            ));
         }
         for (i, which) in ["source", "target"].iter().enumerate() {
             if self.inputs[i].sha256 != other.inputs[i].sha256 {
@@ -121,7 +136,11 @@ fn json_diff(at: &str, a: &serde_json::Value, b: &serde_json::Value, out: &mut V
             keys.sort();
             keys.dedup();
             for k in keys {
-                let sub = if at.is_empty() { k.clone() } else { format!("{at}.{k}") };
+                let sub = if at.is_empty() {
+                    k.clone()
+                } else {
+                    format!("{at}.{k}")
+                };
                 json_diff(
                     &sub,
                     x.get(k).unwrap_or(&Value::Null),
@@ -230,7 +249,7 @@ pub fn morph_to_folder(
     )
     .map_err(MorphError::Settings)?;
     let identity = RunIdentity::new(settings, source, target)?;
-    let run_id = sha256_hex(&serde_json::to_vec(&identity).expect("plain data"));
+    let run_id = identity.id();
     if plan.existing == outdir::Existing::Ours {
         let done = read_manifest(&plan.out.join(MANIFEST));
         match done {
@@ -372,12 +391,14 @@ impl FolderWriter<'_> {
             let path = self.preview_path(index);
             let data = checkpoint::read_f64s(&path, 3 * self.particles)
                 .map_err(|e| MorphError::Resume(format!("checkpoint '{}': {e}", path.display())))?;
-            let x = data.chunks_exact(3).map(Vector3::from_column_slice).collect();
+            let x = data
+                .chunks_exact(3)
+                .map(Vector3::from_column_slice)
+                .collect();
             self.preview.push((index + 1, x));
         }
         Ok(())
     }
-
 }
 
 impl Observer for FolderWriter<'_> {
@@ -386,7 +407,10 @@ impl Observer for FolderWriter<'_> {
     }
 
     fn frame(&mut self, index: usize, _step: usize, state: &State) -> Result<(), MorphError> {
-        let (s, shift) = (self.to_world.scale, Vector3::from(self.to_world.translation));
+        let (s, shift) = (
+            self.to_world.scale,
+            Vector3::from(self.to_world.translation),
+        );
         let name = frame_name(index, self.n_frames);
         let x: Vec<Vector3<f64>> = state.x.iter().map(|p| s * p + shift).collect();
         let v: Vec<Vector3<f64>> = state.v.iter().map(|v| s * v).collect();
