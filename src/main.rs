@@ -27,7 +27,10 @@ OUTPUT (folder -o, written in the locked OUT.partial and put in place when compl
   meshes/frame_0001.obj ...  closed surface per frame, source units
   final_mass.mgrid           final nodal mass grid; compare two with `morph compare`
   manifest.json              inputs with SHA-256, settings, placement, losses, timings, frames
+  run.json                   what decides the result: tool version, input hashes, settings
   loss.png, preview.png      loss curves; a contact sheet of frames
+  -o is checked before any work; --overwrite replaces only an earlier morph output; a second
+  run on the same -o fails at once. Each completed segment is checkpointed in OUT.partial.
 
 PRESETS (segments x 30 steps, passes, iterations per segment):
   draft    6 x 30, 1 pass, 10      a quick look (sphere to spot in well under 2 minutes)
