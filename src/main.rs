@@ -594,14 +594,21 @@ fn run_morph(args: &MorphArgs) -> ExitCode {
             }
             ExitCode::SUCCESS
         }
-        Err(MorphError::Interrupted { signal }) => {
+        Err(MorphError::Interrupted { signal, kept }) => {
             let code = (128 + signal).min(255) as u8;
             let staging = morph::io::outdir::partial_dir(&args.output);
-            let message = format!(
-                "interrupted by {}: completed segments are kept in '{}'; run the same command with --resume to continue",
-                signal_name(signal),
-                staging.display()
-            );
+            let message = if kept {
+                format!(
+                    "interrupted by {}: completed segments are kept in '{}'; run the same command with --resume to continue",
+                    signal_name(signal),
+                    staging.display()
+                )
+            } else {
+                format!(
+                    "interrupted by {} before any segment completed; nothing was kept",
+                    signal_name(signal)
+                )
+            };
             eprintln!("morph: {message}");
             if args.json {
                 println!(

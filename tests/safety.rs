@@ -357,6 +357,42 @@ fn sigint_and_sigterm_stop_cleanly_and_resume() {
     }
 }
 
+/// Case 5: an interruption before any segment completed keeps nothing and says so; either
+/// way, what the message says is what is on disk.
+#[test]
+fn early_sigint_keeps_nothing_and_says_so() {
+    let dir = scratch("early-int");
+    let (s, t) = (asset("sphere.obj"), asset("two-lobes.obj"));
+    let mut child = command(&dir, &morph_args(&s, &t, "out", SMALL))
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let lock = dir.join("out.partial/.lock");
+    let t0 = Instant::now();
+    while !std::fs::read_to_string(&lock).is_ok_and(|s| !s.trim().is_empty()) {
+        assert!(t0.elapsed() < Duration::from_secs(30));
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    let killed = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(killed.success());
+    let o = child.wait_with_output().unwrap();
+    let err = stderr(&o);
+    assert_eq!(o.status.code(), Some(130), "{err}");
+    assert_eq!(err.lines().count(), 1, "{err}");
+    if err.contains("nothing was kept") {
+        assert!(!dir.join("out.partial").exists());
+        // A plain re-run is not blocked by leftovers.
+        let o = run(&dir, &morph_args(&s, &t, "out", TINY));
+        assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    } else {
+        assert!(err.contains("--resume"), "{err}");
+        assert!(dir.join("out.partial/checkpoint/progress.json").is_file());
+    }
+}
+
 /// Case 5 (farm): SIGKILL at a random point, then --resume: frames, surfaces and the mass
 /// grid are byte for byte those of an uninterrupted run.
 #[test]

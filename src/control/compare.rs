@@ -321,11 +321,14 @@ fn out_err(what: &str, path: &Path, e: impl std::fmt::Display) -> RopeError {
     RopeError::Output(format!("cannot write {what} '{}': {e}", path.display()))
 }
 
+/// Marks a staging folder as a rope run's (a morph's holds `run.json` and is never cleared).
+const ROPE_MARKER: &str = "rope.json";
+
 /// Runs [`run_rope`] and writes the folder `out`, guarded like a morph's
 /// ([`crate::io::outdir`]): `-o` is checked before the run, an existing folder is replaced
 /// only with `overwrite` and only when it holds a rope `report.json`, and the staging folder
 /// is locked. A rope run is not resumable: a leftover staging folder of an earlier rope run
-/// (marked by its `run.json`) is scratch and is cleared.
+/// (marked by its `rope.json`) is scratch and is cleared; any other is refused.
 pub fn rope_to_folder(
     settings: &RopeSettings,
     out: &Path,
@@ -334,9 +337,9 @@ pub fn rope_to_folder(
 ) -> Result<RopeReport, RopeError> {
     settings.validate()?;
     let plan = outdir::plan(out, &[], overwrite, "report.json").map_err(RopeError::Settings)?;
-    let mut staging = outdir::Staging::take(&plan, "run.json").map_err(RopeError::Output)?;
+    let mut staging = outdir::Staging::take(&plan, ROPE_MARKER).map_err(RopeError::Output)?;
     staging.clear().map_err(RopeError::Output)?;
-    let marker = staging.dir.join("run.json");
+    let marker = staging.dir.join(ROPE_MARKER);
     write_atomically(&marker, |w| w.write_all(b"{\"tool\": \"morph rope\"}\n"))
         .map_err(|e| out_err("run marker", &marker, e))?;
     let written = run_rope(settings, on_event).and_then(|mut result| {

@@ -115,9 +115,11 @@ pub enum MorphError {
     /// A refused or impossible `--resume`.
     #[error("{0}")]
     Resume(String),
-    /// Stopped on request (the value is the signal number when a signal asked).
+    /// Stopped on request (`signal` is the signal number when a signal asked). `kept`: the
+    /// staging folder holds a checkpoint for `--resume` (false when no segment had completed,
+    /// and then the staging folder is removed).
     #[error("interrupted")]
-    Interrupted { signal: usize },
+    Interrupted { signal: usize, kept: bool },
 }
 
 impl Prepared {
@@ -344,7 +346,10 @@ pub fn run(
                 stop == 0
             })?;
             let Some(result) = result.filter(|_| stop == 0) else {
-                return Err(MorphError::Interrupted { signal: stop });
+                return Err(MorphError::Interrupted {
+                    signal: stop,
+                    kept: false,
+                });
             };
             let record = SegmentRecord {
                 pass,

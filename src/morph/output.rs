@@ -342,10 +342,14 @@ pub fn morph_to_folder(
         }
         Err(e) => {
             // Keep whatever a later --resume can use; remove a staging folder with nothing in it.
-            if !checkpoint::exists(&staging.dir) && !matches!(e, MorphError::Interrupted { .. }) {
+            let kept = checkpoint::exists(&staging.dir);
+            if !kept {
                 staging.discard();
             }
-            Err(e)
+            Err(match e {
+                MorphError::Interrupted { signal, .. } => MorphError::Interrupted { signal, kept },
+                e => e,
+            })
         }
     }
 }
