@@ -246,23 +246,28 @@ fn output_that_contains_an_input_is_refused() {
     assert_sentinel(&keep);
 }
 
+/// Starts a SMALL morph into `dir/out` and returns once it holds its staging folder's lock.
+fn start_holding_the_lock(dir: &Path, s: &str, t: &str) -> Child {
+    let child = command(dir, &morph_args(s, t, "out", SMALL))
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let lock = dir.join("out.partial/.lock");
+    let t0 = Instant::now();
+    while !std::fs::read_to_string(&lock).is_ok_and(|s| !s.trim().is_empty()) {
+        assert!(t0.elapsed() < Duration::from_secs(30));
+        std::thread::sleep(Duration::from_millis(5));
+    }
+    child
+}
+
 /// Case 4: a second run on the same -o fails at once naming the running process; the first
 /// completes with its own, complete output.
 #[test]
 fn second_run_on_the_same_output_is_refused() {
     let dir = scratch("lock");
     let (s, t) = (asset("sphere.obj"), asset("two-lobes.obj"));
-    let mut first = command(&dir, &morph_args(&s, &t, "out", SMALL))
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    // Wait until the first run holds its staging folder.
-    let lock = dir.join("out.partial/.lock");
-    let t0 = Instant::now();
-    while !std::fs::read_to_string(&lock).is_ok_and(|s| !s.trim().is_empty()) {
-        assert!(t0.elapsed() < Duration::from_secs(30));
-        std::thread::sleep(Duration::from_millis(20));
-    }
+    let mut first = start_holding_the_lock(&dir, &s, &t);
     let cube = asset("cube.obj");
     let started = Instant::now();
     let o = run(
@@ -363,16 +368,7 @@ fn sigint_and_sigterm_stop_cleanly_and_resume() {
 fn early_sigint_keeps_nothing_and_says_so() {
     let dir = scratch("early-int");
     let (s, t) = (asset("sphere.obj"), asset("two-lobes.obj"));
-    let mut child = command(&dir, &morph_args(&s, &t, "out", SMALL))
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let lock = dir.join("out.partial/.lock");
-    let t0 = Instant::now();
-    while !std::fs::read_to_string(&lock).is_ok_and(|s| !s.trim().is_empty()) {
-        assert!(t0.elapsed() < Duration::from_secs(30));
-        std::thread::sleep(Duration::from_millis(5));
-    }
+    let child = start_holding_the_lock(&dir, &s, &t);
     let killed = Command::new("kill")
         .args(["-INT", &child.id().to_string()])
         .status()
