@@ -1,5 +1,6 @@
 //! Property-based fuzzing of every reader of user files: OBJ and PLY meshes, `.mgrid` mass
-//! grids, the settings JSON of a run (`run.json`, what `--resume` reads) and checkpoints.
+//! grids, the settings JSON of a run (`run.json`, what `--resume` reads), scene descriptions
+//! (`SceneConfig`) and checkpoints.
 //!
 //! Each reader gets `MORPH_FUZZ_CASES` inputs (default 10,000): valid seed files put through
 //! random byte-level mutations (flips, inserts, deletions, duplications, truncation, splices
@@ -326,4 +327,24 @@ fn checkpoint_reader() {
             .map_err(|e| e.to_string())
     });
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+#[test]
+fn scene_parser() {
+    use morph::scene::{EffectConfig, SceneConfig};
+    let mut with_effects = SceneConfig::reference();
+    with_effects.effects.push(EffectConfig::Walls {
+        mode: morph::effects::WallMode::Slip,
+        thickness: 3,
+    });
+    let seeds = [SceneConfig::reference(), with_effects]
+        .map(|s| serde_json::to_vec_pretty(&s).unwrap())
+        .to_vec();
+    fuzz("scene", seeds, |bytes| {
+        let scene: SceneConfig = serde_json::from_slice(bytes).map_err(|e| e.to_string())?;
+        scene
+            .build(vec![1.0; 8])
+            .map(|_| ())
+            .map_err(|e| e.to_string())
+    });
 }
