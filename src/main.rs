@@ -283,6 +283,9 @@ enum Command {
         /// Destination folder.
         #[arg(short, long, default_value = "assets")]
         output: std::path::PathBuf,
+        /// Replace existing files of the same names.
+        #[arg(long)]
+        overwrite: bool,
     },
 }
 
@@ -400,13 +403,17 @@ fn main() -> ExitCode {
         }
         Some(Command::Compare { a, b, rtol, atol }) => return compare(&a, &b, rtol, atol),
         Some(Command::Rope(args)) => return run_rope(&args),
-        Some(Command::Assets { output }) => morph::geometry::assets::write_builtin(&output)
-            .map(|paths| {
-                for p in paths {
-                    println!("{}", p.display());
-                }
-            })
-            .map_err(|e| anyhow::anyhow!("cannot write assets into '{}': {e}", output.display())),
+        Some(Command::Assets { output, overwrite }) => {
+            morph::geometry::assets::write_builtin(&output, overwrite)
+                .map(|paths| {
+                    for p in paths {
+                        println!("{}", p.display());
+                    }
+                })
+                .map_err(|e| {
+                    anyhow::anyhow!("cannot write assets into '{}': {e}", output.display())
+                })
+        }
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

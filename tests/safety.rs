@@ -451,6 +451,20 @@ fn output_naming_a_file_is_refused_before_the_run() {
     assert_eq!(files(&dir), vec![PathBuf::from("precious.txt")]);
 }
 
+/// `morph assets` does not replace a user's file of the same name unless asked.
+#[test]
+fn assets_do_not_replace_files_unasked() {
+    let dir = scratch("assets");
+    std::fs::write(dir.join("sphere.obj"), "the user's work").unwrap();
+    let o = run(&dir, &["assets", "-o", "."]);
+    assert_one_line_error(&o, 1, &["sphere.obj", "--overwrite"]);
+    assert_sentinel(&dir.join("sphere.obj"));
+    assert_eq!(files(&dir).len(), 1, "nothing half-written");
+    let o = run(&dir, &["assets", "-o", ".", "--overwrite"]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    assert_eq!(files(&dir).len(), 4);
+}
+
 /// Writes `assets/sphere.obj` scaled by `scale` about the origin.
 fn scaled_sphere(dir: &Path, name: &str, scale: f64) -> String {
     let text = std::fs::read_to_string(root().join("assets/sphere.obj")).unwrap();

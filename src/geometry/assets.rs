@@ -150,7 +150,19 @@ pub fn builtin() -> Vec<(&'static str, TriMesh)> {
 }
 
 /// Writes every built-in asset into `dir` (created if missing); returns the paths.
-pub fn write_builtin(dir: &Path) -> std::io::Result<Vec<std::path::PathBuf>> {
+/// Writes the built-in meshes into `dir`. Existing files of the same names are replaced only
+/// with `overwrite`; otherwise nothing is written and the error names the first one.
+pub fn write_builtin(dir: &Path, overwrite: bool) -> std::io::Result<Vec<std::path::PathBuf>> {
+    if !overwrite && let Some((name, _)) = builtin().into_iter().find(|(n, _)| dir.join(n).exists())
+    {
+        return Err(std::io::Error::new(
+            std::io::ErrorKind::AlreadyExists,
+            format!(
+                "'{}' exists; pass --overwrite to replace it",
+                dir.join(name).display()
+            ),
+        ));
+    }
     std::fs::create_dir_all(dir)?;
     builtin()
         .into_iter()
