@@ -32,10 +32,8 @@ OUTPUT (folder -o, written in the locked OUT.partial and put in place when compl
   -o is checked before any work; --overwrite replaces only an earlier morph output; a second
   run on the same -o fails at once. Each completed segment is checkpointed in OUT.partial.
 
-PRESETS (segments x 30 steps, passes, iterations per segment):
-  draft    6 x 30, 1 pass, 10      a quick look (sphere to spot in well under 2 minutes)
-  default 12 x 30, 2 passes, 12
-  final   40 x 30, 3 passes, 25    the reference chain length
+PRESETS (segments x steps, passes, iterations per segment):
+{presets}
   Any of --segments --steps --passes --iterations overrides its preset value.
 
 EXIT CODES:
@@ -58,7 +56,7 @@ EXAMPLES:
     version,
     about,
     long_about = LONG_ABOUT,
-    after_long_help = AFTER_LONG_HELP,
+    after_long_help = after_long_help(),
     args_conflicts_with_subcommands = true,
     subcommand_negates_reqs = true,
     allow_negative_numbers = true
@@ -94,6 +92,35 @@ fn defaults() -> MorphSettings {
     MorphSettings::preset(Preset::Default)
 }
 
+const PRESETS: [(Preset, &str); 3] = [
+    (Preset::Draft, "draft"),
+    (Preset::Default, "default"),
+    (Preset::Final, "final"),
+];
+
+/// A preset-dependent default, read from the library: "draft 6, default 12, final 40".
+fn by_preset(value: impl Fn(&MorphSettings) -> usize) -> String {
+    let parts: Vec<String> = PRESETS
+        .iter()
+        .map(|(p, name)| format!("{name} {}", value(&MorphSettings::preset(*p))))
+        .collect();
+    format!("by preset: {}", parts.join(", "))
+}
+
+fn after_long_help() -> String {
+    let presets: Vec<String> = PRESETS
+        .iter()
+        .map(|(p, name)| {
+            let s = MorphSettings::preset(*p);
+            format!(
+                "  {name:<8}{:>3} x {}, {} pass(es), {}",
+                s.segments, s.steps_per_segment, s.passes, s.optimizer.iterations
+            )
+        })
+        .collect();
+    AFTER_LONG_HELP.replace("{presets}", &presets.join("\n"))
+}
+
 /// The main job: `morph SOURCE TARGET [options]`.
 #[derive(Args, Debug)]
 struct MorphArgs {
@@ -119,15 +146,15 @@ struct MorphArgs {
     preset: Preset,
     #[arg(long, help = help("Grid cells across the domain's longest side", Some(limits::RESOLUTION), defaults().resolution))]
     resolution: Option<usize>,
-    #[arg(long, help = help("Segments in the chain", Some(limits::SEGMENTS), "by preset: draft 6, default 12, final 40"))]
+    #[arg(long, help = help("Segments in the chain", Some(limits::SEGMENTS), by_preset(|s| s.segments)))]
     segments: Option<usize>,
     #[arg(long, help = help("Simulation steps per segment (dt 1/120 s at the reference resolution)", Some(limits::STEPS), defaults().steps_per_segment))]
     steps: Option<usize>,
-    #[arg(long, help = help("Steps between control layers in a segment", Some(1..=defaults().steps_per_segment), format!("{} (at most --steps)", defaults().control_stride)))]
+    #[arg(long, help = format!("Steps between control layers in a segment [range 1 to --steps; default {}]", defaults().control_stride))]
     control_stride: Option<usize>,
-    #[arg(long, help = help("Passes over the chain (later passes refine the earlier controls)", Some(limits::PASSES), "by preset: draft 1, default 2, final 3"))]
+    #[arg(long, help = help("Passes over the chain (later passes refine the earlier controls)", Some(limits::PASSES), by_preset(|s| s.passes)))]
     passes: Option<usize>,
-    #[arg(long, help = help("Optimizer evaluations per segment (Adam) or per control layer (line search)", Some(limits::ITERATIONS), "by preset: draft 10, default 12, final 25"))]
+    #[arg(long, help = help("Optimizer evaluations per segment (Adam) or per control layer (line search)", Some(limits::ITERATIONS), by_preset(|s| s.optimizer.iterations)))]
     iterations: Option<usize>,
     /// Optimizer [default adam].
     #[arg(long, value_enum)]
