@@ -71,3 +71,59 @@ fn one_and_two_threads_give_identical_bits() {
         assert_eq!(g1.effect_params, g2.effect_params);
     }
 }
+
+/// The ODE form's parallel path (2,048 particles or more): an RK4 run with controls and its
+/// reverse pass give the same bits on 1 and 2 threads.
+#[test]
+fn ode_parallel_path_is_bitwise_identical_across_thread_counts() {
+    use morph::control::rope::{Actuation, RopeConfig};
+    let run = |threads: usize| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| {
+            let cfg = RopeConfig {
+                cells_along: 16,
+                thickness_cells: 4,
+                particles_per_cell: 2,
+                steps: 6,
+                control_interval: 2,
+                actuation: Actuation::Both,
+                ..RopeConfig::default()
+            };
+            let rope = cfg.build().unwrap();
+            let sys = &rope.system;
+            assert!(sys.num_particles() >= 2048, "{}", sys.num_particles());
+            let mut params = sys.controls.zero_params();
+            let mut rng = Lcg(9);
+            for knots in params.iter_mut() {
+                for k in knots.iter_mut() {
+                    *k = 0.002 * Vector3::new(rng.next(), rng.next(), 0.0);
+                }
+            }
+            sys.controls.project(&mut params);
+            let mut s = rope.initial.clone();
+            let mut tape = morph::ode::Rk4Tape::default();
+            let energy = sys
+                .run(&mut s, &params, 0, 6, Some(&mut tape), |_, _| {})
+                .unwrap();
+            let grad = sys.kinetic_cost_gradient(&tape, &params, &s, 1.0, None);
+            let mut out: Vec<u64> = energy.iter().map(|e| e.to_bits()).collect();
+            for p in 0..s.len() {
+                out.extend(s.x[p].iter().chain(s.v[p].iter()).map(|a| a.to_bits()));
+                out.extend(s.f[p].iter().map(|a| a.to_bits()));
+                out.extend(grad.initial.x[p].iter().map(|a| a.to_bits()));
+                out.extend(grad.initial.f[p].iter().map(|a| a.to_bits()));
+            }
+            for knots in &grad.params {
+                out.extend(knots.iter().flat_map(|k| k.iter().map(|a| a.to_bits())));
+            }
+            out
+        })
+    };
+    assert!(
+        run(1) == run(2),
+        "the ODE path differs between 1 and 2 threads"
+    );
+}

@@ -145,3 +145,83 @@ fn gravity_alone_gives_free_fall() {
         }
     }
 }
+
+/// Drag alone scales the total momentum by exactly `1 - dt c` per step.
+#[test]
+fn drag_decays_momentum_geometrically() {
+    let c = 0.5;
+    let scene = small_scene(
+        KernelKind::Cubic,
+        vec![EffectConfig::Drag { coefficient: c }],
+    );
+    let (sim, mut init) = ball(&scene, 3.0);
+    let mut rng = Lcg(3);
+    deform(&mut init, &mut rng);
+    for v in init.v.iter_mut() {
+        *v += Vector3::new(2.0, -1.0, 0.5); // a net momentum to follow
+    }
+    let p0 = init.linear_momentum(&sim.mass);
+    let mut s = init.clone();
+    let n = 24;
+    run(&sim, &mut s, n);
+    let expected = p0 * (1.0 - sim.dt * c).powi(n as i32);
+    let got = s.linear_momentum(&sim.mass);
+    let err = (got - expected).norm() / expected.norm();
+    assert!(err < 1e-9, "momentum {got:?} vs {expected:?} ({err:e})");
+    assert!(got.norm() < 0.95 * p0.norm());
+}
+
+/// A body sliding along a wall that it touches: a sticky wall stops it (the touching part
+/// holds, and the elastic body drags on it), a slip wall lets it slide on.
+#[test]
+fn sticky_wall_stops_a_body_slip_wall_does_not() {
+    use morph::effects::WallMode;
+    let mut kept = Vec::new();
+    for mode in [WallMode::Sticky, WallMode::Slip] {
+        let scene = small_scene(
+            KernelKind::Cubic,
+            vec![EffectConfig::Walls { mode, thickness: 3 }],
+        );
+        let (sim, mut s) = ball(&scene, 2.0);
+        // Lower the ball 0.7 cells into the floor layer (y < origin + 3), moving along +x.
+        let floor = scene.grid.origin[1] + 3.0 * scene.grid.dx;
+        let bottom = s.x.iter().map(|x| x.y).fold(f64::MAX, f64::min);
+        for (x, v) in s.x.iter_mut().zip(s.v.iter_mut()) {
+            x.y += floor - 0.7 - bottom;
+            *v = Vector3::new(10.0, 0.0, 0.0);
+        }
+        let p0 = s.linear_momentum(&sim.mass).x;
+        run(&sim, &mut s, 30); // 2.5 cells: the front stays clear of the +x wall
+        kept.push(s.linear_momentum(&sim.mass).x / p0);
+    }
+    eprintln!(
+        "x momentum kept after 30 steps: sticky {:.4}, slip {:.4}",
+        kept[0], kept[1]
+    );
+    assert!(kept[0] < 0.2, "sticky: {} of the momentum left", kept[0]);
+    assert!(
+        kept[1] > 0.995,
+        "slip: only {} of the momentum left",
+        kept[1]
+    );
+}
+
+/// `Simulator::step` with a control of the wrong length, or a state of the wrong size, is an
+/// error, not a panic.
+#[test]
+fn step_with_a_short_control_is_an_error() {
+    use morph::mpm::Workspace;
+    let (sim, init) = ball(&small_scene(KernelKind::Cubic, vec![]), 3.0);
+    let mut s = init.clone();
+    let short = vec![Matrix3::zeros(); init.len() - 1];
+    let err = sim
+        .step(&mut s, Some(&short), 0, &mut Workspace::default())
+        .unwrap_err();
+    assert!(err.to_string().contains("entries"), "{err}");
+    let mut small = init.clone();
+    small.x.pop();
+    assert!(
+        sim.step(&mut small, None, 0, &mut Workspace::default())
+            .is_err()
+    );
+}

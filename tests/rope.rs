@@ -159,7 +159,25 @@ fn rope_run_writes_report_plot_and_frames() {
             .sum::<f64>()
             / 25.0;
         assert!((m["final_energy"].as_f64().unwrap() - tail).abs() <= 1e-12 * tail.abs());
-        assert!(m["compute_s"].as_f64().unwrap() >= 0.0);
+        // Compute time: none for the uncontrolled run; for a controller, its total is the
+        // time at which its last step was committed, and the commit times never go back.
+        let compute = m["compute_s"].as_f64().unwrap();
+        if method == "uncontrolled" {
+            assert_eq!(compute, 0.0);
+        } else {
+            let at: Vec<f64> = m["committed_at_s"]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|t| t.as_f64().unwrap())
+                .collect();
+            assert_eq!(at.len(), 100, "{method}: a commit time per step");
+            assert!(at.windows(2).all(|w| w[0] <= w[1]), "{method}: {at:?}");
+            assert!(
+                at[0] > 0.0 && compute >= at[99],
+                "{method}: {compute} vs {at:?}"
+            );
+        }
         let frames = m["frames"].as_array().unwrap();
         assert_eq!(frames.len(), 3, "{method}: frames at steps 0, 50, 100");
         for f in frames {

@@ -51,6 +51,9 @@ pub struct StepTape {
     grid_mass: Vec<f64>,
     /// Grid velocity `p / m`, before grid effects.
     grid_v: Vec<Vector3<f64>>,
+    /// The global step index: the reverse pass gives time-dependent effects the same
+    /// context the forward pass did.
+    step: usize,
 }
 
 /// Recorded forward steps of a rollout, and the state after the last one.
@@ -218,7 +221,7 @@ impl Simulator {
     }
 
     /// Advances `state` by one step with optional controls `fc` (per particle, added to F).
-    /// `step` is only used to label errors.
+    /// `step` is the global step index (time-dependent effects read it; errors name it).
     pub fn step(
         &self,
         state: &mut State,
@@ -249,26 +252,6 @@ impl Simulator {
         self.check_state(state, first_step)?;
         for s in 0..n_steps {
             let fc = control_at(controls, s);
-            if let Some(fc) = fc {
-                if fc.len() != state.len() {
-                    return Err(SimError::InvalidScene(format!(
-                        "control at step {} has {} entries for {} particles",
-                        first_step + s,
-                        fc.len(),
-                        state.len()
-                    )));
-                }
-                if let Some(p) = fc
-                    .par_iter()
-                    .position_first(|m| !m.iter().all(|a| a.is_finite()))
-                {
-                    return Err(SimError::NonFinite {
-                        step: first_step + s,
-                        particle: p,
-                        field: "control Fc",
-                    });
-                }
-            }
             let rec = tape.as_deref_mut().map(|t| &mut t.steps);
             match self.kernel {
                 KernelKind::Quadratic => {
@@ -285,6 +268,33 @@ impl Simulator {
         Ok(())
     }
 
+    /// A control must have one finite `Fc` per particle.
+    fn check_control(
+        &self,
+        fc: Option<&[Matrix3<f64>]>,
+        particles: usize,
+        step: usize,
+    ) -> Result<(), SimError> {
+        let Some(fc) = fc else { return Ok(()) };
+        if fc.len() != particles {
+            return Err(SimError::InvalidScene(format!(
+                "control at step {step} has {} entries for {particles} particles",
+                fc.len()
+            )));
+        }
+        if let Some(p) = fc
+            .par_iter()
+            .position_first(|m| !m.iter().all(|a| a.is_finite()))
+        {
+            return Err(SimError::NonFinite {
+                step,
+                particle: p,
+                field: "control Fc",
+            });
+        }
+        Ok(())
+    }
+
     fn step_impl<const N: usize>(
         &self,
         state: &mut State,
@@ -293,6 +303,14 @@ impl Simulator {
         ws: &mut Workspace,
         tape: Option<&mut Vec<StepTape>>,
     ) -> Result<(), SimError> {
+        if state.len() != self.num_particles() {
+            return Err(SimError::InvalidScene(format!(
+                "state has {} particles, the scene {}",
+                state.len(),
+                self.num_particles()
+            )));
+        }
+        self.check_control(fc, state.len(), step)?;
         let n = state.len();
         let dt = self.dt;
         let inv_d = self.inv_d();
@@ -370,6 +388,7 @@ impl Simulator {
                 affine: ws.affine.clone(),
                 grid_mass,
                 grid_v: grid_v_pre,
+                step,
             });
         }
 
@@ -471,7 +490,7 @@ impl Simulator {
             spec: &self.grid,
             mass: &tape.grid_mass,
             dt,
-            step: 0,
+            step: tape.step,
         };
         let grid_effects: Vec<usize> = (0..self.effects.len())
             .filter(|&e| self.effects[e].acts_on_grid())
