@@ -1,9 +1,23 @@
 //! morph: shape morphing with a differentiable Material Point Method.
 //!
-//! Layout: [`material`] (constitutive models, 3x3 SVD), [`mpm`] (the engine: one file per
-//! stage, forward and reverse side by side), [`effects`] (optional physics a scene switches
-//! on), [`scene`] (serde scene description), [`loss`] (nodal mass losses), [`bench`] (the
-//! reference benchmark workload).
+//! Layout:
+//! - [`material`]: constitutive models behind a trait, the 3x3 SVD, the stress differential;
+//! - [`mpm`]: the engine, symplectic-Euler MLS-MPM with a tape: one file per stage, forward
+//!   and reverse side by side;
+//! - [`ode`]: the same physics as an ODE `dS/dt = f(S, u, t)` with RK4 and its reverse, and
+//!   controls (body forces, prescribed clamp position or velocity);
+//! - [`effects`]: optional physics a scene switches on (drag, gravity, walls);
+//! - [`scene`]: the serde scene description that builds a simulator;
+//! - [`loss`]: nodal mass losses;
+//! - [`geometry`]: meshes in (OBJ/PLY, validation, welding, winding-number voxelization,
+//!   placement) and surfaces out;
+//! - [`morph`]: the morph (segment optimizers, the chained multi-pass driver with its
+//!   [`morph::Observer`], checkpoints, the output folder writer);
+//! - [`control`]: control of deformable objects (the rope scene, gradient control, MPPI);
+//! - [`io`]: frame, mass-grid and image files, and the guarded output folder;
+//! - [`bench`](mod@bench): the benchmark workloads.
+//!
+//! The `morph` binary (`src/cli/`, one file per subcommand) only parses and reports.
 
 pub mod bench;
 pub mod control;

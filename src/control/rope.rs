@@ -18,7 +18,8 @@ use std::sync::Arc;
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, clap::ValueEnum)]
 #[serde(rename_all = "kebab-case")]
 pub enum Actuation {
-    /// Velocity of the clamped end, in the swing plane.
+    /// The clamped end, in the swing plane: its position offset or its velocity (see
+    /// `ClampMode`).
     Clamp,
     /// A body force on the free quarter of the rope, in the swing plane.
     TipForce,

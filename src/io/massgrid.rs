@@ -6,12 +6,13 @@
 //! |---|---|
 //! | 8 | magic `MORPHMG1` |
 //! | 4 | u32: length H of the JSON header |
-//! | H | JSON: `{"dims":[nx,ny,nz],"origin":[x,y,z],"dx":h,"dtype":"f64le","order":"x-slowest","units":"world"}` |
+//! | H | JSON: `{"dims":[nx,ny,nz],"origin":[x,y,z],"dx":h,"dtype":"f64le","order":"x-slowest","units":"world","mass_units":"simulation"}` |
 //! | 8 nx ny nz | f64 node masses, node (i,j,k) at index (i*ny + j)*nz + k |
 //!
-//! `dims` counts nodes; node (i,j,k) sits at `origin + dx * (i,j,k)` in world units. Masses
-//! are in simulation units (density x sim volume); both files of a comparison come from the
-//! same kind of run, so only their agreement matters.
+//! `dims` counts nodes; node (i,j,k) sits at `origin + dx * (i,j,k)` in world units (`units`
+//! names the unit of `origin` and `dx`). Masses are in simulation units, density x sim volume
+//! (`mass_units`; files written before that field existed read as "simulation" too); both
+//! files of a comparison come from the same kind of run, so only their agreement matters.
 
 use super::write_atomically;
 use serde::{Deserialize, Serialize};
@@ -27,7 +28,15 @@ pub struct MassGridHeader {
     pub dx: f64,
     pub dtype: String,
     pub order: String,
+    /// Unit of `origin` and `dx`: "world" (the source mesh's units).
     pub units: String,
+    /// Unit of the masses: "simulation" (density x simulation-frame volume).
+    #[serde(default = "simulation_units")]
+    pub mass_units: String,
+}
+
+fn simulation_units() -> String {
+    "simulation".into()
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -47,6 +56,7 @@ impl MassGrid {
                 dtype: "f64le".into(),
                 order: "x-slowest".into(),
                 units: "world".into(),
+                mass_units: simulation_units(),
             },
             values,
         }

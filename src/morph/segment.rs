@@ -26,6 +26,17 @@ pub enum Optimizer {
     LineSearch,
 }
 
+impl Optimizer {
+    /// The step size each optimizer starts from: Adam 0.02 per control entry, the reference
+    /// line search 0.1 (its published initial normalized step).
+    pub fn default_learning_rate(self) -> f64 {
+        match self {
+            Optimizer::Adam => 0.02,
+            Optimizer::LineSearch => 0.1,
+        }
+    }
+}
+
 /// Optimizer settings.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct OptimizerSettings {

@@ -88,7 +88,7 @@ impl MorphSettings {
             optimizer: OptimizerSettings {
                 kind: Optimizer::Adam,
                 iterations,
-                learning_rate: 0.02,
+                learning_rate: Optimizer::Adam.default_learning_rate(),
                 line_search_tries: 15,
                 gd_tol: 1e-3,
             },

@@ -1,0 +1,79 @@
+//! `morph bench` and `morph bench-geometry`: figures as JSON lines.
+
+use super::fail;
+use clap::Args;
+use morph::morph::settings::limits;
+use morph::mpm::KernelKind;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+#[derive(Args, Debug)]
+pub struct BenchArgs {
+    /// Steps per run.
+    #[arg(long, default_value_t = 30)]
+    steps: usize,
+    /// Runs per configuration; the fastest is reported.
+    #[arg(long, default_value_t = 3)]
+    repeats: usize,
+    /// Thread counts to measure, comma separated.
+    #[arg(long, value_delimiter = ',', default_values_t = [1usize, 2])]
+    thread_counts: Vec<usize>,
+    /// Kernels to measure, comma separated.
+    #[arg(long, value_delimiter = ',', default_values = ["quadratic", "cubic"])]
+    kernels: Vec<KernelKind>,
+}
+
+pub fn run(a: &BenchArgs) -> ExitCode {
+    if a.steps == 0 || a.repeats == 0 || a.thread_counts.contains(&0) {
+        return fail(
+            false,
+            2,
+            "--steps, --repeats and --thread-counts must be positive",
+        );
+    }
+    super::report(morph::bench::run(
+        a.steps,
+        a.repeats,
+        &a.thread_counts,
+        &a.kernels,
+    ))
+}
+
+#[derive(Args, Debug)]
+pub struct BenchGeometryArgs {
+    /// Folder of meshes.
+    #[arg(long, default_value = "../shared/meshes")]
+    meshes: PathBuf,
+    /// Resolutions (cells across the domain), comma separated.
+    #[arg(long, value_delimiter = ',', default_values_t = [32usize, 64])]
+    resolutions: Vec<usize>,
+    /// Runs per case; the fastest is reported.
+    #[arg(long, default_value_t = 3)]
+    repeats: usize,
+}
+
+pub fn run_geometry(a: &BenchGeometryArgs) -> ExitCode {
+    if let Some(r) = a
+        .resolutions
+        .iter()
+        .find(|r| !limits::RESOLUTION.contains(r))
+    {
+        return fail(
+            false,
+            2,
+            &format!(
+                "--resolutions must each be between {} and {}, got {r}",
+                limits::RESOLUTION.start(),
+                limits::RESOLUTION.end()
+            ),
+        );
+    }
+    if a.repeats == 0 {
+        return fail(false, 2, "--repeats must be at least 1");
+    }
+    super::report(morph::bench::geometry::run(
+        &a.meshes,
+        &a.resolutions,
+        a.repeats,
+    ))
+}

@@ -1,0 +1,174 @@
+//! The `morph` command line: parses, calls the library, reports. One file per subcommand;
+//! every default and range is read from the library, never restated here.
+
+mod assets;
+mod bench;
+mod compare;
+mod inspect;
+mod morph;
+mod rope;
+
+use ::morph::morph::{MorphSettings, Preset};
+use clap::{Parser, Subcommand};
+use std::process::ExitCode;
+
+/// morph - turn one 3D shape into another with a differentiable Material Point Method.
+#[derive(Parser, Debug)]
+#[command(
+    name = "morph",
+    version,
+    about,
+    long_about = morph::LONG_ABOUT,
+    after_long_help = morph::after_long_help(),
+    args_conflicts_with_subcommands = true,
+    subcommand_negates_reqs = true,
+    allow_negative_numbers = true
+)]
+struct Cli {
+    /// Worker threads (default: all cores). Results are identical for any count.
+    #[arg(long, global = true)]
+    threads: Option<usize>,
+    #[command(subcommand)]
+    command: Option<Command>,
+    #[command(flatten)]
+    morph: morph::MorphArgs,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Time the engine on the reference workload; prints one JSON line per configuration.
+    ///
+    /// Workload: a ball of radius 8 cells in a 32^3 grid, 2x2x2 particles per cell (about
+    /// 17,000 particles), fixed-corotated material (lam 58333, mu 38888.9), density 40,
+    /// drag 0.5, dt 1/120, f64, deforming under controls. Reports (a) forward steps and (b)
+    /// forward + reverse steps, for each kernel and thread count, best of --repeats runs.
+    Bench(bench::BenchArgs),
+    /// Time mesh loading, voxelization and surface extraction; one JSON line per case.
+    ///
+    /// Every .obj/.ply in --meshes is placed alone in a domain of each --resolutions cells
+    /// across and filled with 2x2x2 particles per cell; reports times, particle count and
+    /// the particle volume in the mesh's own units. Then times surface extraction of
+    /// particle balls of about 17k and 100k particles.
+    BenchGeometry(bench::BenchGeometryArgs),
+    /// Check a mesh before a run: topology, inside volume and particle count, as JSON.
+    ///
+    /// Loads MESH (OBJ or PLY) with the same validation as a morph, measures its inside
+    /// (winding number > 1/2, so open meshes work) and fills it with particles as a source at
+    /// --resolution. Warnings (open mesh, flipped faces, missing .mtl, a mesh that could not be
+    /// a source) go to stderr.
+    Inspect(inspect::InspectArgs),
+    /// Compare two nodal mass grids (final_mass.mgrid); exit 0 if equal within tolerance.
+    ///
+    /// Equal means |a - b| <= atol + rtol * |b| at every node (b is the reference). Prints the
+    /// node count, max and mean absolute difference as JSON, and the first node holding a
+    /// non-finite value. Exit 0: equal; 1: different, incompatible grids (shape, origin,
+    /// spacing) or a non-finite value; 2: unreadable file or bad option.
+    Compare(compare::CompareArgs),
+    /// Active damping of a swinging rope: uncontrolled vs MPPI vs gradient control (RK4).
+    ///
+    /// A fixed-corotated rope clamped at its top is released at rest, tilted from the
+    /// vertical, under gravity; the controllers push its segments (default), push its tip, or
+    /// move the clamp, to remove its kinetic energy. Prints a table and writes
+    /// OUT/report.json, OUT/energy.png and OUT/frames/<method>/*.ply. Exit 0: ok; 1: the run
+    /// failed; 2: bad option. Scene details: docs/control.md.
+    Rope(Box<rope::RopeArgs>),
+    /// Write the built-in meshes (sphere, torus, cube, two lobes) as OBJ into a folder.
+    Assets(assets::AssetsArgs),
+}
+
+pub fn main() -> ExitCode {
+    let json = std::env::args_os().any(|a| a == "--json");
+    let cli = match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => return parse_error(e, json),
+    };
+    if let Some(t) = cli.threads {
+        if t == 0 || t > 1024 {
+            return fail(
+                json,
+                2,
+                &format!("--threads must be between 1 and 1024, got {t}"),
+            );
+        }
+        if let Err(e) = rayon::ThreadPoolBuilder::new()
+            .num_threads(t)
+            .build_global()
+        {
+            return fail(json, 1, &format!("cannot start {t} threads: {e}"));
+        }
+    }
+    match &cli.command {
+        None => morph::run(&cli.morph),
+        Some(Command::Bench(args)) => bench::run(args),
+        Some(Command::BenchGeometry(args)) => bench::run_geometry(args),
+        Some(Command::Inspect(args)) => inspect::run(args),
+        Some(Command::Compare(args)) => compare::run(args),
+        Some(Command::Rope(args)) => rope::run(args),
+        Some(Command::Assets(args)) => assets::run(args),
+    }
+}
+
+/// Prints a failure: one line `morph: error: ...` on stderr and, in `--json` mode, an `error`
+/// event as the last line on stdout.
+fn fail(json: bool, code: u8, message: &str) -> ExitCode {
+    eprintln!("morph: error: {message}");
+    if json {
+        println!(
+            "{}",
+            serde_json::json!({ "event": "error", "message": message, "exit_code": code })
+        );
+    }
+    ExitCode::from(code)
+}
+
+/// A command-line parse error as one line (clap's message spans several with usage notes).
+fn parse_error(e: clap::Error, json: bool) -> ExitCode {
+    use clap::error::ErrorKind;
+    if matches!(e.kind(), ErrorKind::DisplayHelp | ErrorKind::DisplayVersion) {
+        let _ = e.print();
+        return ExitCode::SUCCESS;
+    }
+    let text = e.render().to_string();
+    let mut parts = Vec::new();
+    for line in text.lines() {
+        let line = line.trim();
+        if line.starts_with("Usage:") || line.starts_with("For more information") {
+            break;
+        }
+        if !line.is_empty() {
+            parts.push(line.trim_start_matches("error:").trim().to_string());
+        }
+    }
+    let message = format!("{} (see morph --help)", parts.join(" "));
+    fail(json, 2, &message)
+}
+
+/// `--help` text for an option: what it does, its range, its default (read from the library's
+/// default preset and limits, so the help cannot drift from what runs).
+fn help(
+    what: &str,
+    range: Option<std::ops::RangeInclusive<usize>>,
+    default: impl std::fmt::Display,
+) -> String {
+    match range {
+        Some(r) => format!(
+            "{what} [range {}-{}; default {default}]",
+            r.start(),
+            r.end()
+        ),
+        None => format!("{what} [default {default}]"),
+    }
+}
+
+/// The library's default settings.
+fn defaults() -> MorphSettings {
+    MorphSettings::preset(Preset::Default)
+}
+
+/// Prints the result of a subcommand that only fails at run time (exit 1).
+fn report(result: anyhow::Result<()>) -> ExitCode {
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => fail(false, 1, &format!("{e:#}")),
+    }
+}

@@ -1,0 +1,363 @@
+//! `morph SOURCE TARGET`: the main job. Parses options into the library's settings (every
+//! default comes from [`MorphSettings::preset`]), watches SIGINT/SIGTERM, and reports progress
+//! as a bar or JSON lines.
+
+use super::{defaults, fail, help};
+use clap::Args;
+use morph::geometry::TargetFit;
+use morph::loss::MassLossKind;
+use morph::morph::segment::Optimizer;
+use morph::morph::settings::limits;
+use morph::morph::{MorphError, MorphEvent, MorphSettings, Preset};
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::Arc;
+use std::sync::atomic::AtomicUsize;
+
+pub const LONG_ABOUT: &str = "\
+morph turns the shape in SOURCE into the shape in TARGET: SOURCE is filled with particles of an
+elastic material, simulated with a differentiable Material Point Method, and steered by
+optimized per-particle controls until it flows into TARGET. The result is a folder with a
+frame sequence for Blender or Houdini.
+
+SOURCE and TARGET are OBJ or PLY meshes in any units and position; open meshes (holes) are
+accepted. TARGET is scaled to SOURCE's volume and centred on it unless --target-fit as-given.";
+
+pub(super) const AFTER_LONG_HELP: &str = "\
+OUTPUT (folder -o, written in the locked OUT.partial and put in place when complete):
+  frames/frame_0001.ply ...  binary PLY points per frame: x y z vx vy vz J, source units
+  meshes/frame_0001.obj ...  closed surface per frame, source units
+  final_mass.mgrid           final nodal mass grid; compare two with `morph compare`
+  manifest.json              inputs with SHA-256, settings, placement, losses, timings, frames
+  run.json                   what decides the result: tool version, input hashes, settings
+  loss.png, preview.png      loss curves; a contact sheet of frames
+  -o is checked before any work; --overwrite replaces only an earlier morph output; a second
+  run on the same -o fails at once. Each completed segment is checkpointed in OUT.partial.
+
+PRESETS (segments x steps, passes, iterations per segment):
+{presets}
+  Any of --segments --steps --passes --iterations overrides its preset value.
+
+EXIT CODES:
+  0    success (every written file checked finite)
+  1    the run failed (bad mesh, simulation, writing, output folder in use)
+  2    bad command line, option value or output folder (refused before any work)
+  130  interrupted by SIGINT (Ctrl-C), 143 by SIGTERM: completed segments are kept in
+       OUT.partial; the same command with --resume continues bit for bit
+
+EXAMPLES:
+  morph assets/sphere.obj assets/two-lobes.obj -o out
+  morph sphere.obj bunny.obj -o bunny_morph --preset final --json > log.jsonl
+  morph sphere.obj bunny.obj -o bunny_morph --preset final --resume   # after an interruption
+  morph compare out/final_mass.mgrid golden/final_mass.mgrid --rtol 1e-6";
+
+const PRESETS: [(Preset, &str); 3] = [
+    (Preset::Draft, "draft"),
+    (Preset::Default, "default"),
+    (Preset::Final, "final"),
+];
+
+/// A preset-dependent default, read from the library: "draft 6, default 12, final 40".
+fn by_preset(value: impl Fn(&MorphSettings) -> usize) -> String {
+    let parts: Vec<String> = PRESETS
+        .iter()
+        .map(|(p, name)| format!("{name} {}", value(&MorphSettings::preset(*p))))
+        .collect();
+    format!("by preset: {}", parts.join(", "))
+}
+
+pub(super) fn after_long_help() -> String {
+    let presets: Vec<String> = PRESETS
+        .iter()
+        .map(|(p, name)| {
+            let s = MorphSettings::preset(*p);
+            format!(
+                "  {name:<8}{:>3} x {}, {} pass(es), {}",
+                s.segments, s.steps_per_segment, s.passes, s.optimizer.iterations
+            )
+        })
+        .collect();
+    AFTER_LONG_HELP.replace("{presets}", &presets.join("\n"))
+}
+
+/// The main job: `morph SOURCE TARGET [options]`.
+#[derive(Args, Debug)]
+pub struct MorphArgs {
+    /// Mesh to start from (OBJ or PLY).
+    #[arg(required = true)]
+    source: Option<PathBuf>,
+    /// Mesh to become (OBJ or PLY).
+    #[arg(required = true)]
+    target: Option<PathBuf>,
+    /// Output folder (a new folder, an empty one, or an earlier morph output with --overwrite).
+    #[arg(short, long, default_value = "morph-out")]
+    output: PathBuf,
+    /// Replace the output folder if it holds an earlier morph output (nothing else is ever
+    /// replaced); also starts over from an interrupted run's OUT.partial.
+    #[arg(long)]
+    overwrite: bool,
+    /// Continue an interrupted run (same inputs and settings) from OUT.partial; starts afresh
+    /// when there is nothing to continue, and does nothing when OUT is already complete.
+    #[arg(long)]
+    resume: bool,
+    /// Effort preset; the options below override its values.
+    #[arg(long, value_enum, default_value_t = Preset::default())]
+    preset: Preset,
+    #[arg(long, help = help("Grid cells across the domain's longest side", Some(limits::RESOLUTION), defaults().resolution))]
+    resolution: Option<usize>,
+    #[arg(long, help = help("Segments in the chain", Some(limits::SEGMENTS), by_preset(|s| s.segments)))]
+    segments: Option<usize>,
+    #[arg(long, help = help("Simulation steps per segment (dt 1/120 s at the reference resolution)", Some(limits::STEPS), defaults().steps_per_segment))]
+    steps: Option<usize>,
+    #[arg(long, help = format!("Steps between control layers in a segment [range 1 to --steps; default {}]", defaults().control_stride))]
+    control_stride: Option<usize>,
+    #[arg(long, help = help("Passes over the chain (later passes refine the earlier controls)", Some(limits::PASSES), by_preset(|s| s.passes)))]
+    passes: Option<usize>,
+    #[arg(long, help = help("Optimizer evaluations per segment (Adam) or per control layer (line search)", Some(limits::ITERATIONS), by_preset(|s| s.optimizer.iterations)))]
+    iterations: Option<usize>,
+    /// Optimizer [default adam].
+    #[arg(long, value_enum)]
+    optimizer: Option<Optimizer>,
+    #[arg(long, help = help("Step size (Adam: per control entry; line search: initial normalized step), > 0", None, format!("{} (line search {})", Optimizer::Adam.default_learning_rate(), Optimizer::LineSearch.default_learning_rate())))]
+    learning_rate: Option<f64>,
+    /// Mass loss on the grid.
+    #[arg(long, value_enum, default_value_t = defaults().loss)]
+    loss: MassLossKind,
+    #[arg(long, help = help("Weight of the kinetic energy left at each segment's end, >= 0", None, defaults().arrival_weight))]
+    arrival_weight: Option<f64>,
+    /// How the target is placed.
+    #[arg(long, value_enum, default_value_t = defaults().target_fit)]
+    target_fit: TargetFit,
+    #[arg(long, help = help("Particles per cell along each axis (k^3 per cell)", Some(limits::PARTICLES_PER_CELL), defaults().particles_per_cell))]
+    particles_per_cell: Option<usize>,
+    #[arg(long, help = help("Random particle offsets, in particle spacings, 0 to 1", None, defaults().jitter))]
+    jitter: Option<f64>,
+    /// Seed for the jitter.
+    #[arg(long, default_value_t = defaults().seed)]
+    seed: u64,
+    #[arg(long, help = help("Export every n-th simulation step as a frame", Some(limits::FRAME_EVERY), defaults().frame_every))]
+    frame_every: Option<usize>,
+    /// Skip the per-frame surface meshes (points only).
+    #[arg(long)]
+    no_surfaces: bool,
+    /// Print one JSON object per event on stdout (for farm logs) instead of progress bars;
+    /// a failure ends the stream with an `error` event.
+    #[arg(long)]
+    json: bool,
+    /// Print nothing but errors.
+    #[arg(long, short)]
+    quiet: bool,
+}
+
+impl MorphArgs {
+    fn settings(&self) -> MorphSettings {
+        let mut s = MorphSettings::preset(self.preset);
+        let set = |dst: &mut usize, v: Option<usize>| {
+            if let Some(v) = v {
+                *dst = v;
+            }
+        };
+        set(&mut s.resolution, self.resolution);
+        set(&mut s.segments, self.segments);
+        set(&mut s.steps_per_segment, self.steps);
+        set(&mut s.control_stride, self.control_stride);
+        set(&mut s.passes, self.passes);
+        set(&mut s.optimizer.iterations, self.iterations);
+        set(&mut s.particles_per_cell, self.particles_per_cell);
+        set(&mut s.frame_every, self.frame_every);
+        if let Some(o) = self.optimizer {
+            s.optimizer.kind = o;
+            s.optimizer.learning_rate = o.default_learning_rate();
+        }
+        if let Some(lr) = self.learning_rate {
+            s.optimizer.learning_rate = lr;
+        }
+        if let Some(w) = self.arrival_weight {
+            s.arrival_weight = w;
+        }
+        if let Some(j) = self.jitter {
+            s.jitter = j;
+        }
+        s.seed = self.seed;
+        s.loss = self.loss;
+        s.target_fit = self.target_fit;
+        s.surfaces = !self.no_surfaces;
+        s
+    }
+}
+
+/// SIGINT and SIGTERM set `stop` to the signal's number: the run stops at its next
+/// evaluation and keeps its checkpoint. A second signal while stopping exits at once.
+fn stop_on_signals() -> std::io::Result<Arc<AtomicUsize>> {
+    use signal_hook::consts::{SIGINT, SIGTERM};
+    let stop = Arc::new(AtomicUsize::new(0));
+    let stopping = Arc::new(std::sync::atomic::AtomicBool::new(false));
+    for sig in [SIGINT, SIGTERM] {
+        signal_hook::flag::register_conditional_shutdown(sig, 128 + sig, Arc::clone(&stopping))?;
+        signal_hook::flag::register(sig, Arc::clone(&stopping))?;
+        signal_hook::flag::register_usize(sig, Arc::clone(&stop), sig as usize)?;
+    }
+    Ok(stop)
+}
+
+fn signal_name(signal: usize) -> &'static str {
+    match signal as i32 {
+        signal_hook::consts::SIGINT => "SIGINT",
+        signal_hook::consts::SIGTERM => "SIGTERM",
+        _ => "a signal",
+    }
+}
+
+/// `morph SOURCE TARGET`: progress bars on a terminal, JSON lines with --json.
+pub fn run(args: &MorphArgs) -> ExitCode {
+    use indicatif::{ProgressBar, ProgressStyle};
+    use std::io::IsTerminal;
+    let (Some(source), Some(target)) = (&args.source, &args.target) else {
+        return fail(
+            args.json,
+            2,
+            "give a SOURCE and a TARGET mesh (see morph --help)",
+        );
+    };
+    let settings = args.settings();
+    if let Err(e) = settings.validate() {
+        return fail(args.json, 2, &e);
+    }
+    let stop = match stop_on_signals() {
+        Ok(s) => s,
+        Err(e) => return fail(args.json, 1, &format!("cannot watch for signals: {e}")),
+    };
+    let show_bar = !args.quiet && !args.json && std::io::stderr().is_terminal();
+    let bar = ProgressBar::hidden();
+    let mut last_loss = f64::NAN;
+    let on_event = |e: &MorphEvent| {
+        if args.json {
+            println!("{}", serde_json::to_string(e).expect("plain event"));
+            return;
+        }
+        match e {
+            MorphEvent::Setup {
+                particles,
+                grid_cells,
+                segments,
+                passes,
+                iterations,
+                warnings,
+                ..
+            } => {
+                if !args.quiet {
+                    for w in warnings {
+                        eprintln!("morph: warning: {w}");
+                    }
+                }
+                if show_bar {
+                    bar.set_draw_target(indicatif::ProgressDrawTarget::stderr());
+                    bar.set_length((segments * passes * iterations) as u64);
+                    bar.set_style(
+                        ProgressStyle::with_template(
+                            "{elapsed_precise} [{bar:30}] {pos}/{len} evaluations  {msg}",
+                        )
+                        .expect("valid template")
+                        .progress_chars("=> "),
+                    );
+                    bar.println(format!(
+                        "morph: {particles} particles on a {}x{}x{} grid, {segments} segments x {passes} passes",
+                        grid_cells[0], grid_cells[1], grid_cells[2]
+                    ));
+                }
+            }
+            MorphEvent::Iteration {
+                pass,
+                segment,
+                loss,
+                ..
+            } => {
+                if loss.is_finite() {
+                    last_loss = *loss;
+                }
+                bar.inc(1);
+                bar.set_message(format!(
+                    "pass {}  segment {}  loss {last_loss:.4e}",
+                    pass + 1,
+                    segment + 1
+                ));
+            }
+            MorphEvent::Segment { .. } | MorphEvent::Done { .. } => {}
+        }
+    };
+    let request = morph::morph::output::OutputRequest {
+        out: &args.output,
+        overwrite: args.overwrite,
+        resume: args.resume,
+        stop: Some(&stop),
+    };
+    let result =
+        morph::morph::output::morph_to_folder(&settings, source, target, &request, on_event);
+    bar.finish_and_clear();
+    match result {
+        Ok(summary) => {
+            if args.json {
+                println!(
+                    "{}",
+                    serde_json::json!({ "event": "written", "summary": summary })
+                );
+            } else if !args.quiet {
+                if summary.already_complete {
+                    println!(
+                        "{} is already complete for these inputs and settings; nothing to do",
+                        summary.output.display()
+                    );
+                    return ExitCode::SUCCESS;
+                }
+                if let Some(from) = &summary.resumed_from {
+                    println!("resumed from the checkpoint ({from})");
+                }
+                println!(
+                    "wrote {}: {} frames of {} particles; loss {:.4e} -> {:.4e}; target cells filled {:.1}%, particles outside {:.2}% (ejected {:.2}%); {:.1} s",
+                    summary.output.display(),
+                    summary.frames,
+                    summary.particles,
+                    summary.initial_loss,
+                    summary.final_loss,
+                    100.0 * summary.fill.target_cells_filled,
+                    100.0 * summary.fill.particles_outside,
+                    100.0 * summary.fill.particles_ejected,
+                    summary.seconds
+                );
+            }
+            ExitCode::SUCCESS
+        }
+        Err(MorphError::Interrupted { signal, kept }) => {
+            let code = (128 + signal).min(255) as u8;
+            let staging = morph::io::outdir::partial_dir(&args.output);
+            let message = if kept {
+                format!(
+                    "interrupted by {}: completed segments are kept in '{}'; run the same command with --resume to continue",
+                    signal_name(signal),
+                    staging.display()
+                )
+            } else {
+                format!(
+                    "interrupted by {} before any segment completed; nothing was kept",
+                    signal_name(signal)
+                )
+            };
+            eprintln!("morph: {message}");
+            if args.json {
+                println!(
+                    "{}",
+                    serde_json::json!({ "event": "interrupted", "signal": signal_name(signal), "message": message, "exit_code": code })
+                );
+            }
+            ExitCode::from(code)
+        }
+        Err(e) => {
+            let code = match e {
+                MorphError::Settings(_)
+                | MorphError::Mesh(morph::geometry::MeshError::BadOption(_)) => 2,
+                _ => 1,
+            };
+            fail(args.json, code, &e.to_string())
+        }
+    }
+}
