@@ -463,6 +463,7 @@ fn surface_of_deformed_particles_stays_closed() {
 #[test]
 fn committed_assets_match_the_generator() {
     let dir = scratch("assets");
+    let _ = std::fs::remove_dir_all(&dir); // a fresh folder: assets never replace files unasked
     let out = std::process::Command::new(env!("CARGO_BIN_EXE_morph"))
         .args(["assets", "-o"])
         .arg(&dir)
