@@ -15,6 +15,7 @@
 //!   [`morph::Observer`], checkpoints, the output folder writer);
 //! - [`control`]: control of deformable objects (the rope scene, gradient control, MPPI);
 //! - [`io`]: frame, mass-grid and image files, and the guarded output folder;
+//! - [`optim`]: Adam, shared by the morph and the gradient controller;
 //! - [`bench`](mod@bench): the benchmark workloads.
 //!
 //! The `morph` binary (`src/cli/`, one file per subcommand) only parses and reports.
@@ -29,4 +30,5 @@ pub mod material;
 pub mod morph;
 pub mod mpm;
 pub mod ode;
+pub mod optim;
 pub mod scene;

@@ -9,7 +9,7 @@
 use super::{Committed, ControlEvent, free_knots};
 use crate::mpm::SimError;
 use crate::ode::{ControlParams, OdeState, OdeSystem, Rk4Tape};
-use nalgebra::Vector3;
+use crate::optim::Adam;
 use serde::Serialize;
 use std::time::Instant;
 
@@ -122,11 +122,11 @@ pub fn gradient_control(
         let knots = free_knots(&schedule, a, a + len);
         let commit_knots = free_knots(&schedule, a, a + n);
         let ne = params.len();
-        let mut m1 = vec![vec![Vector3::zeros(); knots.len()]; ne];
-        let mut m2 = vec![vec![Vector3::zeros(); knots.len()]; ne];
+        // Adam over this batch's knots: entry (e, knot, axis), stepped by the control's bound.
+        let mut adam = Adam::new(ne * knots.len() * 3, settings.beta1, settings.beta2, 1e-12);
+        let scale = |i: usize| bounds[i / (3 * knots.len())][i % 3];
         let mut best: Option<(f64, ControlParams, OdeState, Vec<f64>)> = None;
         let mut lr = settings.learning_rate;
-        let mut t = 0;
         let mut failures = 0;
         for _ in 0..settings.iterations {
             let mut s = state.clone();
@@ -167,18 +167,18 @@ pub fn gradient_control(
             }
             let grad = sys.kinetic_cost_gradient(&tape, &params, &s, dt, None);
             // Adam on this batch's knots, then projection onto the bounds.
-            t += 1;
-            let (c1, c2) = (1.0 - settings.beta1.powi(t), 1.0 - settings.beta2.powi(t));
-            for e in 0..ne {
-                for (i, j) in knots.clone().enumerate() {
-                    let g = grad.params[e][j];
-                    m1[e][i] = settings.beta1 * m1[e][i] + (1.0 - settings.beta1) * g;
-                    m2[e][i] =
-                        settings.beta2 * m2[e][i] + (1.0 - settings.beta2) * g.component_mul(&g);
-                    for c in 0..3 {
-                        let mhat = m1[e][i][c] / c1;
-                        let vhat = m2[e][i][c] / c2;
-                        params[e][j][c] -= lr * bounds[e][c] * mhat / (vhat.sqrt() + 1e-12);
+            let batch = |p: &ControlParams| -> Vec<f64> {
+                p.iter()
+                    .flat_map(|e| e[knots.clone()].iter().flat_map(|k| k.iter().copied()))
+                    .collect()
+            };
+            let mut flat = batch(&params);
+            adam.step(&mut flat, &batch(&grad.params), lr, scale);
+            let mut values = flat.into_iter();
+            for e in params.iter_mut() {
+                for k in e[knots.clone()].iter_mut() {
+                    for c in k.iter_mut() {
+                        *c = values.next().expect("one value per entry");
                     }
                 }
             }

@@ -13,6 +13,7 @@
 
 use crate::loss::MassLoss;
 use crate::mpm::{SimError, Simulator, State, Tape};
+use crate::optim::Adam;
 use nalgebra::Matrix3;
 use serde::{Deserialize, Serialize};
 
@@ -187,21 +188,19 @@ impl Segment<'_> {
         const EPS: f64 = 1e-12;
         let n = self.start.len();
         let iterations = s.iterations.max(1);
-        let mut m1 = vec![vec![Matrix3::zeros(); n]; layers.len()];
-        let mut m2 = vec![vec![Matrix3::zeros(); n]; layers.len()];
+        let mut adam = Adam::new(layers.len() * n * 9, BETA1, BETA2, EPS);
         let mut current = self.rollout(self.start, &layers, 0)?;
         let initial_loss = current.loss;
         let mut evaluations = 1;
         let mut best: Option<(Layers, Rollout)> = None;
         let mut lr = s.learning_rate;
-        let mut t = 0;
         let mut iteration = 0;
         'outer: loop {
             if !on_iteration(iteration, current.loss) {
                 return Ok(None);
             }
             let grad = if iteration + 1 < iterations {
-                Some(self.gradient(&current, &layers, 0)?)
+                Some(flatten(&self.gradient(&current, &layers, 0)?))
             } else {
                 None
             };
@@ -209,20 +208,11 @@ impl Segment<'_> {
                 best = Some((layers.clone(), current));
             }
             let Some(grad) = grad else { break };
-            t += 1;
-            let (c1, c2) = (1.0 - BETA1.powi(t), 1.0 - BETA2.powi(t));
-            let saved = (layers.clone(), m1.clone(), m2.clone());
+            let saved = (layers.clone(), adam.clone());
             loop {
-                for l in 0..layers.len() {
-                    for p in 0..n {
-                        let g = grad[l][p];
-                        m1[l][p] = BETA1 * m1[l][p] + (1.0 - BETA1) * g;
-                        m2[l][p] = BETA2 * m2[l][p] + (1.0 - BETA2) * g.component_mul(&g);
-                        let step =
-                            (m1[l][p] / c1).zip_map(&(m2[l][p] / c2), |a, b| a / (b.sqrt() + EPS));
-                        layers[l][p] -= lr * step;
-                    }
-                }
+                let mut flat = flatten(&layers);
+                adam.step(&mut flat, &grad, lr, |_| 1.0);
+                unflatten(&flat, &mut layers);
                 evaluations += 1;
                 iteration += 1;
                 match self.rollout(self.start, &layers, 0) {
@@ -232,7 +222,7 @@ impl Segment<'_> {
                     }
                     Err(e) if blew_up(&e) => {
                         // The step blew the simulation up: undo it, retry with half the step.
-                        (layers, m1, m2) = saved.clone();
+                        (layers, adam) = saved.clone();
                         lr *= 0.5;
                         if !on_iteration(iteration, f64::INFINITY) {
                             return Ok(None);
@@ -336,6 +326,24 @@ impl Segment<'_> {
             tape: accepted.tape,
             evaluations,
         }))
+    }
+}
+
+/// All control entries in one flat vector (layer, particle, matrix entry), for [`Adam`].
+fn flatten(layers: &[Vec<Matrix3<f64>>]) -> Vec<f64> {
+    layers
+        .iter()
+        .flat_map(|l| l.iter().flat_map(|m| m.iter().copied()))
+        .collect()
+}
+
+/// The inverse of [`flatten`], into layers of the right shape.
+fn unflatten(flat: &[f64], layers: &mut [Vec<Matrix3<f64>>]) {
+    let mut values = flat.iter();
+    for m in layers.iter_mut().flatten() {
+        for x in m.iter_mut() {
+            *x = *values.next().expect("as many values as entries");
+        }
     }
 }
 
