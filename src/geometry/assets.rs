@@ -149,8 +149,7 @@ pub fn builtin() -> Vec<(&'static str, TriMesh)> {
     ]
 }
 
-/// Writes every built-in asset into `dir` (created if missing); returns the paths.
-/// Writes the built-in meshes into `dir`. Existing files of the same names are replaced only
+/// Writes the built-in meshes into `dir` (created if missing) and returns the paths. Existing files of the same names are replaced only
 /// with `overwrite`; otherwise nothing is written and the error names the first one.
 pub fn write_builtin(dir: &Path, overwrite: bool) -> std::io::Result<Vec<std::path::PathBuf>> {
     if !overwrite && let Some((name, _)) = builtin().into_iter().find(|(n, _)| dir.join(n).exists())

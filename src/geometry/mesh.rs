@@ -465,10 +465,21 @@ pub fn parse_mesh(path: &Path, bytes: &[u8]) -> Result<LoadedMesh, MeshError> {
     }
     let format = MeshFormat::detect(path, bytes)
         .ok_or_else(|| MeshError::UnknownFormat { path: path.into() })?;
-    let (mut mesh, mut warnings) = match format {
+    let (mesh, warnings) = match format {
         MeshFormat::Obj => parse_obj(path, bytes)?,
         MeshFormat::Ply => (parse_ply(path, bytes)?, Vec::new()),
     };
+    prepare_mesh(path, mesh, warnings)
+}
+
+/// What loading does after parsing, for meshes from anywhere (a file, or built in memory by a
+/// program using the library): validation, welding, topology warnings and orientation repair.
+/// `path` names the mesh in messages.
+pub fn prepare_mesh(
+    path: &Path,
+    mut mesh: TriMesh,
+    mut warnings: Vec<String>,
+) -> Result<LoadedMesh, MeshError> {
     validate(path, &mesh)?;
     // The diagonal formed at unit size: squaring 1e300-unit extents would overflow.
     let extent = mesh.bounds().extent();

@@ -11,7 +11,7 @@ pub mod voxelize;
 pub mod winding;
 
 pub use error::MeshError;
-pub use mesh::{Aabb, LoadedMesh, TriMesh, load_mesh, parse_mesh};
+pub use mesh::{Aabb, LoadedMesh, TriMesh, load_mesh, parse_mesh, prepare_mesh};
 pub use placement::{Placement, PlacementOptions, Similarity, Solid, TargetFit};
 pub use surface::{SurfaceError, extract_surface};
 pub use voxelize::{Jitter, Lattice, Particles, Voxelization, particles_in, voxelize};
@@ -40,30 +40,28 @@ impl MorphGeometry {
         per_cell: usize,
         jitter: Option<Jitter>,
     ) -> Result<MorphGeometry, MeshError> {
-        options.validate()?;
-        if !(1..=4).contains(&per_cell) {
-            return Err(MeshError::BadOption(format!(
-                "particles per cell axis must be between 1 and 4, got {per_cell}"
-            )));
-        }
-        if let Some(j) = jitter
-            && !(j.amount.is_finite() && (0.0..=1.0).contains(&j.amount))
-        {
-            return Err(MeshError::BadOption(format!(
-                "jitter must be between 0 and 1 particle spacing, got {}",
-                j.amount
-            )));
-        }
-        let samples = (options.resolution * per_cell).pow(3);
-        if samples > 1 << 28 {
-            return Err(MeshError::BadOption(format!(
-                "resolution {} with {per_cell}^3 particles per cell needs up to {samples} samples (limit {}); lower one of them",
-                options.resolution,
-                1 << 28
-            )));
-        }
+        check_options(options, per_cell, jitter)?;
         let src = load_mesh(source_path)?;
         let tgt = load_mesh(target_path)?;
+        Self::from_loaded(
+            (&src, source_path),
+            (&tgt, target_path),
+            options,
+            per_cell,
+            jitter,
+        )
+    }
+
+    /// [`MorphGeometry::prepare`] on meshes already loaded (see [`prepare_mesh`] for meshes
+    /// made in memory); each comes with the name its messages use.
+    pub fn from_loaded(
+        (src, source_path): (&LoadedMesh, &Path),
+        (tgt, target_path): (&LoadedMesh, &Path),
+        options: &PlacementOptions,
+        per_cell: usize,
+        jitter: Option<Jitter>,
+    ) -> Result<MorphGeometry, MeshError> {
+        check_options(options, per_cell, jitter)?;
         let source_solid = Solid::measure(&src.mesh, source_path)?;
         let target_solid = Solid::measure(&tgt.mesh, target_path)?;
         let placement = Placement::new(&source_solid, &target_solid, options)?;
@@ -83,8 +81,8 @@ impl MorphGeometry {
                 });
             }
         }
-        let mut warnings = src.warnings;
-        warnings.extend(tgt.warnings);
+        let mut warnings = src.warnings.clone();
+        warnings.extend(tgt.warnings.iter().cloned());
         Ok(MorphGeometry {
             placement,
             source,
@@ -94,6 +92,37 @@ impl MorphGeometry {
             warnings,
         })
     }
+}
+
+/// Options are checked before any mesh is read.
+fn check_options(
+    options: &PlacementOptions,
+    per_cell: usize,
+    jitter: Option<Jitter>,
+) -> Result<(), MeshError> {
+    options.validate()?;
+    if !(1..=4).contains(&per_cell) {
+        return Err(MeshError::BadOption(format!(
+            "particles per cell axis must be between 1 and 4, got {per_cell}"
+        )));
+    }
+    if let Some(j) = jitter
+        && !(j.amount.is_finite() && (0.0..=1.0).contains(&j.amount))
+    {
+        return Err(MeshError::BadOption(format!(
+            "jitter must be between 0 and 1 particle spacing, got {}",
+            j.amount
+        )));
+    }
+    let samples = (options.resolution * per_cell).pow(3);
+    if samples > 1 << 28 {
+        return Err(MeshError::BadOption(format!(
+            "resolution {} with {per_cell}^3 particles per cell needs up to {samples} samples (limit {}); lower one of them",
+            options.resolution,
+            1 << 28
+        )));
+    }
+    Ok(())
 }
 
 impl MorphGeometry {

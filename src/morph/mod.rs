@@ -12,11 +12,11 @@ pub mod output;
 pub mod segment;
 pub mod settings;
 
-use crate::geometry::{Jitter, MeshError, MorphGeometry, PlacementOptions};
+use crate::geometry::{Jitter, LoadedMesh, MeshError, MorphGeometry, PlacementOptions};
 use crate::loss::MassLoss;
 use crate::mpm::{SimError, Simulator, State};
 use crate::scene::{EffectConfig, SceneConfig};
-use nalgebra::Matrix3;
+use nalgebra::{Matrix3, Vector3};
 use segment::{Layers, Segment};
 use serde::{Deserialize, Serialize};
 pub use settings::{MorphSettings, Preset};
@@ -131,6 +131,20 @@ impl Prepared {
         target: &Path,
     ) -> Result<Prepared, MorphError> {
         settings.validate().map_err(MorphError::Settings)?;
+        let src = crate::geometry::load_mesh(source)?;
+        let tgt = crate::geometry::load_mesh(target)?;
+        Prepared::from_meshes(settings, (&src, source), (&tgt, target))
+    }
+
+    /// [`Prepared::new`] for meshes a program holds in memory: pass each through
+    /// [`crate::geometry::prepare_mesh`] (the checks and repairs loading applies), with the
+    /// name its messages should use.
+    pub fn from_meshes(
+        settings: &MorphSettings,
+        source: (&LoadedMesh, &Path),
+        target: (&LoadedMesh, &Path),
+    ) -> Result<Prepared, MorphError> {
+        settings.validate().map_err(MorphError::Settings)?;
         let placement = PlacementOptions {
             resolution: settings.resolution,
             target_fit: settings.target_fit,
@@ -140,7 +154,7 @@ impl Prepared {
             amount: settings.jitter,
             seed: settings.seed,
         });
-        let geometry = MorphGeometry::prepare(
+        let geometry = MorphGeometry::from_loaded(
             source,
             target,
             &placement,
@@ -189,6 +203,18 @@ impl Prepared {
         })
     }
 
+    /// A state in world units (the source mesh's coordinates): positions, velocities (world
+    /// units per second) and the volume ratio `J = det F` of every particle.
+    pub fn world_frame(&self, state: &State) -> WorldFrame {
+        let to_world = self.geometry.placement.sim_to_world();
+        let (s, shift) = (to_world.scale, Vector3::from(to_world.translation));
+        WorldFrame {
+            x: state.x.iter().map(|p| s * p + shift).collect(),
+            v: state.v.iter().map(|v| s * v).collect(),
+            j: state.f.iter().map(|f| f.determinant()).collect(),
+        }
+    }
+
     /// Frames the chain exports: the initial state and every `frame_every`-th step.
     pub fn frame_count(&self) -> usize {
         self.settings.total_steps() / self.settings.frame_every + 1
@@ -198,6 +224,14 @@ impl Prepared {
         let mass = self.sim.mass_grid(&state.x)?;
         Ok(self.loss.value_and_grad(&mass).0)
     }
+}
+
+/// One frame in world units, see [`Prepared::world_frame`].
+#[derive(Clone, Debug)]
+pub struct WorldFrame {
+    pub x: Vec<Vector3<f64>>,
+    pub v: Vec<Vector3<f64>>,
+    pub j: Vec<f64>,
 }
 
 /// Where a chain stands after a completed segment: everything a bitwise continuation needs.

@@ -16,7 +16,7 @@
 use super::metrics::{FillMetrics, fill_metrics};
 use super::{
     IterationRecord, MorphError, MorphEvent, MorphSettings, Observer, Prepared, RunProgress,
-    SegmentRecord, checkpoint, run,
+    SegmentRecord, WorldFrame, checkpoint, run,
 };
 use crate::geometry::{Similarity, extract_surface};
 use crate::io::outdir::{self, Previous, Staging};
@@ -369,6 +369,7 @@ fn sha256_hex(bytes: &[u8]) -> String {
 /// Writes frames as the chain produces them, checkpoints completed segments, and passes on
 /// events and stop requests.
 struct FolderWriter<'a> {
+    prep: &'a Prepared,
     dir: &'a Path,
     settings: &'a MorphSettings,
     to_world: Similarity,
@@ -411,14 +412,8 @@ impl Observer for FolderWriter<'_> {
     }
 
     fn frame(&mut self, index: usize, _step: usize, state: &State) -> Result<(), MorphError> {
-        let (s, shift) = (
-            self.to_world.scale,
-            Vector3::from(self.to_world.translation),
-        );
         let name = frame_name(index, self.n_frames);
-        let x: Vec<Vector3<f64>> = state.x.iter().map(|p| s * p + shift).collect();
-        let v: Vec<Vector3<f64>> = state.v.iter().map(|v| s * v).collect();
-        let j: Vec<f64> = state.f.iter().map(|f| f.determinant()).collect();
+        let WorldFrame { x, v, j } = self.prep.world_frame(state);
         let points = self.dir.join("frames").join(format!("{name}.ply"));
         write_points_ply(&points, &x, &v, &j).map_err(|e| out_err("frame", &points, e))?;
         if self.settings.surfaces {
@@ -476,6 +471,7 @@ fn write_run(
         .as_ref()
         .map(|p| checkpoint::describe(p, settings.passes, settings.segments));
     let mut writer = FolderWriter {
+        prep,
         dir,
         settings,
         to_world,
