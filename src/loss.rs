@@ -6,12 +6,17 @@
 
 use serde::{Deserialize, Serialize};
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum, Default)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "lowercase")]
 pub enum MassLossKind {
     L2,
     #[default]
     Log,
+}
+
+impl MassLossKind {
+    /// Every value, in declaration order (the command line lists them by their serde names).
+    pub const ALL: [MassLossKind; 2] = [MassLossKind::L2, MassLossKind::Log];
 }
 
 /// A mass loss against fixed target nodal masses.

@@ -26,7 +26,8 @@ impl Observer for Watch<'_> {
         Ok(())
     }
     fn stop_requested(&self) -> usize {
-        self.stop_after.map_or(0, |n| usize::from(self.evaluations >= n))
+        self.stop_after
+            .map_or(0, |n| usize::from(self.evaluations >= n))
     }
 }
 
@@ -65,7 +66,11 @@ fn in_memory_meshes_world_frames_and_cancel() {
     assert!(result.final_loss < result.initial_loss);
     // Frame 1 is the source in its own units: inside the sphere of radius 3 about (10, 0, 0).
     let first = w.first_frame.unwrap();
-    assert!(first.iter().all(|p| (p - nalgebra::Vector3::new(10.0, 0.0, 0.0)).norm() < 3.0));
+    assert!(
+        first
+            .iter()
+            .all(|p| (p - nalgebra::Vector3::new(10.0, 0.0, 0.0)).norm() < 3.0)
+    );
 
     let mut w = Watch {
         prep: &prep,

@@ -19,7 +19,8 @@ pub struct BenchArgs {
     #[arg(long, value_delimiter = ',', default_values_t = [1usize, 2])]
     thread_counts: Vec<usize>,
     /// Kernels to measure, comma separated.
-    #[arg(long, value_delimiter = ',', default_values = ["quadratic", "cubic"])]
+    #[arg(long, value_delimiter = ',', value_parser = super::choice(&KernelKind::ALL),
+          default_values = KernelKind::ALL.map(|k| super::name(&k)))]
     kernels: Vec<KernelKind>,
 }
 

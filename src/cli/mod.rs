@@ -160,6 +160,27 @@ fn help(
     }
 }
 
+/// A value parser for one of the library's enums, offering its values by their serde names
+/// (the library knows nothing of clap).
+fn choice<T>(all: &[T]) -> impl clap::builder::TypedValueParser<Value = T>
+where
+    T: serde::Serialize + serde::de::DeserializeOwned + Clone + Send + Sync + 'static,
+{
+    use clap::builder::TypedValueParser;
+    let names: Vec<String> = all.iter().map(name).collect();
+    clap::builder::PossibleValuesParser::new(names).map(|s| {
+        serde_json::from_value(serde_json::Value::String(s)).expect("one of the listed names")
+    })
+}
+
+/// A value's name as the command line spells it: its serde name.
+fn name<T: serde::Serialize>(value: &T) -> String {
+    serde_json::to_value(value)
+        .ok()
+        .and_then(|v| v.as_str().map(str::to_string))
+        .unwrap_or_default()
+}
+
 /// The library's default settings.
 fn defaults() -> MorphSettings {
     MorphSettings::preset(Preset::Default)

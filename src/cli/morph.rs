@@ -2,7 +2,7 @@
 //! default comes from [`MorphSettings::preset`]), watches SIGINT/SIGTERM, and reports progress
 //! as a bar or JSON lines.
 
-use super::{defaults, fail, help};
+use super::{choice, defaults, fail, help, name};
 use clap::Args;
 use morph::geometry::TargetFit;
 use morph::loss::MassLossKind;
@@ -101,7 +101,7 @@ pub struct MorphArgs {
     #[arg(long)]
     resume: bool,
     /// Effort preset; the options below override its values.
-    #[arg(long, value_enum, default_value_t = Preset::default())]
+    #[arg(long, value_parser = choice(&Preset::ALL), default_value = name(&Preset::default()))]
     preset: Preset,
     #[arg(long, help = help("Grid cells across the domain's longest side", Some(limits::RESOLUTION), defaults().resolution))]
     resolution: Option<usize>,
@@ -116,17 +116,17 @@ pub struct MorphArgs {
     #[arg(long, help = help("Optimizer evaluations per segment (Adam) or per control layer (line search)", Some(limits::ITERATIONS), by_preset(|s| s.optimizer.iterations)))]
     iterations: Option<usize>,
     /// Optimizer [default adam].
-    #[arg(long, value_enum)]
+    #[arg(long, value_parser = choice(&Optimizer::ALL))]
     optimizer: Option<Optimizer>,
     #[arg(long, help = help("Step size (Adam: per control entry; line search: initial normalized step), > 0", None, format!("{} (line search {})", Optimizer::Adam.default_learning_rate(), Optimizer::LineSearch.default_learning_rate())))]
     learning_rate: Option<f64>,
     /// Mass loss on the grid.
-    #[arg(long, value_enum, default_value_t = defaults().loss)]
+    #[arg(long, value_parser = choice(&MassLossKind::ALL), default_value = name(&defaults().loss))]
     loss: MassLossKind,
     #[arg(long, help = help("Weight of the kinetic energy left at each segment's end, >= 0", None, defaults().arrival_weight))]
     arrival_weight: Option<f64>,
     /// How the target is placed.
-    #[arg(long, value_enum, default_value_t = defaults().target_fit)]
+    #[arg(long, value_parser = choice(&TargetFit::ALL), default_value = name(&defaults().target_fit))]
     target_fit: TargetFit,
     #[arg(long, help = help("Particles per cell along each axis (k^3 per cell)", Some(limits::PARTICLES_PER_CELL), defaults().particles_per_cell))]
     particles_per_cell: Option<usize>,

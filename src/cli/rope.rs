@@ -1,6 +1,6 @@
 //! `morph rope`: the rope active-damping comparison (uncontrolled, MPPI, gradient control).
 
-use super::fail;
+use super::{choice, fail, name};
 use morph::control::compare::RopeSettings;
 use morph::control::rope::{Actuation, ClampMode};
 use std::path::PathBuf;
@@ -14,14 +14,6 @@ fn d() -> RopeSettings {
 /// `--help` text with the library's default.
 fn h(what: &str, default: impl std::fmt::Display) -> String {
     format!("{what} [default {default}]")
-}
-
-/// An option value's name as the command line spells it (its serde name).
-fn name(v: impl serde::Serialize) -> String {
-    serde_json::to_value(v)
-        .ok()
-        .and_then(|v| v.as_str().map(str::to_string))
-        .unwrap_or_default()
 }
 
 #[derive(clap::Args, Debug)]
@@ -48,13 +40,13 @@ pub struct RopeArgs {
     cells_along: Option<i64>,
     #[arg(long, help = h("Young's modulus (Pa)", d().rope.youngs_modulus))]
     youngs_modulus: Option<f64>,
-    #[arg(long, value_enum, help = h("What the controllers actuate: segment forces, the tip force, the clamp, or the clamp and the tip", name(d().rope.actuation)))]
+    #[arg(long, value_parser = choice(&Actuation::ALL), help = h("What the controllers actuate: segment forces, the tip force, the clamp, or the clamp and the tip", name(&d().rope.actuation)))]
     actuation: Option<Actuation>,
-    #[arg(long, value_enum, help = h("How the clamp is driven when it is actuated: a prescribed position offset or a prescribed velocity", name(d().rope.clamp_mode)))]
+    #[arg(long, value_parser = choice(&ClampMode::ALL), help = h("How the clamp is driven when it is actuated: a prescribed position offset or a prescribed velocity", name(&d().rope.clamp_mode)))]
     clamp_mode: Option<ClampMode>,
     #[arg(long, help = h("Steps per control interval", d().rope.control_interval))]
     control_interval: Option<i64>,
-    #[arg(long, value_enum, help = h("Controls inside an interval: constant or linear", name(d().rope.interpolation)))]
+    #[arg(long, value_parser = choice(&morph::ode::Interpolation::ALL), help = h("Controls inside an interval: constant or linear", name(&d().rope.interpolation)))]
     interpolation: Option<morph::ode::Interpolation>,
     #[arg(long, help = h("Largest clamp offset per axis (m), clamp-mode position", d().rope.max_clamp_offset))]
     max_clamp_offset: Option<f64>,

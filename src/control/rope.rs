@@ -11,11 +11,11 @@ use crate::ode::{
     ControlEffect, ControlKind, ControlPlan, Interpolation, OdeState, OdeSystem, Schedule,
 };
 use nalgebra::Vector3;
-use serde::Serialize;
+use serde::{Deserialize, Serialize};
 use std::sync::Arc;
 
 /// What the controller may move.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Actuation {
     /// The clamped end, in the swing plane: its position offset or its velocity (see
@@ -30,14 +30,29 @@ pub enum Actuation {
     Segments,
 }
 
+impl Actuation {
+    /// Every value, in declaration order (the command line lists them by their serde names).
+    pub const ALL: [Actuation; 4] = [
+        Actuation::Clamp,
+        Actuation::TipForce,
+        Actuation::Both,
+        Actuation::Segments,
+    ];
+}
+
 /// How the clamp is driven.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum ClampMode {
     /// Knots are offsets from the start (bounded by `max_clamp_offset`), linear in time.
     Position,
     /// Knots are velocities (bounded by `max_clamp_speed`).
     Velocity,
+}
+
+impl ClampMode {
+    /// Every value, in declaration order (the command line lists them by their serde names).
+    pub const ALL: [ClampMode; 2] = [ClampMode::Position, ClampMode::Velocity];
 }
 
 /// Rope scene settings (all SI).

@@ -137,7 +137,7 @@ impl Solid {
 }
 
 /// How the target is placed relative to the source.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum TargetFit {
     /// Scale the target uniformly to the source's volume and put its centroid on the
@@ -146,6 +146,11 @@ pub enum TargetFit {
     MatchVolume,
     /// Use the target exactly as given, in the source's coordinates.
     AsGiven,
+}
+
+impl TargetFit {
+    /// Every value, in declaration order (the command line lists them by their serde names).
+    pub const ALL: [TargetFit; 2] = [TargetFit::MatchVolume, TargetFit::AsGiven];
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

@@ -18,13 +18,18 @@ use nalgebra::Matrix3;
 use serde::{Deserialize, Serialize};
 
 /// Which optimizer a segment uses.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum Optimizer {
     /// Adam on all control layers of a segment at once.
     Adam,
     /// The reference: normalized gradient descent with backtracking, layer by layer.
     LineSearch,
+}
+
+impl Optimizer {
+    /// Every value, in declaration order (the command line lists them by their serde names).
+    pub const ALL: [Optimizer; 2] = [Optimizer::Adam, Optimizer::LineSearch];
 }
 
 impl Optimizer {

@@ -21,7 +21,7 @@ pub mod limits {
 }
 
 /// Named bundles of chain length and effort. See `docs/morph.md`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum, Default)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "lowercase")]
 pub enum Preset {
     /// A quick look: short chain, one pass, few iterations.
@@ -31,6 +31,11 @@ pub enum Preset {
     Default,
     /// The reference chain length (40 segments), more passes and iterations.
     Final,
+}
+
+impl Preset {
+    /// Every value, in declaration order (the command line lists them by their serde names).
+    pub const ALL: [Preset; 3] = [Preset::Draft, Preset::Default, Preset::Final];
 }
 
 /// Everything that decides a morph's result.

@@ -9,11 +9,16 @@ use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
 /// Which B-spline the transfers use.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum KernelKind {
     Quadratic,
     Cubic,
+}
+
+impl KernelKind {
+    /// Every value, in declaration order (the command line lists them by their serde names).
+    pub const ALL: [KernelKind; 2] = [KernelKind::Quadratic, KernelKind::Cubic];
 }
 
 impl KernelKind {

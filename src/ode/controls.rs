@@ -8,13 +8,18 @@ use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
 /// How a control varies inside its intervals.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Interpolation {
     /// One value per interval (`intervals` knots).
     Constant,
     /// Linear between knots at interval ends (`intervals + 1` knots), continuous in time.
     Linear,
+}
+
+impl Interpolation {
+    /// Every value, in declaration order (the command line lists them by their serde names).
+    pub const ALL: [Interpolation; 2] = [Interpolation::Constant, Interpolation::Linear];
 }
 
 /// Control intervals of `steps_per_interval` steps each, shared by all controls of a scene.
