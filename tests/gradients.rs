@@ -54,8 +54,18 @@ fn check_case_with(
     h: f64,
     setup: impl Fn(&mut State),
 ) {
+    check_scene(small_scene(kernel, effects), kind, steps, h, setup);
+}
+
+fn check_scene(
+    scene: morph::scene::SceneConfig,
+    kind: MassLossKind,
+    steps: usize,
+    h: f64,
+    setup: impl Fn(&mut State),
+) {
+    let kernel = scene.kernel;
     let fd = |f: &dyn Fn(f64) -> f64| fd_step(f, h);
-    let scene = small_scene(kernel, effects);
     let (sim, mut init) = ball(&scene, 3.2);
     let mut rng = Lcg(42 + kernel as u64 * 7 + kind as u64);
     deform(&mut init, &mut rng);
@@ -213,6 +223,17 @@ fn reverse_pass_matches_fd_cubic_l2() {
         MassLossKind::L2,
         vec![EffectConfig::Drag { coefficient: 0.5 }],
     );
+}
+
+/// The second material, stable Neo-Hookean, through the whole reverse pass.
+#[test]
+fn reverse_pass_matches_fd_stable_neo_hookean() {
+    let mut scene = small_scene(
+        KernelKind::Cubic,
+        vec![EffectConfig::Drag { coefficient: 0.5 }],
+    );
+    scene.material.model = morph::material::MaterialModel::StableNeoHookean;
+    check_scene(scene, MassLossKind::Log, STEPS, H, |_| {});
 }
 
 #[test]

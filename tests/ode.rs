@@ -6,6 +6,7 @@ mod common;
 
 use common::Lcg;
 use morph::control::rope::{Actuation, ClampMode, RopeConfig};
+use morph::material::MaterialModel;
 use morph::mpm::KernelKind;
 use morph::ode::{ControlParams, Interpolation, OdeState, OdeSystem, Rk4Tape};
 use nalgebra::{Matrix3, Vector3};
@@ -28,8 +29,10 @@ fn setup(
     interpolation: Interpolation,
     clamp_mode: ClampMode,
     seed: u64,
+    material: MaterialModel,
 ) -> (OdeSystem, OdeState, ControlParams) {
     let cfg = RopeConfig {
+        material,
         clamp_mode,
         cells_along: 8,
         steps: STEPS,
@@ -87,7 +90,27 @@ impl Cost {
 }
 
 fn check(kernel: KernelKind, interpolation: Interpolation, clamp_mode: ClampMode) {
-    let (sys, init, params) = setup(kernel, interpolation, clamp_mode, 7 + kernel as u64);
+    check_material(
+        kernel,
+        interpolation,
+        clamp_mode,
+        MaterialModel::FixedCorotated,
+    );
+}
+
+fn check_material(
+    kernel: KernelKind,
+    interpolation: Interpolation,
+    clamp_mode: ClampMode,
+    material: MaterialModel,
+) {
+    let (sys, init, params) = setup(
+        kernel,
+        interpolation,
+        clamp_mode,
+        7 + kernel as u64,
+        material,
+    );
     let mut rng = Lcg(99);
     let cost = Cost::new(init.len(), &mut rng);
     let mut tape = Rk4Tape::default();
@@ -95,7 +118,7 @@ fn check(kernel: KernelKind, interpolation: Interpolation, clamp_mode: ClampMode
     sys.run(&mut last, &params, 0, STEPS, Some(&mut tape), |_, _| {})
         .unwrap();
     let g = sys.kinetic_cost_gradient(&tape, &params, &last, 1.0, Some(&cost.probe));
-    let label = format!("{kernel:?}/{interpolation:?}/{clamp_mode:?}");
+    let label = format!("{kernel:?}/{interpolation:?}/{clamp_mode:?}/{material:?}");
 
     // Control knots of each effect, along a random direction (in-plane components).
     for (e, name) in [(0, "clamp velocity"), (1, "tip body force")] {
@@ -178,5 +201,16 @@ fn rk4_reverse_and_controls_match_finite_differences_cubic_linear_velocity() {
         KernelKind::Cubic,
         Interpolation::Linear,
         ClampMode::Velocity,
+    );
+}
+
+/// The second material, stable Neo-Hookean, through RK4 and both controls.
+#[test]
+fn rk4_reverse_matches_finite_differences_stable_neo_hookean() {
+    check_material(
+        KernelKind::Cubic,
+        Interpolation::Linear,
+        ClampMode::Velocity,
+        MaterialModel::StableNeoHookean,
     );
 }

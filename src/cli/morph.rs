@@ -6,6 +6,7 @@ use super::{choice, defaults, fail, help, name};
 use clap::Args;
 use morph::geometry::TargetFit;
 use morph::loss::MassLossKind;
+use morph::material::MaterialModel;
 use morph::morph::segment::Optimizer;
 use morph::morph::settings::limits;
 use morph::morph::{MorphError, MorphEvent, MorphSettings, Preset};
@@ -132,6 +133,8 @@ pub struct MorphArgs {
     particles_per_cell: Option<usize>,
     #[arg(long, help = help("Random particle offsets, in particle spacings, 0 to 1", None, defaults().jitter))]
     jitter: Option<f64>,
+    #[arg(long, value_parser = choice(&MaterialModel::ALL), help = format!("Constitutive model of the body [default {}]", name(&defaults().material.model)))]
+    material: Option<MaterialModel>,
     /// Seed for the jitter.
     #[arg(long, default_value_t = defaults().seed)]
     seed: u64,
@@ -177,6 +180,9 @@ impl MorphArgs {
         }
         if let Some(j) = self.jitter {
             s.jitter = j;
+        }
+        if let Some(m) = self.material {
+            s.material.model = m;
         }
         s.seed = self.seed;
         s.loss = self.loss;

@@ -38,6 +38,8 @@ pub struct RopeArgs {
     dt: Option<f64>,
     #[arg(long, help = h("Grid cells along the rope (dx = rope length / cells), at least 4", d().rope.cells_along))]
     cells_along: Option<i64>,
+    #[arg(long, value_parser = choice(&morph::material::MaterialModel::ALL), help = h("Constitutive model of the rope", name(&d().rope.material)))]
+    material: Option<morph::material::MaterialModel>,
     #[arg(long, help = h("Young's modulus (Pa)", d().rope.youngs_modulus))]
     youngs_modulus: Option<f64>,
     #[arg(long, value_parser = choice(&Actuation::ALL), help = h("What the controllers actuate: segment forces, the tip force, the clamp, or the clamp and the tip", name(&d().rope.actuation)))]
@@ -143,6 +145,9 @@ fn rope_settings(a: &RopeArgs) -> Result<RopeSettings, String> {
     }
     if let Some(v) = a.interpolation {
         s.rope.interpolation = v;
+    }
+    if let Some(v) = a.material {
+        s.rope.material = v;
     }
     if let Some(v) = a.seed {
         s.mppi.seed = v;

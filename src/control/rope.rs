@@ -5,14 +5,13 @@
 //! bounded body force).
 //! Units are SI. docs/control.md gives the numbers and why they were chosen.
 
-use crate::material::FixedCorotated;
+use crate::material::{MaterialModel, lame_from_young_poisson};
 use crate::mpm::{GridSpec, KernelKind, SimError};
 use crate::ode::{
     ControlEffect, ControlKind, ControlPlan, Interpolation, OdeState, OdeSystem, Schedule,
 };
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
-use std::sync::Arc;
 
 /// What the controller may move.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
@@ -66,6 +65,8 @@ pub struct RopeConfig {
     /// Particles per cell per axis.
     pub particles_per_cell: usize,
     pub density: f64,
+    /// The constitutive model (fixed-corotated by default).
+    pub material: MaterialModel,
     pub youngs_modulus: f64,
     pub poisson_ratio: f64,
     pub gravity: f64,
@@ -98,6 +99,7 @@ impl Default for RopeConfig {
             thickness_cells: 1,
             particles_per_cell: 2,
             density: 1000.0,
+            material: MaterialModel::FixedCorotated,
             youngs_modulus: 1.0e5,
             poisson_ratio: 0.3,
             gravity: 9.81,
@@ -296,10 +298,8 @@ impl RopeConfig {
             },
             effects,
         };
-        let material = Arc::new(FixedCorotated::from_young_poisson(
-            self.youngs_modulus,
-            self.poisson_ratio,
-        ));
+        let (mu, lambda) = lame_from_young_poisson(self.youngs_modulus, self.poisson_ratio);
+        let material = self.material.build(mu, lambda);
         let system = OdeSystem::new(
             grid,
             self.kernel,

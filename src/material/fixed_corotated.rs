@@ -25,10 +25,8 @@ impl FixedCorotated {
 
     /// From Young's modulus and Poisson's ratio.
     pub fn from_young_poisson(e: f64, nu: f64) -> Self {
-        Self {
-            mu: e / (2.0 * (1.0 + nu)),
-            lambda: e * nu / ((1.0 + nu) * (1.0 - 2.0 * nu)),
-        }
+        let (mu, lambda) = super::lame_from_young_poisson(e, nu);
+        Self { mu, lambda }
     }
 }
 

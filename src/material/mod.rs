@@ -2,11 +2,52 @@
 //! differential, behind one trait so the MPM stages never depend on a particular material.
 
 mod fixed_corotated;
+mod stable_neo_hookean;
 pub mod svd;
 
 pub use fixed_corotated::FixedCorotated;
+pub use stable_neo_hookean::StableNeoHookean;
 
 use nalgebra::Matrix3;
+use serde::{Deserialize, Serialize};
+use std::sync::Arc;
+
+/// Which constitutive model a scene uses: plain data a scene or settings file names. Adding a
+/// material is one file implementing [`ConstitutiveModel`] and one arm here.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum MaterialModel {
+    /// Stomakhin et al. 2012, the reference model.
+    #[default]
+    FixedCorotated,
+    /// Smith et al. 2018, without an SVD, smooth through inversion.
+    StableNeoHookean,
+}
+
+impl MaterialModel {
+    /// Every value, in declaration order.
+    pub const ALL: [MaterialModel; 2] = [
+        MaterialModel::FixedCorotated,
+        MaterialModel::StableNeoHookean,
+    ];
+
+    /// The model with Lamé parameters `mu` and `lambda` (the same small-strain stiffness for
+    /// every model).
+    pub fn build(self, mu: f64, lambda: f64) -> Arc<dyn ConstitutiveModel> {
+        match self {
+            MaterialModel::FixedCorotated => Arc::new(FixedCorotated::new(mu, lambda)),
+            MaterialModel::StableNeoHookean => Arc::new(StableNeoHookean::from_lame(mu, lambda)),
+        }
+    }
+}
+
+/// Lamé parameters `(mu, lambda)` from Young's modulus and Poisson's ratio.
+pub fn lame_from_young_poisson(e: f64, nu: f64) -> (f64, f64) {
+    (
+        e / (2.0 * (1.0 + nu)),
+        e * nu / ((1.0 + nu) * (1.0 - 2.0 * nu)),
+    )
+}
 
 /// A hyperelastic constitutive model `Psi(F)`.
 ///

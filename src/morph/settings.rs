@@ -101,6 +101,7 @@ impl MorphSettings {
             arrival_weight: 0.001,
             kernel: KernelKind::Cubic,
             material: MaterialConfig {
+                model: Default::default(),
                 mu: 38888.9,
                 lambda: 58333.0,
                 density: 40.0,

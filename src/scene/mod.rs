@@ -2,7 +2,7 @@
 //! the list of effects that are on. Only listed effects run.
 
 use crate::effects::{Drag, Effect, Gravity, WallMode, Walls};
-use crate::material::FixedCorotated;
+use crate::material::{ConstitutiveModel, MaterialModel};
 use crate::mpm::{GridSpec, KernelKind, SimError, Simulator};
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
@@ -47,12 +47,22 @@ impl EffectConfig {
     }
 }
 
-/// Material parameters (fixed-corotated).
+/// A material: which model (a tag; fixed-corotated when absent), its Lamé parameters and its
+/// density. Built into a constitutive model in one place, [`MaterialConfig::build`].
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct MaterialConfig {
+    #[serde(default)]
+    pub model: MaterialModel,
     pub mu: f64,
     pub lambda: f64,
     pub density: f64,
+}
+
+impl MaterialConfig {
+    /// The constitutive model.
+    pub fn build(&self) -> Arc<dyn ConstitutiveModel> {
+        self.model.build(self.mu, self.lambda)
+    }
 }
 
 /// A complete scene without its particles.
@@ -74,6 +84,7 @@ impl SceneConfig {
             dt: 1.0 / 120.0,
             kernel: KernelKind::Cubic,
             material: MaterialConfig {
+                model: MaterialModel::FixedCorotated,
                 mu: 38888.9,
                 lambda: 58333.0,
                 density: 40.0,
@@ -102,7 +113,7 @@ impl SceneConfig {
             self.grid.clone(),
             self.dt,
             self.kernel,
-            Arc::new(FixedCorotated::new(m.mu, m.lambda)),
+            m.build(),
             effects,
             mass,
             volumes,

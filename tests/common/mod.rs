@@ -13,6 +13,7 @@ pub fn small_scene(kernel: KernelKind, effects: Vec<EffectConfig>) -> SceneConfi
         dt: 1.0 / 120.0,
         kernel,
         material: MaterialConfig {
+            model: Default::default(),
             mu: 38888.9,
             lambda: 58333.0,
             density: 40.0,
