@@ -8,7 +8,7 @@ pub mod geometry;
 use crate::loss::{MassLoss, MassLossKind};
 use crate::material::svd::{svd3, svd3_x4};
 use crate::mpm::{KernelKind, SimError, Simulator, State, StateGrad, Tape};
-use crate::scene::{SceneConfig, ball_particles};
+use crate::scene::{EffectConfig, SceneConfig, ball_particles};
 use nalgebra::{Matrix3, Vector3};
 use serde_json::json;
 use std::time::Instant;
@@ -23,8 +23,20 @@ pub struct Workload {
 
 /// Builds the reference workload for `steps` steps with the given kernel.
 pub fn reference_workload(kernel: KernelKind, steps: usize) -> Result<Workload, SimError> {
+    let scene = SceneConfig::reference();
+    workload(kernel, steps, scene.effects, true)
+}
+
+/// The reference ball with the given effects, with or without control `Fc`.
+pub fn workload(
+    kernel: KernelKind,
+    steps: usize,
+    effects: Vec<EffectConfig>,
+    with_controls: bool,
+) -> Result<Workload, SimError> {
     let mut scene = SceneConfig::reference();
     scene.kernel = kernel;
+    scene.effects = effects;
     let (x, vol) = ball_particles(&scene.grid, Vector3::zeros(), 8.0, 2);
     let sim = scene.build(vol)?;
     let mut initial = State::at_rest(x);
@@ -34,7 +46,7 @@ pub fn reference_workload(kernel: KernelKind, steps: usize) -> Result<Workload, 
     }
     let controls = (0..steps)
         .map(|s| {
-            (s % 10 == 0).then(|| {
+            (with_controls && s % 10 == 0).then(|| {
                 initial
                     .x
                     .iter()
@@ -172,6 +184,56 @@ pub fn run(
                 );
             }
         }
+    }
+    let threads = *threads.iter().max().unwrap_or(&1);
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(threads)
+        .build()?;
+    pool.install(|| effect_costs(steps, repeats))
+}
+
+/// A scene pays only for what it declares: forward ms per step of the cubic reference ball
+/// (on the largest thread count asked) with no effects, with each effect alone, and with
+/// everything.
+fn effect_costs(steps: usize, repeats: usize) -> anyhow::Result<()> {
+    use crate::effects::WallMode;
+    let drag = EffectConfig::Drag { coefficient: 0.5 };
+    let gravity = EffectConfig::Gravity {
+        acceleration: [0.0, -9.81, 0.0],
+    };
+    let walls = |mode| EffectConfig::Walls { mode, thickness: 3 };
+    let cases: Vec<(&str, Vec<EffectConfig>, bool)> = vec![
+        ("none", vec![], false),
+        ("drag", vec![drag.clone()], false),
+        ("gravity", vec![gravity.clone()], false),
+        ("slip walls", vec![walls(WallMode::Slip)], false),
+        ("sticky walls", vec![walls(WallMode::Sticky)], false),
+        ("controls Fc", vec![], true),
+        (
+            "all",
+            vec![drag, gravity, walls(WallMode::Slip)],
+            true,
+        ),
+    ];
+    let mut baseline = None;
+    for (name, effects, controls) in cases {
+        let w = workload(KernelKind::Cubic, steps, effects, controls)?;
+        let mut best = f64::INFINITY;
+        for _ in 0..repeats.max(1) {
+            let t0 = Instant::now();
+            std::hint::black_box(w.run_forward(steps)?);
+            best = best.min(t0.elapsed().as_secs_f64());
+        }
+        let ms = best / steps as f64 * 1e3;
+        let base = *baseline.get_or_insert(ms);
+        println!(
+            "{}",
+            json!({
+                "bench": "effects", "effects": name, "kernel": "cubic",
+                "threads": rayon::current_num_threads(), "steps": steps,
+                "ms_per_step": ms, "vs_none": ms / base,
+            })
+        );
     }
     Ok(())
 }
