@@ -209,11 +209,7 @@ fn effect_costs(steps: usize, repeats: usize) -> anyhow::Result<()> {
         ("slip walls", vec![walls(WallMode::Slip)], false),
         ("sticky walls", vec![walls(WallMode::Sticky)], false),
         ("controls Fc", vec![], true),
-        (
-            "all",
-            vec![drag, gravity, walls(WallMode::Slip)],
-            true,
-        ),
+        ("all", vec![drag, gravity, walls(WallMode::Slip)], true),
     ];
     let mut baseline = None;
     for (name, effects, controls) in cases {

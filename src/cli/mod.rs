@@ -82,21 +82,30 @@ pub fn main() -> ExitCode {
         Ok(cli) => cli,
         Err(e) => return parse_error(e, json),
     };
-    if let Some(t) = cli.threads {
-        if t == 0 || t > 1024 {
-            return fail(
-                json,
-                2,
-                &format!("--threads must be between 1 and 1024, got {t}"),
-            );
-        }
-        if let Err(e) = rayon::ThreadPoolBuilder::new()
-            .num_threads(t)
-            .build_global()
-        {
-            return fail(json, 1, &format!("cannot start {t} threads: {e}"));
-        }
+    if let Some(t) = cli.threads
+        && (t == 0 || t > 1024)
+    {
+        return fail(
+            json,
+            2,
+            &format!("--threads must be between 1 and 1024, got {t}"),
+        );
     }
+    // The whole command runs on a worker of its own pool (0 threads: one per core). Parallel
+    // loops started from a pool's worker run without handing every job across from an outside
+    // thread, which measured about a quarter faster per step than running from `main`
+    // against the global pool.
+    let pool = match rayon::ThreadPoolBuilder::new()
+        .num_threads(cli.threads.unwrap_or(0))
+        .build()
+    {
+        Ok(pool) => pool,
+        Err(e) => return fail(json, 1, &format!("cannot start worker threads: {e}")),
+    };
+    pool.install(|| dispatch(&cli))
+}
+
+fn dispatch(cli: &Cli) -> ExitCode {
     match &cli.command {
         None => morph::run(&cli.morph),
         Some(Command::Bench(args)) => bench::run(args),
