@@ -109,23 +109,12 @@ impl ConstitutiveModel for FixedCorotated {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::material::checks::{self, fd_error, random_matrix};
     use nalgebra::{Rotation3, Vector3};
-    use rand::{RngExt, SeedableRng};
+    use rand::SeedableRng;
 
     fn model() -> FixedCorotated {
         FixedCorotated::new(38888.9, 58333.0)
-    }
-
-    fn random_matrix(rng: &mut impl rand::Rng, scale: f64) -> Matrix3<f64> {
-        Matrix3::from_fn(|_, _| rng.random_range(-scale..scale))
-    }
-
-    /// Relative error of dP[dF] against central differences of P, at step h.
-    fn fd_error(m: &FixedCorotated, f: &Matrix3<f64>, df: &Matrix3<f64>) -> f64 {
-        let h = 1e-6;
-        let fd = (m.stress(&(f + h * df)) - m.stress(&(f - h * df))) / (2.0 * h);
-        let an = m.stress_differential(f, df);
-        (fd - an).norm() / an.norm().max(1e-30)
     }
 
     fn assert_differential_matches(f: &Matrix3<f64>, label: &str) {
@@ -140,21 +129,7 @@ mod tests {
 
     #[test]
     fn stress_is_energy_gradient() {
-        let m = model();
-        let mut rng = rand_pcg::Pcg64::seed_from_u64(3);
-        for _ in 0..50 {
-            let f = Matrix3::identity() + random_matrix(&mut rng, 0.4);
-            let p = m.stress(&f);
-            let h = 1e-6;
-            for i in 0..3 {
-                for j in 0..3 {
-                    let mut e = Matrix3::zeros();
-                    e[(i, j)] = h;
-                    let fd = (m.energy_density(&(f + e)) - m.energy_density(&(f - e))) / (2.0 * h);
-                    assert!((fd - p[(i, j)]).abs() < 1e-5 * p.norm().max(1.0));
-                }
-            }
-        }
+        checks::stress_is_energy_gradient(&model(), 0.4);
     }
 
     #[test]
@@ -200,18 +175,7 @@ mod tests {
 
     #[test]
     fn differential_is_self_adjoint() {
-        let m = model();
-        let mut rng = rand_pcg::Pcg64::seed_from_u64(13);
-        for _ in 0..100 {
-            let f = random_matrix(&mut rng, 1.5);
-            let (a, b) = (random_matrix(&mut rng, 1.0), random_matrix(&mut rng, 1.0));
-            let lhs = m.stress_differential(&f, &a).dot(&b);
-            let rhs = a.dot(&m.stress_differential(&f, &b));
-            assert!(
-                (lhs - rhs).abs() <= 1e-10 * lhs.abs().max(1.0),
-                "{lhs} vs {rhs}"
-            );
-        }
+        checks::differential_is_self_adjoint(&model());
     }
 
     #[test]
@@ -230,9 +194,6 @@ mod tests {
 
     #[test]
     fn rest_and_rotations_are_stress_free() {
-        let m = model();
-        let rot = Rotation3::from_euler_angles(0.1, -0.2, 0.9).into_inner();
-        assert!(m.stress(&Matrix3::identity()).norm() < 1e-9);
-        assert!(m.stress(&rot).norm() < 1e-9);
+        checks::rest_and_rotations_are_stress_free(&model());
     }
 }

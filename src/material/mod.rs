@@ -100,3 +100,68 @@ pub(crate) fn cofactor_differential(f: &Matrix3<f64>, df: &Matrix3<f64>) -> Matr
         d0.cross(&f1) + f0.cross(&d1),
     ])
 }
+
+/// Checks every constitutive model must pass, shared by the models' unit tests.
+#[cfg(test)]
+pub(crate) mod checks {
+    use super::ConstitutiveModel;
+    use nalgebra::Matrix3;
+    use rand::{RngExt, SeedableRng};
+
+    pub fn random_matrix(rng: &mut impl rand::Rng, scale: f64) -> Matrix3<f64> {
+        Matrix3::from_fn(|_, _| rng.random_range(-scale..scale))
+    }
+
+    pub fn rng(seed: u64) -> rand_pcg::Pcg64 {
+        rand_pcg::Pcg64::seed_from_u64(seed)
+    }
+
+    /// Relative error of dP[dF] against central differences of P (h = 1e-6).
+    pub fn fd_error(m: &dyn ConstitutiveModel, f: &Matrix3<f64>, df: &Matrix3<f64>) -> f64 {
+        let h = 1e-6;
+        let fd = (m.stress(&(f + h * df)) - m.stress(&(f - h * df))) / (2.0 * h);
+        let an = m.stress_differential(f, df);
+        (fd - an).norm() / an.norm().max(1e-30)
+    }
+
+    /// `P = dPsi/dF` by central differences of the energy, at `samples` random F of entries
+    /// within `spread` of the identity's.
+    pub fn stress_is_energy_gradient(m: &dyn ConstitutiveModel, spread: f64) {
+        let mut rng = rng(3);
+        for _ in 0..50 {
+            let f = Matrix3::identity() + random_matrix(&mut rng, spread);
+            let p = m.stress(&f);
+            let h = 1e-6;
+            for i in 0..3 {
+                for j in 0..3 {
+                    let mut e = Matrix3::zeros();
+                    e[(i, j)] = h;
+                    let fd = (m.energy_density(&(f + e)) - m.energy_density(&(f - e))) / (2.0 * h);
+                    assert!((fd - p[(i, j)]).abs() < 1e-5 * p.norm().max(1.0));
+                }
+            }
+        }
+    }
+
+    /// `<dP[A], B> = <A, dP[B]>` at random (also inverted) F.
+    pub fn differential_is_self_adjoint(m: &dyn ConstitutiveModel) {
+        let mut rng = rng(13);
+        for _ in 0..100 {
+            let f = random_matrix(&mut rng, 1.5);
+            let (a, b) = (random_matrix(&mut rng, 1.0), random_matrix(&mut rng, 1.0));
+            let lhs = m.stress_differential(&f, &a).dot(&b);
+            let rhs = a.dot(&m.stress_differential(&f, &b));
+            assert!(
+                (lhs - rhs).abs() <= 1e-10 * lhs.abs().max(1.0),
+                "{lhs} vs {rhs}"
+            );
+        }
+    }
+
+    /// The rest shape and rotations carry no stress.
+    pub fn rest_and_rotations_are_stress_free(m: &dyn ConstitutiveModel) {
+        let rot = nalgebra::Rotation3::from_euler_angles(0.1, -0.2, 0.9).into_inner();
+        assert!(m.stress(&Matrix3::identity()).norm() < 1e-9);
+        assert!(m.stress(&rot).norm() < 1e-9);
+    }
+}

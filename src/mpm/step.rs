@@ -188,6 +188,12 @@ impl Simulator {
     }
 
     fn check_state(&self, state: &State, step: usize) -> Result<(), SimError> {
+        self.check_size(state)?;
+        self.check_finite_and_cfl(state, step)
+    }
+
+    /// The state has one entry per particle of the scene.
+    fn check_size(&self, state: &State) -> Result<(), SimError> {
         if state.len() != self.num_particles() {
             return Err(SimError::InvalidScene(format!(
                 "state has {} particles, the scene {}",
@@ -195,6 +201,11 @@ impl Simulator {
                 self.num_particles()
             )));
         }
+        Ok(())
+    }
+
+    /// Every field is finite and no particle moves more than `max_cfl` cells a step.
+    fn check_finite_and_cfl(&self, state: &State, step: usize) -> Result<(), SimError> {
         if let Some((particle, field)) = state.first_non_finite() {
             return Err(SimError::NonFinite {
                 step,
@@ -303,13 +314,7 @@ impl Simulator {
         ws: &mut Workspace,
         tape: Option<&mut Vec<StepTape>>,
     ) -> Result<(), SimError> {
-        if state.len() != self.num_particles() {
-            return Err(SimError::InvalidScene(format!(
-                "state has {} particles, the scene {}",
-                state.len(),
-                self.num_particles()
-            )));
-        }
+        self.check_size(state)?;
         self.check_control(fc, state.len(), step)?;
         let n = state.len();
         let dt = self.dt;
@@ -409,15 +414,7 @@ impl Simulator {
                 *c = cn;
                 *f = fnew;
             });
-
-        if let Some((particle, field)) = state.first_non_finite() {
-            return Err(SimError::NonFinite {
-                step,
-                particle,
-                field,
-            });
-        }
-        self.check_cfl(state, step)
+        self.check_finite_and_cfl(state, step)
     }
 
     /// Reverse pass over a taped rollout. `grad_last` is dL/d(state after the last step);
