@@ -41,6 +41,18 @@ impl MaterialModel {
     }
 }
 
+/// The elastic time-step bound of a material on a grid: `(dx / c, c)` with the wave speed
+/// `c = sqrt(modulus / density)` (infinite step for a material with no stiffness or mass).
+/// The one formula both integrators and scene set-up use.
+pub fn stable_dt(wave_modulus: f64, density: f64, dx: f64) -> (f64, f64) {
+    let c = if density > 0.0 {
+        (wave_modulus / density).sqrt()
+    } else {
+        0.0
+    };
+    (if c > 0.0 { dx / c } else { f64::INFINITY }, c)
+}
+
 /// Lamé parameters `(mu, lambda)` from Young's modulus and Poisson's ratio.
 pub fn lame_from_young_poisson(e: f64, nu: f64) -> (f64, f64) {
     (

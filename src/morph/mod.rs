@@ -182,12 +182,7 @@ impl Prepared {
         let volumes = vec![geometry.source.volume; geometry.source.positions.len()];
         if settings.dt.is_none() {
             // Half the elastic stability limit at most.
-            let probe = SceneConfig {
-                dt: 1e-9,
-                ..scene.clone()
-            }
-            .build(volumes.clone())?;
-            let (limit, _) = probe.stable_dt();
+            let (limit, _) = scene.stable_dt();
             scene.dt = scene.dt.min(0.5 * limit);
         }
         let sim = scene.build(volumes)?;

@@ -146,19 +146,7 @@ impl Simulator {
             .zip(&self.volume)
             .map(|(m, v)| m / v)
             .fold(0.0f64, f64::max);
-        let c = if max_density > 0.0 {
-            (self.material.wave_modulus() / max_density).sqrt()
-        } else {
-            0.0
-        };
-        (
-            if c > 0.0 {
-                self.grid.dx / c
-            } else {
-                f64::INFINITY
-            },
-            c,
-        )
+        crate::material::stable_dt(self.material.wave_modulus(), max_density, self.grid.dx)
     }
 
     pub fn num_particles(&self) -> usize {

@@ -135,11 +135,7 @@ impl OdeSystem {
             .zip(&self.volume)
             .map(|(m, v)| m / v)
             .fold(0.0f64, f64::max);
-        if rho > 0.0 {
-            (self.material.wave_modulus() / rho).sqrt()
-        } else {
-            0.0
-        }
+        crate::material::stable_dt(self.material.wave_modulus(), rho, self.grid.dx).1
     }
 
     /// Whether particle `p` moves with a prescribed velocity.

@@ -93,6 +93,13 @@ impl SceneConfig {
         }
     }
 
+    /// The elastic time-step bound `(dx / c, c)` of this scene's material on its grid, known
+    /// before any simulator is built (every particle has the material's density).
+    pub fn stable_dt(&self) -> (f64, f64) {
+        let m = &self.material;
+        crate::material::stable_dt(m.build().wave_modulus(), m.density, self.grid.dx)
+    }
+
     /// Builds the simulator for particles of the given rest volumes (mass = density x volume).
     pub fn build(&self, volumes: Vec<f64>) -> Result<Simulator, SimError> {
         let m = &self.material;
