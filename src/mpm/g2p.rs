@@ -6,7 +6,6 @@
 
 use super::grid::SharedMut;
 use super::kernel::Stencil;
-use super::p2g::base_index as stencil_base_index;
 use nalgebra::{Matrix3, Vector3};
 
 /// Forward gather: returns `(v_p', C_p')`.
@@ -17,7 +16,7 @@ pub fn g2p_particle<const N: usize>(
     grid_v: &[Vector3<f64>],
     inv_d: f64,
 ) -> (Vector3<f64>, Matrix3<f64>) {
-    let i0 = stencil_base_index(s, strides);
+    let i0 = s.base_index(strides);
     let mut vel = Vector3::zeros();
     let mut b_mat = Matrix3::zeros(); // sum w v (x_i - x_p)^T
     for a in 0..N {
@@ -60,7 +59,7 @@ pub fn g2p_particle_reverse<const N: usize>(
     vel: &Vector3<f64>,
     grad_grid_v: &SharedMut<Vector3<f64>>,
 ) -> Vector3<f64> {
-    let i0 = stencil_base_index(s, strides);
+    let i0 = s.base_index(strides);
     let gc = inv_d * grad_c;
     let (gx_col, gy_col, gz_col) = (gc.column(0), gc.column(1), gc.column(2));
     let mut grad_x = Vector3::zeros();

@@ -61,6 +61,35 @@ pub struct Stencil<const N: usize> {
 }
 
 impl<const N: usize> Stencil<N> {
+    /// Flat index of the stencil's first node in a grid with these node strides.
+    #[inline(always)]
+    pub fn base_index(&self, strides: &[usize; 3]) -> usize {
+        self.base[0] as usize * strides[0]
+            + self.base[1] as usize * strides[1]
+            + self.base[2] as usize
+    }
+
+    /// Visits the stencil's nodes: `f(node index, weight, x_i - x_p, (a, b, c))`, the weight
+    /// formed as `(w_a w_b) w_c` in every transfer.
+    #[inline(always)]
+    pub fn for_each_node(
+        &self,
+        strides: &[usize; 3],
+        mut f: impl FnMut(usize, f64, Vector3<f64>, (usize, usize, usize)),
+    ) {
+        let i0 = self.base_index(strides);
+        for a in 0..N {
+            for b in 0..N {
+                let wab = self.w[0][a] * self.w[1][b];
+                let row = i0 + a * strides[0] + b * strides[1];
+                for c in 0..N {
+                    let d = Vector3::new(self.dpos[0][a], self.dpos[1][b], self.dpos[2][c]);
+                    f(row + c, wab * self.w[2][c], d, (a, b, c));
+                }
+            }
+        }
+    }
+
     /// Stencil of a particle at world position `x` on a grid with node 0 at `origin`.
     #[inline]
     pub fn new(x: &Vector3<f64>, origin: &Vector3<f64>, dx: f64) -> Self {

@@ -11,6 +11,7 @@ pub mod g2p;
 pub mod grid;
 pub mod grid_update;
 pub mod kernel;
+pub mod model;
 pub mod p2g;
 pub mod state;
 pub mod step;

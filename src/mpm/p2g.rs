@@ -10,11 +10,6 @@ use super::kernel::KernelKind;
 use super::kernel::Stencil;
 use nalgebra::{Matrix3, Vector3};
 
-#[inline(always)]
-pub(crate) fn base_index<const N: usize>(s: &Stencil<N>, strides: &[usize; 3]) -> usize {
-    s.base[0] as usize * strides[0] + s.base[1] as usize * strides[1] + s.base[2] as usize
-}
-
 /// Forward scatter of one particle. Safety: caller runs it under [`super::grid::Bins::for_each_coloured`].
 #[inline]
 pub fn p2g_particle<const N: usize>(
@@ -25,7 +20,7 @@ pub fn p2g_particle<const N: usize>(
     affine: &Matrix3<f64>,
     nodes: &SharedMut<[f64; 4]>,
 ) {
-    let i0 = base_index(s, strides);
+    let i0 = s.base_index(strides);
     let (ax, ay, az) = (affine.column(0), affine.column(1), affine.column(2));
     for a in 0..N {
         let qa = momentum + ax * s.dpos[0][a];
@@ -58,7 +53,7 @@ pub fn p2g_particle_reverse<const N: usize>(
     affine: &Matrix3<f64>,
     grad_nodes: &[[f64; 4]],
 ) -> (Vector3<f64>, Matrix3<f64>, Vector3<f64>) {
-    let i0 = base_index(s, strides);
+    let i0 = s.base_index(strides);
     let (ax, ay, az) = (affine.column(0), affine.column(1), affine.column(2));
     let mut sum_wgp = Vector3::zeros();
     let mut grad_a = Matrix3::zeros();
@@ -98,17 +93,10 @@ pub fn mass_particle<const N: usize>(
     mass: f64,
     grid_mass: &SharedMut<f64>,
 ) {
-    let i0 = base_index(s, strides);
-    for a in 0..N {
-        for b in 0..N {
-            let wab = s.w[0][a] * s.w[1][b];
-            let row = i0 + a * strides[0] + b * strides[1];
-            for c in 0..N {
-                // SAFETY: exclusive stencil access under the colouring.
-                unsafe { *grid_mass.get(row + c) += wab * s.w[2][c] * mass };
-            }
-        }
-    }
+    s.for_each_node(strides, |i, w, _, _| {
+        // SAFETY: exclusive stencil access under the colouring.
+        unsafe { *grid_mass.get(i) += w * mass };
+    });
 }
 
 /// Reverse of [`mass_particle`]: dL/dx_p = sum_i grad w_ip m_p dL/dm_i.
@@ -119,7 +107,7 @@ pub fn mass_particle_reverse<const N: usize>(
     mass: f64,
     grad_mass: &[f64],
 ) -> Vector3<f64> {
-    let i0 = base_index(s, strides);
+    let i0 = s.base_index(strides);
     let mut grad_x = Vector3::zeros();
     for a in 0..N {
         for b in 0..N {

@@ -91,31 +91,7 @@ impl Simulator {
         mass: Vec<f64>,
         volume: Vec<f64>,
     ) -> Result<Simulator, SimError> {
-        grid.validate()?;
-        if !(dt.is_finite() && dt > 0.0) {
-            return Err(SimError::InvalidScene(format!(
-                "dt must be positive and finite, got {dt}"
-            )));
-        }
-        if mass.len() != volume.len() {
-            return Err(SimError::InvalidScene(
-                "mass and volume lengths differ".into(),
-            ));
-        }
-        if let Some(p) = (0..mass.len()).find(|&p| {
-            !(mass[p].is_finite() && mass[p] > 0.0 && volume[p].is_finite() && volume[p] > 0.0)
-        }) {
-            return Err(SimError::InvalidScene(format!(
-                "particle {p} has mass {} and volume {}; both must be positive and finite",
-                mass[p], volume[p]
-            )));
-        }
-        let modulus = material.wave_modulus();
-        if !(modulus.is_finite() && modulus >= 0.0) {
-            return Err(SimError::InvalidScene(format!(
-                "material modulus {modulus} is invalid"
-            )));
-        }
+        super::model::validate(&grid, dt, material.as_ref(), &mass, &volume)?;
         let sim = Simulator {
             grid,
             dt,
@@ -126,27 +102,12 @@ impl Simulator {
             volume,
             max_cfl: 1.0,
         };
-        let (limit, wave_speed) = sim.stable_dt();
-        if dt > limit {
-            return Err(SimError::UnstableTimeStep {
-                dt,
-                limit,
-                wave_speed,
-                dx: sim.grid.dx,
-            });
-        }
         Ok(sim)
     }
 
     /// The largest stable time step `dx / c` and the elastic wave speed `c` it comes from.
     pub fn stable_dt(&self) -> (f64, f64) {
-        let max_density = self
-            .mass
-            .iter()
-            .zip(&self.volume)
-            .map(|(m, v)| m / v)
-            .fold(0.0f64, f64::max);
-        crate::material::stable_dt(self.material.wave_modulus(), max_density, self.grid.dx)
+        super::model::stable_dt(&self.grid, self.material.as_ref(), &self.mass, &self.volume)
     }
 
     pub fn num_particles(&self) -> usize {

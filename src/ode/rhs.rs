@@ -60,26 +60,10 @@ impl OdeSystem {
         controls: ControlPlan,
         dt: f64,
     ) -> Result<OdeSystem, SimError> {
-        grid.validate()?;
-        if !(dt.is_finite() && dt > 0.0) {
-            return Err(SimError::InvalidScene(format!(
-                "dt must be positive and finite, got {dt}"
-            )));
-        }
+        // The engine's checks and elastic bound; RK4's stability region on the imaginary axis
+        // (|h w| < 2.8) leaves a margin above that bound.
+        crate::mpm::model::validate(&grid, dt, material.as_ref(), &mass, &volume)?;
         let n = mass.len();
-        if volume.len() != n {
-            return Err(SimError::InvalidScene(
-                "mass and volume lengths differ".into(),
-            ));
-        }
-        if let Some(p) = (0..n).find(|&p| {
-            !(mass[p].is_finite() && mass[p] > 0.0 && volume[p].is_finite() && volume[p] > 0.0)
-        }) {
-            return Err(SimError::InvalidScene(format!(
-                "particle {p} has mass {} and volume {}; both must be positive and finite",
-                mass[p], volume[p]
-            )));
-        }
         if !gravity.iter().all(|g| g.is_finite()) {
             return Err(SimError::InvalidScene("gravity is not finite".into()));
         }
@@ -104,18 +88,6 @@ impl OdeSystem {
             clamp_of,
             pool: BufferPool::default(),
         };
-        // Same elastic bound as the engine; RK4's stability region on the imaginary axis
-        // (|h w| < 2.8) leaves a margin above it.
-        let c = sys.wave_speed();
-        let limit = sys.grid.dx / c;
-        if dt > limit {
-            return Err(SimError::UnstableTimeStep {
-                dt,
-                limit,
-                wave_speed: c,
-                dx: sys.grid.dx,
-            });
-        }
         Ok(sys)
     }
 
@@ -129,13 +101,7 @@ impl OdeSystem {
 
     /// Elastic wave speed `sqrt(modulus / density)` of the densest particle.
     pub fn wave_speed(&self) -> f64 {
-        let rho = self
-            .mass
-            .iter()
-            .zip(&self.volume)
-            .map(|(m, v)| m / v)
-            .fold(0.0f64, f64::max);
-        crate::material::stable_dt(self.material.wave_modulus(), rho, self.grid.dx).1
+        crate::mpm::model::stable_dt(&self.grid, self.material.as_ref(), &self.mass, &self.volume).1
     }
 
     /// Whether particle `p` moves with a prescribed velocity.
@@ -660,7 +626,7 @@ impl Buffers {
         self.active.clear();
         for xp in x {
             let st = Stencil::<N>::new(xp, origin, dx);
-            let i0 = crate::mpm::p2g::base_index(&st, strides);
+            let i0 = st.base_index(strides);
             for a in 0..N {
                 for b in 0..N {
                     let row = i0 + a * strides[0] + b * strides[1];

@@ -9,7 +9,6 @@
 
 use crate::mpm::grid::SharedMut;
 use crate::mpm::kernel::Stencil;
-use crate::mpm::p2g::base_index;
 use nalgebra::{Matrix3, Vector3};
 
 /// Node data of the ODE scatter: mass, momentum, force.
@@ -22,26 +21,6 @@ fn grad_w<const N: usize>(s: &Stencil<N>, a: usize, b: usize, c: usize) -> Vecto
         s.w[0][a] * s.dw[1][b] * s.w[2][c],
         s.w[0][a] * s.w[1][b] * s.dw[2][c],
     )
-}
-
-/// Visits the stencil's nodes: `f(node index, weight, x_i - x_p, (a, b, c))`.
-#[inline(always)]
-fn for_stencil<const N: usize>(
-    s: &Stencil<N>,
-    strides: &[usize; 3],
-    mut f: impl FnMut(usize, f64, Vector3<f64>, (usize, usize, usize)),
-) {
-    let i0 = base_index(s, strides);
-    for a in 0..N {
-        for b in 0..N {
-            let wab = s.w[0][a] * s.w[1][b];
-            let row = i0 + a * strides[0] + b * strides[1];
-            for c in 0..N {
-                let d = Vector3::new(s.dpos[0][a], s.dpos[1][b], s.dpos[2][c]);
-                f(row + c, wab * s.w[2][c], d, (a, b, c));
-            }
-        }
-    }
 }
 
 /// Particle data the scatter spreads.
@@ -64,7 +43,7 @@ pub fn scatter<const N: usize>(
     nodes: &SharedMut<Node>,
 ) {
     let mom = inp.mass * inp.velocity;
-    for_stencil(s, strides, |i, w, d, _| {
+    s.for_each_node(strides, |i, w, d, _| {
         let f = inp.stress_force * d + inp.body_force;
         // SAFETY: the colouring gives this thread exclusive use of the stencil's nodes.
         let node = unsafe { nodes.get(i) };
@@ -97,7 +76,7 @@ pub fn scatter_reverse<const N: usize>(
     let mut sum_gf = Vector3::zeros();
     let mut g_k = Matrix3::zeros();
     let mut g_x = Vector3::zeros();
-    for_stencil(s, strides, |i, w, d, (a, b, c)| {
+    s.for_each_node(strides, |i, w, d, (a, b, c)| {
         let g = &grad_nodes[i];
         let gp = Vector3::new(g[1], g[2], g[3]);
         let gf = Vector3::new(g[4], g[5], g[6]);
@@ -138,7 +117,7 @@ pub fn gather<const N: usize>(
     let mut vel = Vector3::zeros();
     let mut acc = Vector3::zeros();
     let mut b = Matrix3::zeros();
-    for_stencil(s, strides, |i, w, d, _| {
+    s.for_each_node(strides, |i, w, d, _| {
         let wv = w * grid_v[i];
         vel += wv;
         acc += w * grid_a[i];
@@ -168,7 +147,7 @@ pub fn gather_reverse<const N: usize>(
 ) -> Vector3<f64> {
     let gb = inv_d * g.grad_v;
     let mut g_x = Vector3::zeros();
-    for_stencil(s, strides, |i, w, d, (a, b, c)| {
+    s.for_each_node(strides, |i, w, d, (a, b, c)| {
         let u = g.velocity + gb * d;
         g_x += grad_w(s, a, b, c) * (grid_v[i].dot(&u) + grid_a[i].dot(&g.acceleration));
         // SAFETY: exclusive stencil access under the colouring.
