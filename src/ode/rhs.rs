@@ -258,15 +258,25 @@ impl OdeSystem {
         buf.mark_active::<N>(&s.x, &origin, dx, &strides);
         let par = n >= PARALLEL_MIN;
         let body = self.body_accelerations(values);
-        let stress_force: Vec<Matrix3<f64>> = (0..n)
-            .into_par_iter()
-            .with_min_len(PARALLEL_MIN)
-            .map(|p| {
-                let pk = self.material.stress(&s.f[p]);
-                self.stress_inputs(p)
-                    .affine_from_stress(&Matrix3::zeros(), &s.f[p], &pk)
-            })
-            .collect();
+        // Stresses in chunks, so a material can batch them (fixed-corotated interleaves four
+        // SVDs); the same bits as one at a time.
+        const CHUNK: usize = 64;
+        let mut stress_force = vec![Matrix3::zeros(); n];
+        stress_force
+            .par_chunks_mut(CHUNK)
+            .zip(s.f.par_chunks(CHUNK))
+            .with_min_len(PARALLEL_MIN / CHUNK)
+            .enumerate()
+            .for_each(|(k, (out, f))| {
+                self.material.stress_batch(f, out);
+                for (i, (o, f)) in out.iter_mut().zip(f).enumerate() {
+                    *o = self.stress_inputs(k * CHUNK + i).affine_from_stress(
+                        &Matrix3::zeros(),
+                        f,
+                        o,
+                    );
+                }
+            });
         {
             let Buffers { nodes, active, .. } = &mut buf;
             let shared = SharedMut::new(nodes);
