@@ -389,6 +389,33 @@ fn early_sigint_keeps_nothing_and_says_so() {
     }
 }
 
+/// A farm's "continue if you can, else start over": `--resume --overwrite` with other
+/// settings starts afresh instead of refusing, and the result is the new run's.
+#[test]
+fn resume_with_overwrite_starts_over_when_it_cannot_continue() {
+    let dir = scratch("resume-overwrite");
+    let (s, t) = (asset("sphere.obj"), asset("two-lobes.obj"));
+    let mut child = command(&dir, &morph_args(&s, &t, "out", SMALL))
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    wait_for_checkpoint(&dir, &mut child);
+    let killed = Command::new("kill")
+        .args(["-INT", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(killed.success());
+    assert_eq!(child.wait().unwrap().code(), Some(130));
+    let mut other = TINY.to_vec();
+    other.extend(["--resume", "--overwrite", "--seed", "3", "--jitter", "0.2"]);
+    let o = run(&dir, &morph_args(&s, &t, "out", &other));
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("out/manifest.json")).unwrap()).unwrap();
+    assert_eq!(m["settings"]["jitter"], 0.2);
+    assert!(!dir.join("out.partial").exists());
+}
+
 /// Case 5 (farm): SIGKILL at a random point, then --resume: frames, surfaces and the mass
 /// grid are byte for byte those of an uninterrupted run.
 #[test]

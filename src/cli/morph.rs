@@ -98,7 +98,8 @@ pub struct MorphArgs {
     #[arg(long)]
     overwrite: bool,
     /// Continue an interrupted run (same inputs and settings) from OUT.partial; starts afresh
-    /// when there is nothing to continue, and does nothing when OUT is already complete.
+    /// when there is nothing to continue, and does nothing when OUT is already complete. With
+    /// --overwrite, a run of other inputs or settings is started over instead of refused.
     #[arg(long)]
     resume: bool,
     /// Effort preset; the options below override its values.

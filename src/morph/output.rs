@@ -283,22 +283,29 @@ pub fn morph_to_folder(
             .ok()
             .and_then(|b| serde_json::from_slice(&b).ok());
         let shown = staging.dir.display().to_string();
-        if request.resume {
-            let Some(earlier) = earlier else {
-                return Err(MorphError::Resume(format!(
-                    "'{shown}' has an unreadable {RUN_FILE}; start over with --overwrite"
-                )));
-            };
-            let diff = identity.differences(&earlier);
-            if !diff.is_empty() {
-                return Err(MorphError::Resume(format!(
-                    "cannot resume '{shown}': it is a run of other inputs or settings ({}); start over with --overwrite",
-                    diff.join("; ")
-                )));
+        // What keeps the earlier run from being continued, if anything.
+        let obstacle = match &earlier {
+            None => Some(format!("'{shown}' has an unreadable {RUN_FILE}")),
+            Some(earlier) => {
+                let diff = identity.differences(earlier);
+                (!diff.is_empty()).then(|| {
+                    format!(
+                        "cannot resume '{shown}': it is a run of other inputs or settings ({})",
+                        diff.join("; ")
+                    )
+                })
             }
+        };
+        if request.resume && obstacle.is_none() {
             resuming = true;
         } else if request.overwrite {
+            // --overwrite (alone, or with --resume when the earlier run cannot be continued)
+            // starts over.
             staging.clear().map_err(MorphError::Output)?;
+        } else if let (true, Some(why)) = (request.resume, obstacle) {
+            return Err(MorphError::Resume(format!(
+                "{why}; start over with --overwrite"
+            )));
         } else {
             return Err(MorphError::Settings(format!(
                 "'{shown}' holds an interrupted run; continue it with --resume or start over with --overwrite"
