@@ -311,6 +311,28 @@ fn wait_for_checkpoint(dir: &Path, child: &mut Child) {
     }
 }
 
+/// Sends `signal` ("INT", "TERM") to a running morph.
+fn send(child: &Child, signal: &str) {
+    let sent = Command::new("kill")
+        .args([format!("-{signal}"), child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(sent.success());
+}
+
+/// Starts a SMALL morph into `dir/out`, sends `signal` once its first checkpoint is written,
+/// and returns what the process printed and its exit status.
+fn interrupted_after_checkpoint(dir: &Path, signal: &str) -> Output {
+    let (s, t) = (asset("sphere.obj"), asset("two-lobes.obj"));
+    let mut child = command(dir, &morph_args(&s, &t, "out", SMALL))
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    wait_for_checkpoint(dir, &mut child);
+    send(&child, signal);
+    child.wait_with_output().unwrap()
+}
+
 /// Case 5: SIGINT and SIGTERM stop cleanly: one line, exit 130 / 143, the checkpoint kept;
 /// --resume then finishes with results identical to an uninterrupted run.
 #[test]
@@ -319,17 +341,7 @@ fn sigint_and_sigterm_stop_cleanly_and_resume() {
     for (signal, code) in [("INT", 130), ("TERM", 143)] {
         let dir = scratch(&format!("sig{signal}"));
         let (s, t) = (asset("sphere.obj"), asset("two-lobes.obj"));
-        let mut child = command(&dir, &morph_args(&s, &t, "out", SMALL))
-            .stderr(Stdio::piped())
-            .spawn()
-            .unwrap();
-        wait_for_checkpoint(&dir, &mut child);
-        let killed = Command::new("kill")
-            .args([format!("-{signal}"), child.id().to_string()])
-            .status()
-            .unwrap();
-        assert!(killed.success());
-        let o = child.wait_with_output().unwrap();
+        let o = interrupted_after_checkpoint(&dir, signal);
         let err = stderr(&o);
         assert_eq!(o.status.code(), Some(code), "{err}");
         assert_eq!(err.lines().count(), 1, "{err}");
@@ -369,11 +381,7 @@ fn early_sigint_keeps_nothing_and_says_so() {
     let dir = scratch("early-int");
     let (s, t) = (asset("sphere.obj"), asset("two-lobes.obj"));
     let child = start_holding_the_lock(&dir, &s, &t);
-    let killed = Command::new("kill")
-        .args(["-INT", &child.id().to_string()])
-        .status()
-        .unwrap();
-    assert!(killed.success());
+    send(&child, "INT");
     let o = child.wait_with_output().unwrap();
     let err = stderr(&o);
     assert_eq!(o.status.code(), Some(130), "{err}");
@@ -395,17 +403,10 @@ fn early_sigint_keeps_nothing_and_says_so() {
 fn resume_with_overwrite_starts_over_when_it_cannot_continue() {
     let dir = scratch("resume-overwrite");
     let (s, t) = (asset("sphere.obj"), asset("two-lobes.obj"));
-    let mut child = command(&dir, &morph_args(&s, &t, "out", SMALL))
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    wait_for_checkpoint(&dir, &mut child);
-    let killed = Command::new("kill")
-        .args(["-INT", &child.id().to_string()])
-        .status()
-        .unwrap();
-    assert!(killed.success());
-    assert_eq!(child.wait().unwrap().code(), Some(130));
+    assert_eq!(
+        interrupted_after_checkpoint(&dir, "INT").status.code(),
+        Some(130)
+    );
     let mut other = TINY.to_vec();
     other.extend(["--resume", "--overwrite", "--seed", "3", "--jitter", "0.2"]);
     let o = run(&dir, &morph_args(&s, &t, "out", &other));
