@@ -660,18 +660,23 @@ fn inspect(dir: &Path, mesh: &Path) -> (serde_json::Value, String) {
     (serde_json::from_slice(&o.stdout).unwrap(), stderr(&o))
 }
 
+/// A unit cube at the origin and another at `second`, as one OBJ.
+fn write_two_cubes(path: &Path, second: [f64; 3]) {
+    let (mut v, mut f) = cube([0.0; 3]);
+    let (v2, f2) = cube(second);
+    f.extend(f2.iter().map(|t| t.map(|i| i + 8)));
+    v.extend(v2);
+    write_obj(path, &v, &f);
+}
+
 /// Case 10: multi-part meshes report each part's genus (never -1), four faces on one edge
 /// give a warning, an unwelded closed mesh is welded and reported closed.
 #[test]
 fn topology_reports() {
     let dir = scratch("topology");
     // Two separate cubes.
-    let (mut v, mut f) = cube([0.0; 3]);
-    let (v2, f2) = cube([3.0, 0.0, 0.0]);
-    f.extend(f2.iter().map(|t| t.map(|i| i + 8)));
-    v.extend(v2);
     let two = dir.join("two.obj");
-    write_obj(&two, &v, &f);
+    write_two_cubes(&two, [3.0, 0.0, 0.0]);
     let (r, err) = inspect(&dir, &two);
     assert!(r["genus"].is_null() && r["closed"] == true, "{r}");
     let parts = r["parts"].as_array().unwrap();
@@ -682,12 +687,8 @@ fn topology_reports() {
     }
     assert!(!err.contains("warning"), "{err}");
     // Two cubes sharing one edge: four faces on it.
-    let (mut v, mut f) = cube([0.0; 3]);
-    let (v2, f2) = cube([1.0, 1.0, 0.0]);
-    f.extend(f2.iter().map(|t| t.map(|i| i + 8)));
-    v.extend(v2);
     let bowtie = dir.join("bowtie.obj");
-    write_obj(&bowtie, &v, &f);
+    write_two_cubes(&bowtie, [1.0, 1.0, 0.0]);
     let (r, err) = inspect(&dir, &bowtie);
     assert_eq!(r["non_manifold_edges"], 1, "{r}");
     assert!(err.contains("1 non-manifold edges"), "{err}");

@@ -6,6 +6,8 @@
 //! OUT.partial/checkpoint/progress.json      pass, segments done, frames, records, file names
 //! OUT.partial/checkpoint/state_pP_sK.bin    full particle state (x, v, C, F) after segment K of pass P
 //! OUT.partial/checkpoint/controls_K_pP.bin  segment K's controls as pass P left them
+//! OUT.partial/checkpoint/preview_NNNNNN.bin  world positions of a preview frame (written by
+//!                                           the folder writer, read back on resume)
 //! ```
 //!
 //! Binary files are `MORPHCK1`, a u64 count, then that many little-endian f64: exact bits.
