@@ -137,7 +137,7 @@ impl MorphGeometry {
         let source_mass = density * self.source.volume * self.source.positions.len() as f64;
         let per_particle = source_mass / self.target.positions.len() as f64;
         let masses = vec![per_particle; self.target.positions.len()];
-        crate::mpm::p2g::mass_grid(
+        crate::mpm::transfer::mass_grid(
             &self.placement.grid,
             kernel,
             &self.target.positions,

@@ -7,15 +7,14 @@
 
 pub mod advance;
 pub mod error;
-pub mod g2p;
 pub mod grid;
 pub mod grid_update;
 pub mod kernel;
 pub mod model;
-pub mod p2g;
 pub mod state;
 pub mod step;
 pub mod stress;
+pub mod transfer;
 
 pub use error::SimError;
 pub use grid::GridSpec;

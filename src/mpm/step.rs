@@ -2,13 +2,12 @@
 
 use super::advance::{advance, advance_reverse};
 use super::error::SimError;
-use super::g2p::{g2p_particle, g2p_particle_reverse};
 use super::grid::{Bins, GridSpec, SharedMut};
 use super::grid_update::{grid_velocity, grid_velocity_reverse};
 use super::kernel::{KernelKind, Stencil};
-use super::p2g::{mass_particle_reverse, p2g_particle, p2g_particle_reverse};
 use super::state::{State, StateGrad};
 use super::stress::StressInputs;
+use super::transfer::{self, Affine, Node};
 use crate::effects::{Effect, GridContext};
 use crate::material::ConstitutiveModel;
 use nalgebra::{Matrix3, Vector3};
@@ -34,7 +33,7 @@ pub struct Simulator {
 #[derive(Default)]
 pub struct Workspace {
     bins: Bins,
-    nodes: Vec<[f64; 4]>,
+    nodes: Vec<Node<1>>,
     grid_v: Vec<Vector3<f64>>,
     fe: Vec<Matrix3<f64>>,
     affine: Vec<Matrix3<f64>>,
@@ -297,15 +296,18 @@ impl Simulator {
 
         // P2G (coloured scatter).
         ws.nodes.clear();
-        ws.nodes.resize(self.grid.node_count(), [0.0; 4]);
+        ws.nodes.resize(self.grid.node_count(), Node::ZERO);
         let retention = self.momentum_retention();
         {
             let nodes = SharedMut::new(&mut ws.nodes);
             let (affine, mass) = (&ws.affine, &self.mass);
             ws.bins.for_each_coloured(|p| {
                 let s = Stencil::<N>::new(&state.x[p], &origin, dx);
-                let momentum = (retention * mass[p]) * state.v[p];
-                p2g_particle(&s, &strides, mass[p], &momentum, &affine[p], &nodes);
+                let momentum = Affine {
+                    value: (retention * mass[p]) * state.v[p],
+                    slope: affine[p],
+                };
+                transfer::scatter(&s, &strides, mass[p], &[momentum], &nodes);
             });
         }
 
@@ -315,7 +317,7 @@ impl Simulator {
         let has_grid_effects = self.effects.iter().any(|e| e.acts_on_grid());
         // Nodal masses alone: the tape and the grid effects need them.
         let grid_mass: Vec<f64> = if tape.is_some() || has_grid_effects {
-            ws.nodes.par_iter().map(|n| n[0]).collect()
+            ws.nodes.par_iter().map(|n| n.mass).collect()
         } else {
             Vec::new()
         };
@@ -356,7 +358,7 @@ impl Simulator {
             .enumerate()
             .for_each(|(p, ((x, v), (c, f)))| {
                 let s = Stencil::<N>::new(x, &origin, dx);
-                let (vel, cn) = g2p_particle(&s, &strides, grid_v, inv_d);
+                let (vel, cn) = transfer::gather_affine(&s, &strides, grid_v, inv_d);
                 let (xn, fnew) = advance(x, &fe[p], &vel, &cn, dt);
                 *x = xn;
                 *v = vel;
@@ -475,7 +477,7 @@ impl Simulator {
             let gx = SharedMut::new(&mut adj.x);
             tape.bins.for_each_coloured(|p| {
                 let s = Stencil::<N>::new(&pre.x[p], &origin, dx);
-                let d = g2p_particle_reverse(
+                let d = transfer::gather_affine_reverse(
                     &s,
                     &strides,
                     &grid_v,
@@ -499,7 +501,7 @@ impl Simulator {
                 &mut effect_params[e],
             );
         }
-        let mut grad_nodes = vec![[0.0; 4]; self.grid.node_count()];
+        let mut grad_nodes = vec![Node::ZERO; self.grid.node_count()];
         grid_velocity_reverse(&tape.grid_mass, &tape.grid_v, &grad_grid_v, &mut grad_nodes);
 
         // P2G reverse (gather) and P1 reverse.
@@ -525,12 +527,14 @@ impl Simulator {
                 let affine = tape.affine[p];
                 let s = Stencil::<N>::new(&pre.x[p], &origin, dx);
                 let m = self.mass[p];
-                let momentum = (retention * m) * pre.v[p];
-                let (g_mom, g_affine, g_x) =
-                    p2g_particle_reverse(&s, &strides, m, &momentum, &affine, &grad_nodes);
-                let (g_c, g_fe) = inputs.affine_momentum_reverse(&fe[p], &g_affine);
-                *gx += g_x;
-                *gv = (retention * m) * g_mom;
+                let momentum = Affine {
+                    value: (retention * m) * pre.v[p],
+                    slope: affine,
+                };
+                let g = transfer::scatter_reverse(&s, &strides, m, &[momentum], &grad_nodes);
+                let (g_c, g_fe) = inputs.affine_momentum_reverse(&fe[p], &g.slope[0]);
+                *gx += g.x;
+                *gv = (retention * m) * g.value[0];
                 *gc = g_c;
                 let total_fe = grad_fe[p] + g_fe;
                 *gf = total_fe;
@@ -541,7 +545,7 @@ impl Simulator {
 
     /// Nodal masses `m_i = sum_p w_ip m_p` of particles at `positions` (for losses).
     pub fn mass_grid(&self, positions: &[Vector3<f64>]) -> Result<Vec<f64>, SimError> {
-        super::p2g::mass_grid(&self.grid, self.kernel, positions, &self.mass)
+        transfer::mass_grid(&self.grid, self.kernel, positions, &self.mass)
     }
 
     /// Reverse of [`Simulator::mass_grid`]: dL/dx_p from dL/dm_i.
@@ -550,24 +554,6 @@ impl Simulator {
         positions: &[Vector3<f64>],
         grad_mass: &[f64],
     ) -> Vec<Vector3<f64>> {
-        let (strides, origin, dx) = (self.grid.strides(), self.grid.origin_vec(), self.grid.dx);
-        positions
-            .par_iter()
-            .zip(self.mass.par_iter())
-            .map(|(x, &m)| match self.kernel {
-                KernelKind::Quadratic => mass_particle_reverse(
-                    &Stencil::<3>::new(x, &origin, dx),
-                    &strides,
-                    m,
-                    grad_mass,
-                ),
-                KernelKind::Cubic => mass_particle_reverse(
-                    &Stencil::<4>::new(x, &origin, dx),
-                    &strides,
-                    m,
-                    grad_mass,
-                ),
-            })
-            .collect()
+        transfer::mass_grid_reverse(&self.grid, self.kernel, positions, &self.mass, grad_mass)
     }
 }

@@ -12,12 +12,12 @@
 
 use super::controls::{ControlKind, ControlParams, ControlPlan};
 use super::state::OdeState;
-use super::transfer::{self, Gathered, Node, ScatterInputs};
 use crate::material::ConstitutiveModel;
 use crate::mpm::SimError;
 use crate::mpm::grid::{Bins, GridSpec, SharedMut};
 use crate::mpm::kernel::{KernelKind, Stencil};
 use crate::mpm::stress::StressInputs;
+use crate::mpm::transfer::{self, Affine, Node};
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 use std::sync::Arc;
@@ -203,6 +203,30 @@ impl OdeSystem {
         b
     }
 
+    /// The two fields particle `p` scatters: momentum `m v~` and force
+    /// `m b + K (x_i - x_p)`.
+    #[inline]
+    fn scatter_fields(
+        &self,
+        s: &OdeState,
+        values: &[Vector3<f64>],
+        stress_force: &[Matrix3<f64>],
+        body: &[Vector3<f64>],
+        p: usize,
+    ) -> [Affine; 2] {
+        let m = self.mass[p];
+        [
+            Affine {
+                value: m * self.transfer_velocity(s, values, p),
+                slope: Matrix3::zeros(),
+            },
+            Affine {
+                value: m * body[p],
+                slope: stress_force[p],
+            },
+        ]
+    }
+
     fn stress_inputs(&self, p: usize) -> StressInputs<'_> {
         // With dt = 1 and mass = 0 the engine's affine momentum is exactly K_p.
         StressInputs {
@@ -282,17 +306,12 @@ impl OdeSystem {
             let shared = SharedMut::new(nodes);
             active.par_iter().with_min_len(1024).for_each(|&i| {
                 // SAFETY: active node indices are distinct.
-                unsafe { *shared.get(i as usize) = [0.0; 7] };
+                unsafe { *shared.get(i as usize) = Node::ZERO };
             });
             visit_coloured(&bins, par, |p| {
                 let st = Stencil::<N>::new(&s.x[p], &origin, dx);
-                let inp = ScatterInputs {
-                    mass: self.mass[p],
-                    velocity: self.transfer_velocity(s, values, p),
-                    stress_force: stress_force[p],
-                    body_force: self.mass[p] * body[p],
-                };
-                transfer::scatter(&st, &strides, &inp, &shared);
+                let fields = self.scatter_fields(s, values, &stress_force, &body, p);
+                transfer::scatter(&st, &strides, self.mass[p], &fields, &shared);
             });
         }
         {
@@ -307,15 +326,11 @@ impl OdeSystem {
             let (gv, ga) = (SharedMut::new(grid_v), SharedMut::new(grid_a));
             active.par_iter().with_min_len(1024).for_each(|&i| {
                 let i = i as usize;
-                let nd = &nodes[i];
-                let (v, a) = if nd[0] > 0.0 {
-                    let inv_m = 1.0 / nd[0];
-                    (
-                        inv_m * Vector3::new(nd[1], nd[2], nd[3]),
-                        inv_m * Vector3::new(nd[4], nd[5], nd[6]) + g,
-                    )
+                let [v, f_over_m] = transfer::quotient(&nodes[i]);
+                let a = if nodes[i].mass > 0.0 {
+                    f_over_m + g
                 } else {
-                    (Vector3::zeros(), Vector3::zeros())
+                    f_over_m
                 };
                 // SAFETY: active node indices are distinct.
                 unsafe {
@@ -325,14 +340,20 @@ impl OdeSystem {
             });
         }
         let inv_d = self.inv_d();
-        let gathered: Vec<Gathered> =
-            s.x.par_iter()
-                .with_min_len(PARALLEL_MIN)
-                .map(|x| {
-                    let st = Stencil::<N>::new(x, &origin, dx);
-                    transfer::gather(&st, &strides, &buf.grid_v, &buf.grid_a, inv_d)
-                })
-                .collect();
+        let gathered: Vec<Gathered> = s
+            .x
+            .par_iter()
+            .with_min_len(PARALLEL_MIN)
+            .map(|x| {
+                let st = Stencil::<N>::new(x, &origin, dx);
+                let (velocity, grad_v) = transfer::gather_affine(&st, &strides, &buf.grid_v, inv_d);
+                Gathered {
+                    velocity,
+                    acceleration: transfer::interpolate(&st, &strides, &buf.grid_a),
+                    grad_v,
+                }
+            })
+            .collect();
         Ok(Forward {
             bins,
             body,
@@ -436,9 +457,17 @@ impl OdeSystem {
                     g.acceleration = Vector3::zeros();
                 }
                 let st = Stencil::<N>::new(&s.x[p], &origin, dx);
-                let d = transfer::gather_reverse(
-                    &st, &strides, grid_v, grid_a, inv_d, &g, g_out, &ggv, &gga,
-                );
+                let d =
+                    transfer::gather_affine_reverse(
+                        &st,
+                        &strides,
+                        grid_v,
+                        inv_d,
+                        &g.velocity,
+                        &g.grad_v,
+                        &g_out.velocity,
+                        &ggv,
+                    ) + transfer::interpolate_reverse(&st, &strides, grid_a, &g.acceleration, &gga);
                 // SAFETY: each particle is visited exactly once.
                 unsafe {
                     *gx.get(p) += d;
@@ -462,24 +491,12 @@ impl OdeSystem {
             let gn = SharedMut::new(grad_nodes);
             active.par_iter().with_min_len(1024).for_each(|&i| {
                 let i = i as usize;
-                let nd = &nodes[i];
-                let out = if nd[0] > 0.0 {
-                    let inv_m = 1.0 / nd[0];
-                    let (gv, ga) = (grad_v[i], grad_a[i]);
-                    let f_over_m = grid_a[i] - self.gravity;
-                    let gm = -inv_m * (gv.dot(&grid_v[i]) + ga.dot(&f_over_m));
-                    [
-                        gm,
-                        inv_m * gv[0],
-                        inv_m * gv[1],
-                        inv_m * gv[2],
-                        inv_m * ga[0],
-                        inv_m * ga[1],
-                        inv_m * ga[2],
-                    ]
-                } else {
-                    [0.0; 7]
-                };
+                let f_over_m = grid_a[i] - self.gravity;
+                let out = transfer::quotient_reverse(
+                    nodes[i].mass,
+                    &[grid_v[i], f_over_m],
+                    &[grad_v[i], grad_a[i]],
+                );
                 // SAFETY: active node indices are distinct.
                 unsafe { *gn.get(i) = out };
             });
@@ -500,22 +517,19 @@ impl OdeSystem {
             .enumerate()
             .for_each(|(p, (gx, gv, gf, gu, gb))| {
                 let st = Stencil::<N>::new(&s.x[p], &origin, dx);
-                let inp = ScatterInputs {
-                    mass: self.mass[p],
-                    velocity: self.transfer_velocity(s, values, p),
-                    stress_force: fw.stress_force[p],
-                    body_force: self.mass[p] * fw.body[p],
-                };
-                let g = transfer::scatter_reverse(&st, &strides, &inp, grad_nodes);
+                let fields = self.scatter_fields(s, values, &fw.stress_force, &fw.body, p);
+                let m = self.mass[p];
+                let g = transfer::scatter_reverse(&st, &strides, m, &fields, grad_nodes);
                 *gx += g.x;
+                // Momentum field m v~, force field m b + K (x_i - x_p).
                 match self.clamp_of[p] {
-                    FREE => *gv += g.velocity,
-                    _ => *gu += g.velocity,
+                    FREE => *gv += m * g.value[0],
+                    _ => *gu += m * g.value[0],
                 }
-                *gb = self.mass[p] * g.body_force;
+                *gb = m * g.value[1];
                 let (_, g_f) = self
                     .stress_inputs(p)
-                    .affine_momentum_reverse(&s.f[p], &g.stress_force);
+                    .affine_momentum_reverse(&s.f[p], &g.slope[1]);
                 *gf += g_f;
             });
         self.pool.put(fw.buf);
@@ -593,12 +607,12 @@ fn visit_coloured(bins: &Bins, parallel: bool, f: impl Fn(usize) + Sync) {
 /// Dense grid buffers of one evaluation; only active nodes hold meaningful values.
 #[derive(Default)]
 struct Buffers {
-    nodes: Vec<Node>,
+    nodes: Vec<Node<2>>,
     grid_v: Vec<Vector3<f64>>,
     grid_a: Vec<Vector3<f64>>,
     grad_v: Vec<Vector3<f64>>,
     grad_a: Vec<Vector3<f64>>,
-    grad_nodes: Vec<Node>,
+    grad_nodes: Vec<Node<2>>,
     /// `mark[i] == generation` when node i is active in the current evaluation.
     mark: Vec<u32>,
     generation: u32,
@@ -608,12 +622,12 @@ struct Buffers {
 impl Buffers {
     fn sized(nodes: usize) -> Buffers {
         Buffers {
-            nodes: vec![[0.0; 7]; nodes],
+            nodes: vec![Node::ZERO; nodes],
             grid_v: vec![Vector3::zeros(); nodes],
             grid_a: vec![Vector3::zeros(); nodes],
             grad_v: vec![Vector3::zeros(); nodes],
             grad_a: vec![Vector3::zeros(); nodes],
-            grad_nodes: vec![[0.0; 7]; nodes],
+            grad_nodes: vec![Node::ZERO; nodes],
             mark: vec![0; nodes],
             generation: 0,
             active: Vec::new(),
@@ -684,6 +698,15 @@ impl BufferPool {
 }
 
 /// Intermediate results of one forward evaluation.
+/// What the gather returns for one particle.
+#[derive(Clone, Copy, Debug)]
+struct Gathered {
+    velocity: Vector3<f64>,
+    acceleration: Vector3<f64>,
+    /// Velocity gradient `B_p`.
+    grad_v: Matrix3<f64>,
+}
+
 struct Forward {
     bins: Bins,
     body: Vec<Vector3<f64>>,
