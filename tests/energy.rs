@@ -5,6 +5,7 @@
 //! per RK4 step).
 
 use morph::material::{ConstitutiveModel, FixedCorotated};
+use morph::mpm::model::Model;
 use morph::mpm::{GridSpec, KernelKind, Simulator, State};
 use morph::ode::{ControlPlan, OdeState, OdeSystem};
 use nalgebra::{Matrix3, Vector3};
@@ -111,17 +112,17 @@ fn rk4(b: &Bar, dt: f64) -> (f64, f64) {
     let n = b.x.len();
     let m = DENSITY * b.vol;
     let steps = (SIM_TIME / dt).round() as usize;
-    let sys = OdeSystem::new(
+    let model = Model::new(
         b.grid.clone(),
+        dt,
         KernelKind::Quadratic,
         b.material.clone(),
+        Vec::new(),
         vec![m; n],
         vec![b.vol; n],
-        Vector3::zeros(),
-        ControlPlan::none(steps),
-        dt,
     )
     .unwrap();
+    let sys = OdeSystem::new(model, ControlPlan::none(steps)).unwrap();
     let mut s = OdeState::at_rest(b.x.clone());
     s.v = b.v.clone();
     let e0 = kinetic(&s.v, m) + sys.elastic_energy(&s);

@@ -5,7 +5,9 @@
 //! bounded body force).
 //! Units are SI. docs/control.md gives the numbers and why they were chosen.
 
+use crate::effects::Gravity;
 use crate::material::{MaterialModel, lame_from_young_poisson};
+use crate::mpm::model::Model;
 use crate::mpm::{GridSpec, KernelKind, SimError};
 use crate::ode::{
     ControlEffect, ControlKind, ControlPlan, Interpolation, OdeState, OdeSystem, Schedule,
@@ -300,16 +302,19 @@ impl RopeConfig {
         };
         let (mu, lambda) = lame_from_young_poisson(self.youngs_modulus, self.poisson_ratio);
         let material = self.material.build(mu, lambda);
-        let system = OdeSystem::new(
+        let gravity = Gravity {
+            acceleration: Vector3::new(0.0, -self.gravity, 0.0),
+        };
+        let model = Model::new(
             grid,
+            self.dt,
             self.kernel,
             material,
+            vec![Box::new(gravity)],
             vec![self.density * vol; n],
             vec![vol; n],
-            Vector3::new(0.0, -self.gravity, 0.0),
-            plan,
-            self.dt,
         )?;
+        let system = OdeSystem::new(model, plan)?;
         Ok(Rope {
             system,
             initial: OdeState::at_rest(x),

@@ -1,4 +1,5 @@
-//! Constant external acceleration (gravity): `v_i += dt g` on every node with mass.
+//! Constant external acceleration (gravity): `v_i += dt g` on every node with mass (Euler),
+//! `a_i += g` (ODE form).
 
 use super::{Effect, GridContext};
 use nalgebra::Vector3;
@@ -47,6 +48,36 @@ impl Effect for Gravity {
         for a in 0..3 {
             grad_params[a] += ctx.dt * sum[a];
         }
+    }
+
+    fn acts_on_rates(&self) -> bool {
+        true
+    }
+
+    fn apply_rate(&self, _: &GridContext, _: usize, _: &mut Vector3<f64>, a: &mut Vector3<f64>) {
+        *a += self.acceleration;
+    }
+
+    fn reverse_rate(
+        &self,
+        _: &GridContext,
+        _: usize,
+        _: &Vector3<f64>,
+        _: &Vector3<f64>,
+        _: &mut Vector3<f64>,
+        grad_a: &mut Vector3<f64>,
+        grad_params: &mut [f64],
+    ) {
+        for a in 0..3 {
+            grad_params[a] += grad_a[a];
+        }
+    }
+
+    fn potential_energy(&self, x: &[Vector3<f64>], mass: &[f64]) -> f64 {
+        x.iter()
+            .zip(mass)
+            .map(|(x, m)| -m * self.acceleration.dot(x))
+            .sum()
     }
 
     fn num_params(&self) -> usize {

@@ -1,11 +1,16 @@
 //! Effects: the optional physics a scene switches on. A scene pays only for the effects it
 //! lists; the step itself knows none of them.
 //!
-//! An effect acts at one of two hook points, each with its reverse pass beside it:
+//! Both integrators run the same effects. For the symplectic-Euler step an effect acts at one
+//! of two hook points, each with its reverse pass beside it:
 //! - on particle momentum before P2G (drag: `m v -> (1 - dt drag) m v`);
-//! - on grid velocities after `v_i = p_i / m_i` (gravity, walls; later body-force controls and
-//!   prescribed boundary velocities). Effects run in list order; the reverse pass runs them
-//!   backwards, each given the velocity it saw as input.
+//! - on grid velocities after `v_i = p_i / m_i` (gravity, walls).
+//!
+//! For the ODE form (RK4) an effect states its part of the grid rates instead: at each node
+//! with mass it may change the velocity `v_i` and the acceleration `a_i` (gravity `a += g`,
+//! drag `a -= c v`, walls project both). Effects run in list order; the reverse passes run
+//! them backwards, each given what it saw as input. The context carries the step and the
+//! time, so an effect may change over time; the tapes record the step.
 //!
 //! Effects may have differentiable parameters (gravity's vector, a control's forces): the
 //! reverse pass accumulates their gradients into a slice of length [`Effect::num_params`].
@@ -21,12 +26,14 @@ pub use walls::{WallMode, Walls};
 use crate::mpm::GridSpec;
 use nalgebra::Vector3;
 
-/// What a grid effect may read: the grid, nodal masses and the time step.
+/// What a grid effect may read: the grid, nodal masses, the time step, the global step index
+/// and the time (`step * dt` for the Euler step; the stage's time for RK4).
 pub struct GridContext<'a> {
     pub spec: &'a GridSpec,
     pub mass: &'a [f64],
     pub dt: f64,
     pub step: usize,
+    pub time: f64,
 }
 
 pub trait Effect: Send + Sync + std::fmt::Debug {
@@ -55,6 +62,44 @@ pub trait Effect: Send + Sync + std::fmt::Debug {
         _grad_v: &mut [Vector3<f64>],
         _grad_params: &mut [f64],
     ) {
+    }
+
+    /// Whether [`Effect::apply_rate`] does anything in the ODE form.
+    fn acts_on_rates(&self) -> bool {
+        false
+    }
+
+    /// ODE form, forward: this effect's part of the rates at grid node `node` (which has
+    /// mass `ctx.mass[node] > 0`): it may change the node velocity `v` and acceleration `a`.
+    fn apply_rate(
+        &self,
+        _ctx: &GridContext,
+        _node: usize,
+        _v: &mut Vector3<f64>,
+        _a: &mut Vector3<f64>,
+    ) {
+    }
+
+    /// Reverse of [`Effect::apply_rate`]: `v_in`, `a_in` are what the forward pass received;
+    /// `grad_v`, `grad_a` hold dL/d(outputs) and are replaced by dL/d(inputs); parameter
+    /// gradients are added to `grad_params`.
+    #[allow(clippy::too_many_arguments)]
+    fn reverse_rate(
+        &self,
+        _ctx: &GridContext,
+        _node: usize,
+        _v_in: &Vector3<f64>,
+        _a_in: &Vector3<f64>,
+        _grad_v: &mut Vector3<f64>,
+        _grad_a: &mut Vector3<f64>,
+        _grad_params: &mut [f64],
+    ) {
+    }
+
+    /// Potential energy of a conservative effect at these particle positions (gravity
+    /// `-sum m g . x`), for energy reports; 0 for others.
+    fn potential_energy(&self, _x: &[Vector3<f64>], _mass: &[f64]) -> f64 {
+        0.0
     }
 
     /// Number of differentiable parameters.

@@ -1,6 +1,7 @@
 //! Boundary walls on the grid's faces: nodes within `thickness` cells of a face are
 //! sticky (velocity set to zero) or slip (the velocity component into the wall is removed;
-//! motion along the wall and away from it is kept).
+//! motion along the wall and away from it is kept). In the ODE form the same components of
+//! the node's velocity and acceleration are removed.
 
 use super::{Effect, GridContext};
 use nalgebra::Vector3;
@@ -74,6 +75,47 @@ impl Effect for Walls {
                 }
             }
         });
+    }
+
+    fn acts_on_rates(&self) -> bool {
+        true
+    }
+
+    fn apply_rate(
+        &self,
+        ctx: &GridContext,
+        node: usize,
+        v: &mut Vector3<f64>,
+        a: &mut Vector3<f64>,
+    ) {
+        if let Some(keep) = self.mask(ctx, node, v) {
+            for k in 0..3 {
+                if !keep[k] {
+                    v[k] = 0.0;
+                    a[k] = 0.0;
+                }
+            }
+        }
+    }
+
+    fn reverse_rate(
+        &self,
+        ctx: &GridContext,
+        node: usize,
+        v_in: &Vector3<f64>,
+        _: &Vector3<f64>,
+        grad_v: &mut Vector3<f64>,
+        grad_a: &mut Vector3<f64>,
+        _: &mut [f64],
+    ) {
+        if let Some(keep) = self.mask(ctx, node, v_in) {
+            for k in 0..3 {
+                if !keep[k] {
+                    grad_v[k] = 0.0;
+                    grad_a[k] = 0.0;
+                }
+            }
+        }
     }
 
     fn reverse_grid(

@@ -5,6 +5,7 @@ use super::error::SimError;
 use super::grid::{Bins, GridSpec, SharedMut};
 use super::grid_update::{grid_velocity, grid_velocity_reverse};
 use super::kernel::{KernelKind, Stencil};
+use super::model::Model;
 use super::state::{State, StateGrad};
 use super::stress::StressInputs;
 use super::transfer::{self, Affine, Node};
@@ -14,19 +15,29 @@ use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 use std::sync::Arc;
 
-/// Everything fixed during a simulation: grid, time step, kernel, material, effects and the
-/// particles' masses and rest volumes.
+/// The symplectic-Euler MLS-MPM integrator over a [`Model`] (which it dereferences to).
 #[derive(Debug)]
 pub struct Simulator {
-    pub grid: GridSpec,
-    pub dt: f64,
-    pub kernel: KernelKind,
-    pub material: Arc<dyn ConstitutiveModel>,
-    pub effects: Vec<Box<dyn Effect>>,
-    pub mass: Vec<f64>,
-    pub volume: Vec<f64>,
-    /// Largest allowed particle displacement per step, in cells.
-    pub max_cfl: f64,
+    pub model: Model,
+}
+
+impl std::ops::Deref for Simulator {
+    type Target = Model;
+    fn deref(&self) -> &Model {
+        &self.model
+    }
+}
+
+impl std::ops::DerefMut for Simulator {
+    fn deref_mut(&mut self) -> &mut Model {
+        &mut self.model
+    }
+}
+
+impl From<Model> for Simulator {
+    fn from(model: Model) -> Self {
+        Simulator { model }
+    }
 }
 
 /// Scratch buffers reused across steps.
@@ -79,8 +90,7 @@ fn control_at(controls: &[Option<Vec<Matrix3<f64>>>], s: usize) -> Option<&[Matr
 }
 
 impl Simulator {
-    /// Validates the scene: positive finite dt, masses and volumes, a sane grid, and a time
-    /// step within the elastic stability bound `dt <= dx / c`, `c = sqrt(modulus / density)`.
+    /// Validates the scene (see [`Model::new`]) and makes its Euler integrator.
     pub fn new(
         grid: GridSpec,
         dt: f64,
@@ -90,31 +100,7 @@ impl Simulator {
         mass: Vec<f64>,
         volume: Vec<f64>,
     ) -> Result<Simulator, SimError> {
-        super::model::validate(&grid, dt, material.as_ref(), &mass, &volume)?;
-        let sim = Simulator {
-            grid,
-            dt,
-            kernel,
-            material,
-            effects,
-            mass,
-            volume,
-            max_cfl: 1.0,
-        };
-        Ok(sim)
-    }
-
-    /// The largest stable time step `dx / c` and the elastic wave speed `c` it comes from.
-    pub fn stable_dt(&self) -> (f64, f64) {
-        super::model::stable_dt(&self.grid, self.material.as_ref(), &self.mass, &self.volume)
-    }
-
-    pub fn num_particles(&self) -> usize {
-        self.mass.len()
-    }
-
-    pub fn inv_d(&self) -> f64 {
-        self.kernel.inv_d(self.grid.dx)
+        Model::new(grid, dt, kernel, material, effects, mass, volume).map(Simulator::from)
     }
 
     fn stress_inputs(&self, p: usize) -> StressInputs<'_> {
@@ -136,47 +122,8 @@ impl Simulator {
     }
 
     fn check_state(&self, state: &State, step: usize) -> Result<(), SimError> {
-        self.check_size(state)?;
-        self.check_finite_and_cfl(state, step)
-    }
-
-    /// The state has one entry per particle of the scene.
-    fn check_size(&self, state: &State) -> Result<(), SimError> {
-        if state.len() != self.num_particles() {
-            return Err(SimError::InvalidScene(format!(
-                "state has {} particles, the scene {}",
-                state.len(),
-                self.num_particles()
-            )));
-        }
-        Ok(())
-    }
-
-    /// Every field is finite and no particle moves more than `max_cfl` cells a step.
-    fn check_finite_and_cfl(&self, state: &State, step: usize) -> Result<(), SimError> {
-        if let Some((particle, field)) = state.first_non_finite() {
-            return Err(SimError::NonFinite {
-                step,
-                particle,
-                field,
-            });
-        }
-        self.check_cfl(state, step)
-    }
-
-    /// No particle may move more than `max_cfl` cells in one step.
-    fn check_cfl(&self, state: &State, step: usize) -> Result<(), SimError> {
-        let limit = self.max_cfl * self.grid.dx / self.dt;
-        if let Some(p) = state.v.par_iter().position_first(|v| v.norm() > limit) {
-            let cells = state.v[p].norm() * self.dt / self.grid.dx;
-            return Err(SimError::CflExceeded {
-                step,
-                particle: p,
-                cells,
-                limit: self.max_cfl,
-            });
-        }
-        Ok(())
+        self.check_size(state.len())?;
+        self.check_finite_and_cfl(state.first_non_finite(), &state.v, step)
     }
 
     /// Advances `state` by one step with optional controls `fc` (per particle, added to F).
@@ -227,33 +174,6 @@ impl Simulator {
         Ok(())
     }
 
-    /// A control must have one finite `Fc` per particle.
-    fn check_control(
-        &self,
-        fc: Option<&[Matrix3<f64>]>,
-        particles: usize,
-        step: usize,
-    ) -> Result<(), SimError> {
-        let Some(fc) = fc else { return Ok(()) };
-        if fc.len() != particles {
-            return Err(SimError::InvalidScene(format!(
-                "control at step {step} has {} entries for {particles} particles",
-                fc.len()
-            )));
-        }
-        if let Some(p) = fc
-            .par_iter()
-            .position_first(|m| !m.iter().all(|a| a.is_finite()))
-        {
-            return Err(SimError::NonFinite {
-                step,
-                particle: p,
-                field: "control Fc",
-            });
-        }
-        Ok(())
-    }
-
     fn step_impl<const N: usize>(
         &self,
         state: &mut State,
@@ -262,8 +182,8 @@ impl Simulator {
         ws: &mut Workspace,
         tape: Option<&mut Vec<StepTape>>,
     ) -> Result<(), SimError> {
-        self.check_size(state)?;
-        self.check_control(fc, state.len(), step)?;
+        self.check_size(state.len())?;
+        self.check_control(fc, step)?;
         let n = state.len();
         let dt = self.dt;
         let inv_d = self.inv_d();
@@ -332,6 +252,7 @@ impl Simulator {
                 mass: &grid_mass,
                 dt,
                 step,
+                time: step as f64 * dt,
             };
             for e in self.effects.iter().filter(|e| e.acts_on_grid()) {
                 e.apply_grid(&ctx, &mut ws.grid_v);
@@ -365,7 +286,7 @@ impl Simulator {
                 *c = cn;
                 *f = fnew;
             });
-        self.check_finite_and_cfl(state, step)
+        self.check_finite_and_cfl(state.first_non_finite(), &state.v, step)
     }
 
     /// Reverse pass over a taped rollout. `grad_last` is dL/d(state after the last step);
@@ -439,6 +360,7 @@ impl Simulator {
             mass: &tape.grid_mass,
             dt,
             step: tape.step,
+            time: tape.step as f64 * dt,
         };
         let grid_effects: Vec<usize> = (0..self.effects.len())
             .filter(|&e| self.effects[e].acts_on_grid())
@@ -541,19 +463,5 @@ impl Simulator {
                 *gfc = total_fe;
             });
         grad_fc
-    }
-
-    /// Nodal masses `m_i = sum_p w_ip m_p` of particles at `positions` (for losses).
-    pub fn mass_grid(&self, positions: &[Vector3<f64>]) -> Result<Vec<f64>, SimError> {
-        transfer::mass_grid(&self.grid, self.kernel, positions, &self.mass)
-    }
-
-    /// Reverse of [`Simulator::mass_grid`]: dL/dx_p from dL/dm_i.
-    pub fn mass_grid_reverse(
-        &self,
-        positions: &[Vector3<f64>],
-        grad_mass: &[f64],
-    ) -> Vec<Vector3<f64>> {
-        transfer::mass_grid_reverse(&self.grid, self.kernel, positions, &self.mass, grad_mass)
     }
 }

@@ -13,6 +13,6 @@ pub mod state;
 pub use controls::{
     ControlEffect, ControlKind, ControlParams, ControlPlan, Interpolation, Schedule,
 };
-pub use rhs::OdeSystem;
+pub use rhs::{At, OdeSystem};
 pub use rk4::Rk4Tape;
 pub use state::OdeState;

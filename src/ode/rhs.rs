@@ -2,71 +2,79 @@
 //! vector-Jacobian product), for S = {x, v, F}:
 //!
 //! - P2G: `m_i = sum w m_p`, `p_i = sum w m_p v~_p`, `f_i = sum w (K_p (x_i - x_p) + m_p b_p)`;
-//! - grid: `v_i = p_i / m_i`, `a_i = f_i / m_i + g`;
+//! - grid: `v_i = p_i / m_i`, `a_i = f_i / m_i`, then the model's effects (gravity `a += g`,
+//!   drag, walls; see [`crate::effects`]);
 //! - G2P: `dx_p/dt = sum w v_i`, `dv_p/dt = sum w a_i`, `dF_p/dt = B_p F_p`.
 //!
 //! Particles of a prescribed-velocity control use `v~_p = u(t)`, `dx_p/dt = u(t)` and
-//! `dv_p/dt = 0`. With the same MLS gradient in the force and in `B_p`, the semi-discrete
+//! `dv_p/dt = 0`. A deformation-gradient control `Fc` (the morph's) enters the stress as
+//! `P(F + Fc)`. With the same MLS gradient in the force and in `B_p`, the semi-discrete
 //! system conserves kinetic + elastic + gravitational energy exactly: the only losses left are
 //! the integrator's (see docs/control.md).
 
 use super::controls::{ControlKind, ControlParams, ControlPlan};
 use super::state::OdeState;
-use crate::material::ConstitutiveModel;
+use crate::effects::GridContext;
 use crate::mpm::SimError;
-use crate::mpm::grid::{Bins, GridSpec, SharedMut};
+use crate::mpm::grid::{Bins, SharedMut};
 use crate::mpm::kernel::{KernelKind, Stencil};
+use crate::mpm::model::Model;
 use crate::mpm::stress::StressInputs;
 use crate::mpm::transfer::{self, Affine, Node};
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
-use std::sync::Arc;
 
-/// A scene in ODE form: grid, kernel, material, particles, gravity and declared controls.
+/// The RK4 integrator of the ODE form over a [`Model`] (which it dereferences to), with the
+/// declared controls.
 #[derive(Debug)]
 pub struct OdeSystem {
-    pub grid: GridSpec,
-    pub kernel: KernelKind,
-    pub material: Arc<dyn ConstitutiveModel>,
-    pub mass: Vec<f64>,
-    pub volume: Vec<f64>,
-    pub gravity: Vector3<f64>,
+    pub model: Model,
     pub controls: ControlPlan,
-    /// Integrator time step.
-    pub dt: f64,
     /// Prescribed-velocity control of each particle (`u32::MAX` for free particles).
     clamp_of: Vec<u32>,
+    /// Effects that act on the grid rates, in model order.
+    rate_effects: Vec<usize>,
     pool: BufferPool,
 }
 
+impl std::ops::Deref for OdeSystem {
+    type Target = Model;
+    fn deref(&self) -> &Model {
+        &self.model
+    }
+}
+
 const FREE: u32 = u32::MAX;
+
+/// Most effects a node's rates may pass through (their inputs are kept on the stack).
+const MAX_RATE_EFFECTS: usize = 8;
+
+/// Where and with what one right-hand side is evaluated: the controls' values, an optional
+/// deformation-gradient control, and the time (step and fraction of the step).
+#[derive(Clone, Copy, Debug)]
+pub struct At<'a> {
+    pub values: &'a [Vector3<f64>],
+    pub fc: Option<&'a [Matrix3<f64>]>,
+    pub step: usize,
+    pub theta: f64,
+}
 
 /// dL/d(inputs) of one right-hand-side evaluation.
 pub struct RhsGrad {
     pub state: OdeState,
     /// dL/d(control values) at the evaluation time, one per control.
     pub controls: Vec<Vector3<f64>>,
+    /// dL/dFc per particle (empty without a deformation-gradient control).
+    pub fc: Vec<Matrix3<f64>>,
+    /// dL/d(effect parameters), in model order.
+    pub effect_params: Vec<Vec<f64>>,
 }
 
 impl OdeSystem {
-    #[allow(clippy::too_many_arguments)]
-    pub fn new(
-        grid: GridSpec,
-        kernel: KernelKind,
-        material: Arc<dyn ConstitutiveModel>,
-        mass: Vec<f64>,
-        volume: Vec<f64>,
-        gravity: Vector3<f64>,
-        controls: ControlPlan,
-        dt: f64,
-    ) -> Result<OdeSystem, SimError> {
-        // The engine's checks and elastic bound; RK4's stability region on the imaginary axis
-        // (|h w| < 2.8) leaves a margin above that bound.
-        crate::mpm::model::validate(&grid, dt, material.as_ref(), &mass, &volume)?;
-        let n = mass.len();
-        if !gravity.iter().all(|g| g.is_finite()) {
-            return Err(SimError::InvalidScene("gravity is not finite".into()));
-        }
+    /// The RK4 integrator of `model` with `controls`. RK4's stability region on the imaginary
+    /// axis (|h w| < 2.8) leaves a margin above the model's elastic bound.
+    pub fn new(model: Model, controls: ControlPlan) -> Result<OdeSystem, SimError> {
+        let n = model.num_particles();
         controls.validate(n)?;
         let mut clamp_of = vec![FREE; n];
         for (e, c) in controls.effects.iter().enumerate() {
@@ -76,32 +84,27 @@ impl OdeSystem {
                 }
             }
         }
-        let sys = OdeSystem {
-            grid,
-            kernel,
-            material,
-            mass,
-            volume,
-            gravity,
+        let rate_effects: Vec<usize> = (0..model.effects.len())
+            .filter(|&e| model.effects[e].acts_on_rates())
+            .collect();
+        if rate_effects.len() > MAX_RATE_EFFECTS {
+            return Err(SimError::InvalidScene(format!(
+                "the ODE form takes at most {MAX_RATE_EFFECTS} grid effects, the scene has {}",
+                rate_effects.len()
+            )));
+        }
+        Ok(OdeSystem {
+            model,
             controls,
-            dt,
             clamp_of,
+            rate_effects,
             pool: BufferPool::default(),
-        };
-        Ok(sys)
-    }
-
-    pub fn num_particles(&self) -> usize {
-        self.mass.len()
-    }
-
-    pub fn inv_d(&self) -> f64 {
-        self.kernel.inv_d(self.grid.dx)
+        })
     }
 
     /// Elastic wave speed `sqrt(modulus / density)` of the densest particle.
     pub fn wave_speed(&self) -> f64 {
-        crate::mpm::model::stable_dt(&self.grid, self.material.as_ref(), &self.mass, &self.volume).1
+        self.stable_dt().1
     }
 
     /// Whether particle `p` moves with a prescribed velocity.
@@ -143,7 +146,13 @@ impl OdeSystem {
         step: usize,
     ) -> Result<f64, SimError> {
         let mut d = OdeState::zeros(0);
-        self.rhs(s, values, step, &mut d)?;
+        let at = At {
+            values,
+            fc: None,
+            step,
+            theta: 1.0,
+        };
+        self.rhs(s, &at, &mut d)?;
         Ok(d.x
             .iter()
             .zip(&self.mass)
@@ -156,10 +165,17 @@ impl OdeSystem {
         &self,
         s: &OdeState,
         values: &[Vector3<f64>],
+        step: usize,
         weight: f64,
     ) -> RhsGrad {
         let mut d = OdeState::zeros(0);
-        self.rhs(s, values, 0, &mut d)
+        let at = At {
+            values,
+            fc: None,
+            step,
+            theta: 1.0,
+        };
+        self.rhs(s, &at, &mut d)
             .expect("reverse pass replays a forward evaluation that succeeded");
         let n = s.len();
         let seed = OdeState {
@@ -171,7 +187,7 @@ impl OdeSystem {
             v: vec![Vector3::zeros(); n],
             f: vec![Matrix3::zeros(); n],
         };
-        self.rhs_reverse(s, values, &seed)
+        self.rhs_reverse(s, &at, &seed)
     }
 
     /// Elastic energy `sum V psi(F)`.
@@ -182,12 +198,9 @@ impl OdeSystem {
             .sum()
     }
 
-    /// Gravitational potential energy `-sum m g . x`.
+    /// Potential energy of the conservative effects (gravity `-sum m g . x`).
     pub fn potential_energy(&self, s: &OdeState) -> f64 {
-        s.x.iter()
-            .zip(&self.mass)
-            .map(|(x, m)| -m * self.gravity.dot(x))
-            .sum()
+        self.model.potential_energy(&s.x)
     }
 
     /// Per-particle body accelerations from the body-force controls.
@@ -238,43 +251,47 @@ impl OdeSystem {
         }
     }
 
-    /// Evaluates `f(S, u)` into `out`. `values` are the controls' values at this time; `step`
-    /// labels errors.
-    pub fn rhs(
-        &self,
-        s: &OdeState,
-        values: &[Vector3<f64>],
-        step: usize,
-        out: &mut OdeState,
-    ) -> Result<(), SimError> {
+    /// Evaluates `f(S, u, t)` into `out` (`at.step` also labels errors).
+    pub fn rhs(&self, s: &OdeState, at: &At, out: &mut OdeState) -> Result<(), SimError> {
         match self.kernel {
-            KernelKind::Quadratic => self.rhs_impl::<3>(s, values, step, out),
-            KernelKind::Cubic => self.rhs_impl::<4>(s, values, step, out),
+            KernelKind::Quadratic => self.rhs_impl::<3>(s, at, out),
+            KernelKind::Cubic => self.rhs_impl::<4>(s, at, out),
         }
     }
 
     /// Reverse of [`OdeSystem::rhs`] at state `s`: `grad_out` is dL/d(dS/dt).
-    pub fn rhs_reverse(
-        &self,
-        s: &OdeState,
-        values: &[Vector3<f64>],
-        grad_out: &OdeState,
-    ) -> RhsGrad {
+    pub fn rhs_reverse(&self, s: &OdeState, at: &At, grad_out: &OdeState) -> RhsGrad {
         match self.kernel {
-            KernelKind::Quadratic => self.rhs_reverse_impl::<3>(s, values, grad_out),
-            KernelKind::Cubic => self.rhs_reverse_impl::<4>(s, values, grad_out),
+            KernelKind::Quadratic => self.rhs_reverse_impl::<3>(s, at, grad_out),
+            KernelKind::Cubic => self.rhs_reverse_impl::<4>(s, at, grad_out),
+        }
+    }
+
+    /// The context the effects see at evaluation `at`.
+    fn grid_context<'a>(&'a self, mass: &'a [f64], at: &At) -> GridContext<'a> {
+        GridContext {
+            spec: &self.grid,
+            mass,
+            dt: self.dt,
+            step: at.step,
+            time: (at.step as f64 + at.theta) * self.dt,
+        }
+    }
+
+    /// The elastic deformation gradient of particle `p`: `F + Fc`.
+    #[inline]
+    fn elastic_f(s: &OdeState, at: &At, p: usize) -> Matrix3<f64> {
+        match at.fc {
+            Some(fc) => s.f[p] + fc[p],
+            None => s.f[p],
         }
     }
 
     /// Forward pieces shared by the evaluation and its reverse. Only the grid nodes inside
     /// some particle's stencil (the active nodes) are touched, in dense buffers borrowed from
     /// the pool, so the cost follows the particles and not the domain's size.
-    fn forward_grid<const N: usize>(
-        &self,
-        s: &OdeState,
-        values: &[Vector3<f64>],
-        step: usize,
-    ) -> Result<Forward, SimError> {
+    fn forward_grid<const N: usize>(&self, s: &OdeState, at: &At) -> Result<Forward, SimError> {
+        let (values, step) = (at.values, at.step);
         let n = s.len();
         let (strides, origin, dx) = (self.grid.strides(), self.grid.origin_vec(), self.grid.dx);
         let bins = Bins::build(&self.grid, &s.x, N, step)?;
@@ -285,10 +302,18 @@ impl OdeSystem {
         // Stresses in chunks, so a material can batch them (fixed-corotated interleaves four
         // SVDs); the same bits as one at a time.
         const CHUNK: usize = 64;
+        let fe_owned: Vec<Matrix3<f64>>;
+        let fe: &[Matrix3<f64>] = match at.fc {
+            Some(_) => {
+                fe_owned = (0..n).map(|p| Self::elastic_f(s, at, p)).collect();
+                &fe_owned
+            }
+            None => &s.f,
+        };
         let mut stress_force = vec![Matrix3::zeros(); n];
         stress_force
             .par_chunks_mut(CHUNK)
-            .zip(s.f.par_chunks(CHUNK))
+            .zip(fe.par_chunks(CHUNK))
             .with_min_len(PARALLEL_MIN / CHUNK)
             .enumerate()
             .for_each(|(k, (out, f))| {
@@ -315,23 +340,32 @@ impl OdeSystem {
             });
         }
         {
-            let g = self.gravity;
             let Buffers {
                 nodes,
+                grid_mass,
                 grid_v,
                 grid_a,
                 active,
                 ..
             } = &mut buf;
-            let (gv, ga) = (SharedMut::new(grid_v), SharedMut::new(grid_a));
+            let (gm, gv, ga) = (
+                SharedMut::new(grid_mass),
+                SharedMut::new(grid_v),
+                SharedMut::new(grid_a),
+            );
+            active.par_iter().with_min_len(1024).for_each(|&i| {
+                // SAFETY: active node indices are distinct.
+                unsafe { *gm.get(i as usize) = nodes[i as usize].mass };
+            });
+            let ctx = self.grid_context(grid_mass, at);
             active.par_iter().with_min_len(1024).for_each(|&i| {
                 let i = i as usize;
-                let [v, f_over_m] = transfer::quotient(&nodes[i]);
-                let a = if nodes[i].mass > 0.0 {
-                    f_over_m + g
-                } else {
-                    f_over_m
-                };
+                let [mut v, mut a] = transfer::quotient(&nodes[i]);
+                if nodes[i].mass > 0.0 {
+                    for &e in &self.rate_effects {
+                        self.effects[e].apply_rate(&ctx, i, &mut v, &mut a);
+                    }
+                }
                 // SAFETY: active node indices are distinct.
                 unsafe {
                     *gv.get(i) = v;
@@ -366,11 +400,11 @@ impl OdeSystem {
     fn rhs_impl<const N: usize>(
         &self,
         s: &OdeState,
-        values: &[Vector3<f64>],
-        step: usize,
+        at: &At,
         out: &mut OdeState,
     ) -> Result<(), SimError> {
-        let fw = self.forward_grid::<N>(s, values, step)?;
+        let values = at.values;
+        let fw = self.forward_grid::<N>(s, at)?;
         let n = s.len();
         out.x.resize(n, Vector3::zeros());
         out.v.resize(n, Vector3::zeros());
@@ -404,11 +438,12 @@ impl OdeSystem {
     fn rhs_reverse_impl<const N: usize>(
         &self,
         s: &OdeState,
-        values: &[Vector3<f64>],
+        at: &At,
         grad_out: &OdeState,
     ) -> RhsGrad {
+        let values = at.values;
         let mut fw = self
-            .forward_grid::<N>(s, values, 0)
+            .forward_grid::<N>(s, at)
             .expect("reverse pass replays a forward evaluation that succeeded");
         let n = s.len();
         let par = n >= PARALLEL_MIN;
@@ -476,46 +511,83 @@ impl OdeSystem {
             });
         }
 
-        // Grid reverse: v = p / m, a = f / m + g.
+        // Grid reverse: the effects backwards (each given its inputs, replayed from the
+        // quotient), then v = p / m, a = f / m. Parameter gradients are summed over nodes in
+        // the order of the active list, so they do not depend on the thread count.
+        let mut effect_params = self.zero_effect_params();
         {
             let Buffers {
                 nodes,
-                grid_v,
-                grid_a,
+                grid_mass,
                 grad_v,
                 grad_a,
                 grad_nodes,
                 active,
                 ..
             } = &mut fw.buf;
+            let ctx = self.grid_context(grid_mass, at);
+            let width: usize = self.effects.iter().map(|e| e.num_params()).sum();
+            let mut node_params = vec![0.0; if width > 0 { active.len() * width } else { 0 }];
             let gn = SharedMut::new(grad_nodes);
-            active.par_iter().with_min_len(1024).for_each(|&i| {
-                let i = i as usize;
-                let f_over_m = grid_a[i] - self.gravity;
-                let out = transfer::quotient_reverse(
-                    nodes[i].mass,
-                    &[grid_v[i], f_over_m],
-                    &[grad_v[i], grad_a[i]],
-                );
+            let reverse_node = |i: usize, params: &mut [f64]| {
+                let q = transfer::quotient(&nodes[i]);
+                let (mut gv, mut ga) = (grad_v[i], grad_a[i]);
+                if nodes[i].mass > 0.0 && !self.rate_effects.is_empty() {
+                    let mut inputs = [(Vector3::zeros(), Vector3::zeros()); MAX_RATE_EFFECTS];
+                    let (mut v, mut a) = (q[0], q[1]);
+                    for (k, &e) in self.rate_effects.iter().enumerate() {
+                        inputs[k] = (v, a);
+                        self.effects[e].apply_rate(&ctx, i, &mut v, &mut a);
+                    }
+                    for (k, &e) in self.rate_effects.iter().enumerate().rev() {
+                        let offset: usize = self.effects[..e].iter().map(|e| e.num_params()).sum();
+                        let own = &mut params[offset..offset + self.effects[e].num_params()];
+                        let (v_in, a_in) = &inputs[k];
+                        self.effects[e].reverse_rate(&ctx, i, v_in, a_in, &mut gv, &mut ga, own);
+                    }
+                }
                 // SAFETY: active node indices are distinct.
-                unsafe { *gn.get(i) = out };
-            });
+                unsafe { *gn.get(i) = transfer::quotient_reverse(nodes[i].mass, &q, &[gv, ga]) };
+            };
+            if width > 0 {
+                active
+                    .par_iter()
+                    .zip(node_params.par_chunks_mut(width))
+                    .with_min_len(1024)
+                    .for_each(|(&i, params)| reverse_node(i as usize, params));
+                for params in node_params.chunks(width) {
+                    let mut offset = 0;
+                    for g in effect_params.iter_mut() {
+                        for (a, b) in g.iter_mut().zip(&params[offset..]) {
+                            *a += b;
+                        }
+                        offset += g.len();
+                    }
+                }
+            } else {
+                active
+                    .par_iter()
+                    .with_min_len(1024)
+                    .for_each(|&i| reverse_node(i as usize, &mut []));
+            }
         }
 
         // P2G reverse (gather) and the stress reverse.
         let mut grad_body = vec![Vector3::zeros(); n];
+        // dL/d(F + Fc) of the stress, per particle: dL/dFc when a control is given.
+        let mut grad_fe = vec![Matrix3::zeros(); n];
         let grad_nodes = &fw.buf.grad_nodes;
         (
             grad.x.par_iter_mut(),
             grad.v.par_iter_mut(),
             grad.f.par_iter_mut(),
             grad_u.par_iter_mut(),
-            grad_body.par_iter_mut(),
+            (grad_body.par_iter_mut(), grad_fe.par_iter_mut()),
         )
             .into_par_iter()
             .with_min_len(PARALLEL_MIN)
             .enumerate()
-            .for_each(|(p, (gx, gv, gf, gu, gb))| {
+            .for_each(|(p, (gx, gv, gf, gu, (gb, gfe)))| {
                 let st = Stencil::<N>::new(&s.x[p], &origin, dx);
                 let fields = self.scatter_fields(s, values, &fw.stress_force, &fw.body, p);
                 let m = self.mass[p];
@@ -529,8 +601,9 @@ impl OdeSystem {
                 *gb = m * g.value[1];
                 let (_, g_f) = self
                     .stress_inputs(p)
-                    .affine_momentum_reverse(&s.f[p], &g.slope[1]);
+                    .affine_momentum_reverse(&Self::elastic_f(s, at, p), &g.slope[1]);
                 *gf += g_f;
+                *gfe = g_f;
             });
         self.pool.put(fw.buf);
 
@@ -550,26 +623,20 @@ impl OdeSystem {
         RhsGrad {
             state: grad,
             controls,
+            fc: if at.fc.is_some() { grad_fe } else { Vec::new() },
+            effect_params,
         }
     }
 
     /// Checks a state before integrating it.
     pub fn check_state(&self, s: &OdeState, step: usize) -> Result<(), SimError> {
-        if s.len() != self.num_particles() || s.v.len() != s.len() || s.f.len() != s.len() {
-            return Err(SimError::InvalidScene(format!(
-                "state has {} particles, the scene {}",
-                s.len(),
-                self.num_particles()
-            )));
+        if s.v.len() != s.len() || s.f.len() != s.len() {
+            return Err(SimError::InvalidScene(
+                "state fields differ in length".into(),
+            ));
         }
-        if let Some((particle, field)) = s.first_non_finite() {
-            return Err(SimError::NonFinite {
-                step,
-                particle,
-                field,
-            });
-        }
-        Ok(())
+        self.check_size(s.len())?;
+        self.check_finite_and_cfl(s.first_non_finite(), &[], step)
     }
 
     /// The control values at fraction `theta` of step `step`.
@@ -608,6 +675,7 @@ fn visit_coloured(bins: &Bins, parallel: bool, f: impl Fn(usize) + Sync) {
 #[derive(Default)]
 struct Buffers {
     nodes: Vec<Node<2>>,
+    grid_mass: Vec<f64>,
     grid_v: Vec<Vector3<f64>>,
     grid_a: Vec<Vector3<f64>>,
     grad_v: Vec<Vector3<f64>>,
@@ -623,6 +691,7 @@ impl Buffers {
     fn sized(nodes: usize) -> Buffers {
         Buffers {
             nodes: vec![Node::ZERO; nodes],
+            grid_mass: vec![0.0; nodes],
             grid_v: vec![Vector3::zeros(); nodes],
             grid_a: vec![Vector3::zeros(); nodes],
             grad_v: vec![Vector3::zeros(); nodes],

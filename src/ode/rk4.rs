@@ -8,9 +8,10 @@
 //! `gS = gS' + gS1 + gS2 + gS3 + gS4` with `gSi = f_rev(Si, gki)`.
 
 use super::controls::ControlParams;
-use super::rhs::OdeSystem;
+use super::rhs::{At, OdeSystem};
 use super::state::OdeState;
 use crate::mpm::SimError;
+use nalgebra::Matrix3;
 
 /// Stage fractions of the step at which RK4 evaluates `f`.
 pub const STAGE_THETA: [f64; 4] = [0.0, 0.5, 0.5, 1.0];
@@ -32,6 +33,7 @@ impl OdeSystem {
         &self,
         s: &mut OdeState,
         params: &ControlParams,
+        fc: Option<&[Matrix3<f64>]>,
         step: usize,
         record: bool,
     ) -> Result<Option<StepStages>, SimError> {
@@ -51,7 +53,13 @@ impl OdeSystem {
                 s.combine_into(scale[i - 1], &k[i - 1], &mut stage);
             }
             let values = self.control_values(params, step, STAGE_THETA[i]);
-            self.rhs(&stage, &values, step, &mut k[i])?;
+            let at = At {
+                values: &values,
+                fc,
+                step,
+                theta: STAGE_THETA[i],
+            };
+            self.rhs(&stage, &at, &mut k[i])?;
             if record {
                 stages.push(stage.clone());
             }
@@ -64,43 +72,32 @@ impl OdeSystem {
         Ok(record.then(|| stages.try_into().expect("four stages")))
     }
 
-    /// Rejects a non-finite state or a particle moving more than one cell per step.
+    /// Rejects a non-finite state or a particle moving more than `max_cfl` cells per step.
     fn check_step(&self, s: &OdeState, step: usize) -> Result<(), SimError> {
-        if let Some((particle, field)) = s.first_non_finite() {
-            return Err(SimError::NonFinite {
-                step,
-                particle,
-                field,
-            });
-        }
-        let limit = self.grid.dx / self.dt;
-        if let Some(p) = s.v.iter().position(|v| v.norm() > limit) {
-            return Err(SimError::CflExceeded {
-                step,
-                particle: p,
-                cells: s.v[p].norm() / limit,
-                limit: 1.0,
-            });
-        }
-        Ok(())
+        self.check_finite_and_cfl(s.first_non_finite(), &s.v, step)
     }
 
-    /// Reverse of one RK4 step: turns `adj` from dL/d(S') into dL/d(S) and adds the control
-    /// knots' gradients into `grad_params`.
+    /// Reverse of one RK4 step: turns `adj` from dL/d(S') into dL/d(S), adds the control
+    /// knots' gradients into `grad_params` and the effects' into `grad_effects`, and returns
+    /// dL/dFc (empty without `fc`).
+    #[allow(clippy::too_many_arguments)]
     pub fn rk4_step_reverse(
         &self,
         stages: &StepStages,
         params: &ControlParams,
+        fc: Option<&[Matrix3<f64>]>,
         step: usize,
         adj: &mut OdeState,
         grad_params: &mut ControlParams,
-    ) {
+        grad_effects: &mut [Vec<f64>],
+    ) -> Vec<Matrix3<f64>> {
         let h = self.dt;
         let weight = [h / 6.0, h / 3.0, h / 3.0, h / 6.0];
         // dL/d(S_i) passed on to stage i-1's k (S_i = S + scale_i k_{i-1}).
         let scale = [0.0, 0.5 * h, 0.5 * h, h];
         let out = adj.clone();
         let mut carried: Option<OdeState> = None;
+        let mut grad_fc: Vec<Matrix3<f64>> = Vec::new();
         for i in (0..4).rev() {
             let mut gk = out.clone();
             // gk_i = w_i gS' + scale_{i+1} gS_{i+1}
@@ -117,11 +114,32 @@ impl OdeSystem {
                 gk.axpy(scale[i + 1], &g_next);
             }
             let values = self.control_values(params, step, STAGE_THETA[i]);
-            let g = self.rhs_reverse(&stages[i], &values, &gk);
+            let at = At {
+                values: &values,
+                fc,
+                step,
+                theta: STAGE_THETA[i],
+            };
+            let g = self.rhs_reverse(&stages[i], &at, &gk);
             self.controls
                 .values_reverse(step, STAGE_THETA[i], self.dt, &g.controls, grad_params);
+            for (acc, e) in grad_effects.iter_mut().zip(&g.effect_params) {
+                for (a, b) in acc.iter_mut().zip(e) {
+                    *a += b;
+                }
+            }
+            if fc.is_some() {
+                if grad_fc.is_empty() {
+                    grad_fc = g.fc;
+                } else {
+                    for (a, b) in grad_fc.iter_mut().zip(&g.fc) {
+                        *a += b;
+                    }
+                }
+            }
             adj.axpy(1.0, &g.state);
             carried = Some(g.state);
         }
+        grad_fc
     }
 }

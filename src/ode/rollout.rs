@@ -17,6 +17,8 @@ use rayon::prelude::*;
 pub struct RunGradient {
     pub initial: OdeState,
     pub params: ControlParams,
+    /// dL/d(effect parameters), in model order.
+    pub effect_params: Vec<Vec<f64>>,
 }
 
 impl OdeSystem {
@@ -41,7 +43,7 @@ impl OdeSystem {
         let mut energy = Vec::with_capacity(n_steps);
         let taped = tape.is_some();
         for k in first_step..first_step + n_steps {
-            let stages = self.rk4_step(s, params, k, taped)?;
+            let stages = self.rk4_step(s, params, None, k, taped)?;
             if let (Some(t), Some(st)) = (tape.as_deref_mut(), stages) {
                 t.steps.push(st);
             }
@@ -78,6 +80,7 @@ impl OdeSystem {
         let n = last.len();
         let mut adj = grad_last.cloned().unwrap_or_else(|| OdeState::zeros(n));
         let mut grad_params = self.controls.zero_params();
+        let mut grad_effects = self.zero_effect_params();
         // The energy terms' adjoints do not depend on the sweep: evaluate them in parallel first.
         let after = |i: usize| {
             if i + 1 < tape.steps.len() {
@@ -91,7 +94,7 @@ impl OdeSystem {
             .map(|i| {
                 let k = tape.first_step + i;
                 let values = self.control_values(params, k, 1.0);
-                self.motion_energy_reverse(after(i), &values, weight)
+                self.motion_energy_reverse(after(i), &values, k, weight)
             })
             .collect();
         for (i, g) in energy_grads.iter().enumerate().rev() {
@@ -99,11 +102,20 @@ impl OdeSystem {
             adj.axpy(1.0, &g.state);
             self.controls
                 .values_reverse(k, 1.0, self.dt, &g.controls, &mut grad_params);
-            self.rk4_step_reverse(&tape.steps[i], params, k, &mut adj, &mut grad_params);
+            self.rk4_step_reverse(
+                &tape.steps[i],
+                params,
+                None,
+                k,
+                &mut adj,
+                &mut grad_params,
+                &mut grad_effects,
+            );
         }
         RunGradient {
             initial: adj,
             params: grad_params,
+            effect_params: grad_effects,
         }
     }
 }
