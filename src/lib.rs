@@ -6,7 +6,10 @@
 //!   and reverse side by side;
 //! - [`ode`]: the same physics as an ODE `dS/dt = f(S, u, t)` with RK4 and its reverse, and
 //!   controls (body forces, prescribed clamp position or velocity);
-//! - [`effects`]: optional physics a scene switches on (drag, gravity, walls);
+//! - [`integrator`]: the [`integrator::Integrator`] trait both integrators implement, and
+//!   [`integrator::Engine`], the one a run chose;
+//! - [`effects`]: optional physics a scene switches on (drag, gravity, walls), run by both
+//!   integrators;
 //! - [`scene`]: the serde scene description that builds a simulator;
 //! - [`loss`]: nodal mass losses;
 //! - [`geometry`]: meshes in (OBJ/PLY, validation, welding, winding-number voxelization,
@@ -24,6 +27,7 @@ pub mod bench;
 pub mod control;
 pub mod effects;
 pub mod geometry;
+pub mod integrator;
 pub mod io;
 pub mod loss;
 pub mod material;

@@ -6,6 +6,7 @@ mod common;
 
 use common::*;
 use morph::effects::WallMode;
+use morph::integrator::{Engine, Integrator, IntegratorKind};
 use morph::loss::MassLossKind;
 use morph::mpm::{KernelKind, State, Tape};
 use morph::scene::EffectConfig;
@@ -64,29 +65,53 @@ fn check_scene(
     h: f64,
     setup: impl Fn(&mut State),
 ) {
-    let kernel = scene.kernel;
+    check_scene_on(scene, IntegratorKind::Euler, kind, steps, h, setup);
+}
+
+/// [`check_scene`] with the integrator `integrator`.
+fn check_scene_on(
+    scene: morph::scene::SceneConfig,
+    integrator: IntegratorKind,
+    kind: MassLossKind,
+    steps: usize,
+    h: f64,
+    setup: impl Fn(&mut State),
+) {
+    let (engine, init) = ball_engine(&scene, 3.2, integrator);
+    morph::with_integrator!(&engine, sim => check_rollout(sim, scene.kernel, init, kind, steps, h, setup));
+}
+
+fn check_rollout<I: Integrator>(
+    sim: &I,
+    kernel: KernelKind,
+    mut init: State,
+    kind: MassLossKind,
+    steps: usize,
+    h: f64,
+    setup: impl Fn(&mut State),
+) {
     let fd = |f: &dyn Fn(f64) -> f64| fd_step(f, h);
-    let (sim, mut init) = ball(&scene, 3.2);
+    let model = sim.model();
     let mut rng = Lcg(42 + kernel as u64 * 7 + kind as u64);
     deform(&mut init, &mut rng);
     setup(&mut init);
     let n = init.len();
     let ctrl = controls(n, steps, STRIDE, 0.05, &mut rng);
-    let loss = shifted_target(&sim, &init, Vector3::new(1.3, -0.7, 0.4), kind);
+    let loss = shifted_target(model, &init, Vector3::new(1.3, -0.7, 0.4), kind);
 
-    let mut tape = Tape::default();
-    let (l0, last) = rollout_loss(&sim, &init, &ctrl, steps, &loss, Some(&mut tape));
+    let mut tape = I::Tape::default();
+    let (l0, last) = rollout_loss(sim, &init, &ctrl, steps, &loss, Some(&mut tape));
     assert!(l0 > 0.0 && l0.is_finite());
     // The body must really deform: F changes noticeably over the rollout.
     let max_df = (0..n)
         .map(|p| (last.f[p] - init.f[p]).norm())
         .fold(0.0, f64::max);
     assert!(max_df > 0.05, "body barely deforms: max |dF| = {max_df}");
-    let grads = sim.backward(&tape, &ctrl, loss_seed(&sim, &last, &loss));
+    let grads = sim.backward(&tape, &ctrl, loss_seed(model, &last, &loss));
 
     let label = format!("{kernel:?}/{kind:?}");
     let eval = |init: &State, ctrl: &[Option<Vec<Matrix3<f64>>>]| {
-        rollout_loss(&sim, init, ctrl, steps, &loss, None).0
+        rollout_loss(sim, init, ctrl, steps, &loss, None).0
     };
 
     for trial in 0..2 {
@@ -387,6 +412,10 @@ impl Pulse {
     fn w(step: usize) -> f64 {
         0.1 * ((step % 5) as f64 - 2.0)
     }
+    /// A smooth function of time in steps (the ODE form reads fractional times).
+    fn wt(t: f64) -> f64 {
+        0.2 * (1.3 * t).sin()
+    }
 }
 
 impl morph::effects::Effect for Pulse {
@@ -423,12 +452,55 @@ impl morph::effects::Effect for Pulse {
             }
         }
     }
+    // The ODE form: the node's velocity and acceleration scaled by a factor that follows the
+    // time (so the four RK4 stages of one step see different values).
+    fn acts_on_rates(&self) -> bool {
+        true
+    }
+    fn apply_rate(
+        &self,
+        ctx: &morph::effects::GridContext,
+        _node: usize,
+        v: &mut Vector3<f64>,
+        a: &mut Vector3<f64>,
+    ) {
+        let factor = 1.0 + self.k * Self::wt(ctx.time / ctx.dt);
+        *v *= factor;
+        *a *= factor;
+    }
+    fn reverse_rate(
+        &self,
+        ctx: &morph::effects::GridContext,
+        _node: usize,
+        v_in: &Vector3<f64>,
+        a_in: &Vector3<f64>,
+        grad_v: &mut Vector3<f64>,
+        grad_a: &mut Vector3<f64>,
+        grad_params: &mut [f64],
+    ) {
+        let w = Self::wt(ctx.time / ctx.dt);
+        let factor = 1.0 + self.k * w;
+        grad_params[0] += w * (v_in.dot(grad_v) + a_in.dot(grad_a));
+        *grad_v *= factor;
+        *grad_a *= factor;
+    }
 }
 
 /// A time-dependent effect, followed by slip walls, in a rollout that starts at global step
 /// 7: dL/dk and dL/dx0 against central differences.
 #[test]
 fn time_dependent_effect_gradient_matches_fd() {
+    time_dependent_effect_case(IntegratorKind::Euler);
+}
+
+#[test]
+fn rk4_time_dependent_effect_gradient_matches_fd() {
+    time_dependent_effect_case(IntegratorKind::Rk4);
+}
+
+/// A time-dependent effect, followed by slip walls, in a rollout that starts at global step
+/// 7: dL/dk and dL/dx0 against central differences, with integrator `kind`.
+fn time_dependent_effect_case(kind: IntegratorKind) {
     const FIRST: usize = 7;
     let scene = small_scene(
         KernelKind::Cubic,
@@ -437,29 +509,48 @@ fn time_dependent_effect_gradient_matches_fd() {
             thickness: 3,
         }],
     );
+    let (x, vol) = morph::scene::ball_particles(&scene.grid, Vector3::new(0.1, -0.2, 0.05), 3.0, 2);
     let build = |k: f64| {
-        let (mut sim, init) = ball(&scene, 3.0);
-        sim.effects.insert(0, Box::new(Pulse { k }));
-        (sim, init)
+        let mut model = scene.model(vol.clone()).unwrap();
+        model.effects.insert(0, Box::new(Pulse { k }));
+        Engine::new(model, kind).unwrap()
     };
     let k0 = 0.3;
-    let (sim, mut init) = build(k0);
+    let engine = build(k0);
+    let mut init = State::at_rest(x.clone());
     let mut rng = Lcg(11);
     deform(&mut init, &mut rng);
     let ctrl = controls(init.len(), STEPS, 4, 0.05, &mut rng);
-    let loss = shifted_target(&sim, &init, Vector3::new(0.5, 0.0, -0.5), MassLossKind::Log);
-    let run = |sim: &morph::mpm::Simulator, init: &State, tape: Option<&mut Tape>| {
+    let loss = shifted_target(
+        engine.model(),
+        &init,
+        Vector3::new(0.5, 0.0, -0.5),
+        MassLossKind::Log,
+    );
+    fn run<I: Integrator>(
+        sim: &I,
+        init: &State,
+        ctrl: &[Option<Vec<Matrix3<f64>>>],
+        loss: &morph::loss::MassLoss,
+        tape: Option<&mut I::Tape>,
+    ) -> (f64, State) {
         let mut s = init.clone();
-        sim.forward(&mut s, &ctrl, FIRST, STEPS, tape).unwrap();
-        let m = sim.mass_grid(&s.x).unwrap();
+        sim.forward(&mut s, ctrl, FIRST, STEPS, tape).unwrap();
+        let m = sim.model().mass_grid(&s.x).unwrap();
         (loss.value_and_grad(&m).0, s)
-    };
-    let mut tape = Tape::default();
-    let (_, last) = run(&sim, &init, Some(&mut tape));
-    let grads = sim.backward(&tape, &ctrl, loss_seed(&sim, &last, &loss));
-    let fd_k = fd(|e| run(&build(k0 + e).0, &init, None).0);
+    }
+    let loss_of = |engine: &Engine, init: &State| morph::with_integrator!(engine, sim => run(sim, init, &ctrl, &loss, None).0);
+    let grads = morph::with_integrator!(&engine, sim => {
+        let mut tape = Default::default();
+        let (_, last) = run(sim, &init, &ctrl, &loss, Some(&mut tape));
+        sim.backward(&tape, &ctrl, loss_seed(sim.model(), &last, &loss))
+    });
+    let fd_k = fd(|e| loss_of(&build(k0 + e), &init));
     let an_k = grads.effect_params[0][0];
-    assert!(rel_err(an_k, fd_k) < TOL, "dL/dk: {an_k:e} vs {fd_k:e}");
+    assert!(
+        rel_err(an_k, fd_k) < TOL,
+        "{kind:?} dL/dk: {an_k:e} vs {fd_k:e}"
+    );
     let dir: Vec<Vector3<f64>> = (0..init.len()).map(|_| rng.vec3()).collect();
     let an: f64 = grads
         .initial
@@ -474,10 +565,43 @@ fn time_dependent_effect_gradient_matches_fd() {
             for (x, d) in s.x.iter_mut().zip(&dir) {
                 *x += e * d;
             }
-            run(&sim, &s, None).0
+            loss_of(&engine, &s)
         },
         H / 5.0,
     );
-    eprintln!("time-dependent effect: dL/dk {an_k:e} vs {fd_k:e}, dL/dx0 {an:e} vs {fd_x:e}");
-    assert!(rel_err(an, fd_x) < TOL, "dL/dx0: {an:e} vs {fd_x:e}");
+    eprintln!(
+        "{kind:?} time-dependent effect: dL/dk {an_k:e} vs {fd_k:e}, dL/dx0 {an:e} vs {fd_x:e}"
+    );
+    assert!(
+        rel_err(an, fd_x) < TOL,
+        "{kind:?} dL/dx0: {an:e} vs {fd_x:e}"
+    );
+}
+
+/// RK4 on the ODE form through the same checks as the Euler step: dL/dFc at every control
+/// layer and dL/d(x0, v0, F0), with drag, gravity and slip walls (every effect has a rate
+/// form).
+#[test]
+fn rk4_reverse_pass_matches_fd_with_effects() {
+    let scene = small_scene(
+        KernelKind::Cubic,
+        vec![
+            EffectConfig::Drag { coefficient: 0.5 },
+            EffectConfig::Gravity {
+                acceleration: [0.0, -9.8, 0.0],
+            },
+            EffectConfig::Walls {
+                mode: WallMode::Slip,
+                thickness: 3,
+            },
+        ],
+    );
+    check_scene_on(
+        scene,
+        IntegratorKind::Rk4,
+        MassLossKind::Log,
+        STEPS,
+        H,
+        |_| {},
+    );
 }

@@ -5,6 +5,7 @@
 use super::{choice, defaults, fail, help, name};
 use clap::Args;
 use morph::geometry::TargetFit;
+use morph::integrator::IntegratorKind;
 use morph::loss::MassLossKind;
 use morph::material::MaterialModel;
 use morph::morph::segment::Optimizer;
@@ -136,6 +137,8 @@ pub struct MorphArgs {
     jitter: Option<f64>,
     #[arg(long, value_parser = choice(&MaterialModel::ALL), help = format!("Constitutive model of the body [default {}]", name(&defaults().material.model)))]
     material: Option<MaterialModel>,
+    #[arg(long, value_parser = choice(&IntegratorKind::ALL), help = format!("Time integrator: euler (one transfer round trip a step) or rk4 (four, less numerical damping) [default {}]", name(&defaults().integrator)))]
+    integrator: Option<IntegratorKind>,
     /// Seed for the jitter.
     #[arg(long, default_value_t = defaults().seed)]
     seed: u64,
@@ -184,6 +187,9 @@ impl MorphArgs {
         }
         if let Some(m) = self.material {
             s.material.model = m;
+        }
+        if let Some(i) = self.integrator {
+            s.integrator = i;
         }
         s.seed = self.seed;
         s.loss = self.loss;

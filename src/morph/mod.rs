@@ -13,8 +13,10 @@ pub mod segment;
 pub mod settings;
 
 use crate::geometry::{Jitter, LoadedMesh, MeshError, MorphGeometry, PlacementOptions};
+use crate::integrator::{Engine, Integrator, RunTape};
 use crate::loss::MassLoss;
-use crate::mpm::{SimError, Simulator, State};
+use crate::mpm::model::Model;
+use crate::mpm::{SimError, State};
 use crate::scene::{EffectConfig, SceneConfig};
 use nalgebra::{Matrix3, Vector3};
 use segment::{Layers, Segment};
@@ -92,11 +94,11 @@ pub struct SegmentRecord {
     pub seconds: f64,
 }
 
-/// Everything set up for a morph: particles, simulator, loss.
+/// Everything set up for a morph: particles, the model and its integrator, loss.
 pub struct Prepared {
     pub settings: MorphSettings,
     pub geometry: MorphGeometry,
-    pub sim: Simulator,
+    pub engine: Engine,
     pub loss: MassLoss,
     pub initial: State,
 }
@@ -185,17 +187,22 @@ impl Prepared {
             let (limit, _) = scene.stable_dt();
             scene.dt = scene.dt.min(0.5 * limit);
         }
-        let sim = scene.build(volumes)?;
+        let engine = Engine::new(scene.model(volumes)?, settings.integrator)?;
         let target = geometry.target_masses(settings.kernel, settings.material.density)?;
         let loss = MassLoss::new(settings.loss, target);
         let initial = State::at_rest(geometry.source.positions.clone());
         Ok(Prepared {
             settings: settings.clone(),
             geometry,
-            sim,
+            engine,
             loss,
             initial,
         })
+    }
+
+    /// The model (grid, time step, particles...) whichever integrator runs it.
+    pub fn model(&self) -> &Model {
+        self.engine.model()
     }
 
     /// A state in world units (the source mesh's coordinates): positions, velocities (world
@@ -216,7 +223,7 @@ impl Prepared {
     }
 
     pub fn loss_of(&self, state: &State) -> Result<f64, SimError> {
-        let mass = self.sim.mass_grid(&state.x)?;
+        let mass = self.model().mass_grid(&state.x)?;
         Ok(self.loss.value_and_grad(&mass).0)
     }
 }
@@ -294,9 +301,9 @@ pub fn run(
     observer.event(&MorphEvent::Setup {
         particles: prep.initial.len(),
         target_particles: prep.geometry.target.positions.len(),
-        grid_cells: prep.sim.grid.cells,
-        dx: prep.sim.grid.dx,
-        dt: prep.sim.dt,
+        grid_cells: prep.model().grid.cells,
+        dx: prep.model().grid.dx,
+        dt: prep.model().dt,
         segments: s.segments,
         passes: s.passes,
         iterations: s.optimizer.iterations,
@@ -326,6 +333,21 @@ pub fn run(
         progress.pass += 1;
         progress.segments_done = 0;
     }
+    crate::with_integrator!(&prep.engine, sim => {
+        chain(prep, sim, progress, initial_loss, clock, observer)
+    })
+}
+
+/// The passes over the chain of segments, with the integrator the settings chose.
+fn chain<I: Integrator>(
+    prep: &Prepared,
+    sim: &I,
+    mut progress: RunProgress,
+    initial_loss: f64,
+    clock: Instant,
+    observer: &mut dyn Observer,
+) -> Result<MorphResult, MorphError> {
+    let s = &prep.settings;
     let offset_s = progress.elapsed_s;
     let seconds = |clock: &Instant| offset_s + clock.elapsed().as_secs_f64();
     let (first_pass, first_segment) = (progress.pass, progress.segments_done);
@@ -344,7 +366,7 @@ pub fn run(
         for k in from..s.segments {
             let seg_clock = Instant::now();
             let segment = Segment {
-                sim: &prep.sim,
+                sim,
                 loss: &prep.loss,
                 start: &progress.state,
                 first_step: k * s.steps_per_segment,
@@ -403,18 +425,13 @@ pub fn run(
                 for local in 1..=s.steps_per_segment {
                     let global = k * s.steps_per_segment + local;
                     if global.is_multiple_of(s.frame_every) {
-                        let st = if local < s.steps_per_segment {
-                            &tape.steps[local].pre
-                        } else {
-                            &tape.last
-                        };
-                        observer.frame(progress.frames, global, st)?;
+                        observer.frame(progress.frames, global, &tape.state_at(local))?;
                         progress.frames += 1;
                     }
                 }
             }
             progress.controls[k] = result.layers;
-            progress.state = result.tape.last;
+            progress.state = result.tape.last().clone();
             progress.segments_done = k + 1;
             progress.elapsed_s = seconds(&clock);
             observer.segment_done(&progress, k)?;

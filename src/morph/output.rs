@@ -472,7 +472,7 @@ fn write_run(
         std::fs::create_dir_all(&d).map_err(|e| out_err("folder", &d, e))?;
     }
     let to_world = prep.geometry.placement.sim_to_world();
-    let spacing = prep.sim.grid.dx / settings.particles_per_cell as f64;
+    let spacing = prep.model().grid.dx / settings.particles_per_cell as f64;
     let n_frames = prep.frame_count();
     let resumed_from = resume
         .as_ref()
@@ -502,8 +502,8 @@ fn write_run(
 
     // Final nodal mass grid, on world coordinates.
     let s = to_world.scale;
-    let mass = prep.sim.mass_grid(&result.final_state.x)?;
-    let g = &prep.sim.grid;
+    let mass = prep.model().mass_grid(&result.final_state.x)?;
+    let g = &prep.model().grid;
     let origin = to_world.apply(&g.origin_vec());
     let grid = MassGrid::new(g.nodes(), origin.into(), g.dx * s, mass);
     let mass_path = dir.join("final_mass.mgrid");
@@ -535,7 +535,7 @@ fn write_run(
             FrameEntry {
                 index: i + 1,
                 step,
-                time: step as f64 * prep.sim.dt,
+                time: step as f64 * prep.model().dt,
                 points: format!("frames/{name}.ply"),
                 mesh: settings.surfaces.then(|| format!("meshes/{name}.obj")),
             }
@@ -551,7 +551,7 @@ fn write_run(
         settings: settings.clone(),
         grid_cells: g.cells,
         dx_sim: g.dx,
-        dt: prep.sim.dt,
+        dt: prep.model().dt,
         sim_to_world: to_world,
         target: TargetPlacement {
             scale: t.scale,

@@ -11,8 +11,9 @@
 //!   re-running an identical forward pass, and a failed line search leaves the last accepted
 //!   rollout in place (the reference left the rejected trial's states).
 
+use crate::integrator::{Integrator, RunTape};
 use crate::loss::MassLoss;
-use crate::mpm::{SimError, Simulator, State, Tape};
+use crate::mpm::{SimError, State};
 use crate::optim::Adam;
 use nalgebra::Matrix3;
 use serde::{Deserialize, Serialize};
@@ -61,19 +62,19 @@ pub struct OptimizerSettings {
 pub type Layers = Vec<Vec<Matrix3<f64>>>;
 
 /// What a segment's optimization returns: the best controls found and their rollout.
-pub struct SegmentResult {
+pub struct SegmentResult<T> {
     pub layers: Layers,
     pub loss: f64,
     pub initial_loss: f64,
     /// The accepted rollout: states at the start of every step, and the last state.
-    pub tape: Tape,
+    pub tape: T,
     /// Evaluations (forward passes) spent.
     pub evaluations: usize,
 }
 
-/// A segment to optimize.
-pub struct Segment<'a> {
-    pub sim: &'a Simulator,
+/// A segment to optimize, with either integrator.
+pub struct Segment<'a, I: Integrator> {
+    pub sim: &'a I,
     pub loss: &'a MassLoss,
     pub start: &'a State,
     /// Global index of the segment's first step (for error messages).
@@ -86,12 +87,12 @@ pub struct Segment<'a> {
 }
 
 /// One evaluated control set.
-struct Rollout {
+struct Rollout<T> {
     loss: f64,
-    tape: Tape,
+    tape: T,
 }
 
-impl Segment<'_> {
+impl<I: Integrator> Segment<'_, I> {
     pub fn num_layers(&self) -> usize {
         self.steps.div_ceil(self.stride)
     }
@@ -113,9 +114,9 @@ impl Segment<'_> {
         start: &State,
         layers: &[Vec<Matrix3<f64>>],
         from: usize,
-    ) -> Result<Rollout, SimError> {
+    ) -> Result<Rollout<I::Tape>, SimError> {
         let mut state = start.clone();
-        let mut tape = Tape::default();
+        let mut tape = I::Tape::default();
         let schedule = self.schedule(layers, from);
         self.sim.forward(
             &mut state,
@@ -124,26 +125,28 @@ impl Segment<'_> {
             self.steps - from * self.stride,
             Some(&mut tape),
         )?;
-        let mass = self.sim.mass_grid(&state.x)?;
+        let model = self.sim.model();
+        let mass = model.mass_grid(&state.x)?;
         let (loss, _) = self.loss.value_and_grad(&mass);
-        let loss = loss + self.arrival_weight * state.kinetic_energy(&self.sim.mass);
+        let loss = loss + self.arrival_weight * state.kinetic_energy(&model.mass);
         Ok(Rollout { loss, tape })
     }
 
     /// dL/dFc for the layers from `from` on, through a taped rollout that started there.
     fn gradient(
         &self,
-        rollout: &Rollout,
+        rollout: &Rollout<I::Tape>,
         layers: &[Vec<Matrix3<f64>>],
         from: usize,
     ) -> Result<Layers, SimError> {
-        let last = &rollout.tape.last;
-        let mass = self.sim.mass_grid(&last.x)?;
+        let model = self.sim.model();
+        let last = rollout.tape.last();
+        let mass = model.mass_grid(&last.x)?;
         let (_, grad_m) = self.loss.value_and_grad(&mass);
         let mut seed = State::zeros(last.len());
-        seed.x = self.sim.mass_grid_reverse(&last.x, &grad_m);
+        seed.x = model.mass_grid_reverse(&last.x, &grad_m);
         for (p, g) in seed.v.iter_mut().enumerate() {
-            *g = self.arrival_weight * self.sim.mass[p] * last.v[p];
+            *g = self.arrival_weight * model.mass[p] * last.v[p];
         }
         let schedule = self.schedule(layers, from);
         let grads = self.sim.backward(&rollout.tape, &schedule, seed);
@@ -174,7 +177,7 @@ impl Segment<'_> {
         initial: Layers,
         settings: &OptimizerSettings,
         mut on_iteration: impl FnMut(usize, f64) -> bool,
-    ) -> Result<Option<SegmentResult>, SimError> {
+    ) -> Result<Option<SegmentResult<I::Tape>>, SimError> {
         assert_eq!(initial.len(), self.num_layers());
         match settings.kind {
             Optimizer::Adam => self.adam(initial, settings, &mut on_iteration),
@@ -187,7 +190,7 @@ impl Segment<'_> {
         mut layers: Layers,
         s: &OptimizerSettings,
         on_iteration: &mut dyn FnMut(usize, f64) -> bool,
-    ) -> Result<Option<SegmentResult>, SimError> {
+    ) -> Result<Option<SegmentResult<I::Tape>>, SimError> {
         const BETA1: f64 = 0.9;
         const BETA2: f64 = 0.999;
         const EPS: f64 = 1e-12;
@@ -197,7 +200,7 @@ impl Segment<'_> {
         let mut current = self.rollout(self.start, &layers, 0)?;
         let initial_loss = current.loss;
         let mut evaluations = 1;
-        let mut best: Option<(Layers, Rollout)> = None;
+        let mut best: Option<(Layers, Rollout<I::Tape>)> = None;
         let mut lr = s.learning_rate;
         let mut iteration = 0;
         'outer: loop {
@@ -255,7 +258,7 @@ impl Segment<'_> {
         mut layers: Layers,
         s: &OptimizerSettings,
         on_iteration: &mut dyn FnMut(usize, f64) -> bool,
-    ) -> Result<Option<SegmentResult>, SimError> {
+    ) -> Result<Option<SegmentResult<I::Tape>>, SimError> {
         // The accepted rollout of the whole segment, and the state at each layer's start.
         let mut accepted = self.rollout(self.start, &layers, 0)?;
         let initial_loss = accepted.loss;
@@ -272,14 +275,10 @@ impl Segment<'_> {
                 // Borrow the accepted rollout's tail as a tape of its own (moved, not copied).
                 let partial = Rollout {
                     loss: accepted.loss,
-                    tape: Tape {
-                        steps: accepted.tape.steps.split_off(from_step),
-                        last: std::mem::take(&mut accepted.tape.last),
-                    },
+                    tape: accepted.tape.split_off(from_step),
                 };
                 let grads = self.gradient(&partial, &layers, layer);
-                accepted.tape.steps.extend(partial.tape.steps);
-                accepted.tape.last = partial.tape.last;
+                accepted.tape.append(partial.tape);
                 let grads = grads?;
                 let g = &grads[0];
                 let norm = g.iter().map(|m| m.norm_squared()).sum::<f64>().sqrt();
@@ -287,7 +286,7 @@ impl Segment<'_> {
                 if norm <= s.gd_tol * g0 || norm == 0.0 || !norm.is_finite() {
                     break;
                 }
-                let start = accepted.tape.steps[from_step].pre.clone();
+                let start = accepted.tape.state_at(from_step).into_owned();
                 let mut alpha = s.learning_rate;
                 let mut improved = None;
                 for _ in 0..s.line_search_tries.max(1) {
@@ -310,9 +309,8 @@ impl Segment<'_> {
                     Some((trial, r)) => {
                         layers = trial;
                         // Splice the trial's steps after the unchanged prefix: no re-run.
-                        accepted.tape.steps.truncate(from_step);
-                        accepted.tape.steps.extend(r.tape.steps);
-                        accepted.tape.last = r.tape.last;
+                        accepted.tape.split_off(from_step);
+                        accepted.tape.append(r.tape);
                         accepted.loss = r.loss;
                         if !on_iteration(iteration, r.loss) {
                             return Ok(None);

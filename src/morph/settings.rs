@@ -2,6 +2,7 @@
 
 use super::segment::{Optimizer, OptimizerSettings};
 use crate::geometry::TargetFit;
+use crate::integrator::IntegratorKind;
 use crate::loss::MassLossKind;
 use crate::mpm::KernelKind;
 use crate::scene::MaterialConfig;
@@ -60,6 +61,9 @@ pub struct MorphSettings {
     /// Weight of the kinetic energy at each segment's end in the objective.
     pub arrival_weight: f64,
     pub kernel: KernelKind,
+    /// The time integrator (Euler, or RK4 at four evaluations a step).
+    #[serde(default)]
+    pub integrator: IntegratorKind,
     pub material: MaterialConfig,
     /// Velocity damping per second (reference 0.5).
     pub drag: f64,
@@ -100,6 +104,7 @@ impl MorphSettings {
             loss: MassLossKind::Log,
             arrival_weight: 0.001,
             kernel: KernelKind::Cubic,
+            integrator: IntegratorKind::Euler,
             material: MaterialConfig {
                 model: Default::default(),
                 mu: 38888.9,

@@ -10,8 +10,12 @@
 use super::controls::ControlParams;
 use super::rhs::{At, OdeSystem};
 use super::state::OdeState;
+use crate::integrator::{Integrator, RunTape, StepControls};
 use crate::mpm::SimError;
+use crate::mpm::model::Model;
+use crate::mpm::{Gradients, State, StateGrad};
 use nalgebra::Matrix3;
+use std::borrow::Cow;
 
 /// Stage fractions of the step at which RK4 evaluates `f`.
 pub const STAGE_THETA: [f64; 4] = [0.0, 0.5, 0.5, 1.0];
@@ -141,5 +145,135 @@ impl OdeSystem {
             carried = Some(g.state);
         }
         grad_fc
+    }
+}
+
+/// A taped RK4 run for the [`Integrator`] interface: the stage inputs of every step and the
+/// final state (as [`State`], with no APIC matrix: `c` is zero).
+#[derive(Clone, Debug, Default)]
+pub struct Rk4RunTape {
+    /// Global index of the first step (time-dependent effects read it in reverse too).
+    pub first_step: usize,
+    pub steps: Vec<StepStages>,
+    pub last: State,
+}
+
+fn to_ode(s: &State) -> OdeState {
+    OdeState {
+        x: s.x.clone(),
+        v: s.v.clone(),
+        f: s.f.clone(),
+    }
+}
+
+fn from_ode(s: OdeState) -> State {
+    let n = s.len();
+    State {
+        x: s.x,
+        v: s.v,
+        c: vec![Matrix3::zeros(); n],
+        f: s.f,
+    }
+}
+
+impl Integrator for OdeSystem {
+    type Tape = Rk4RunTape;
+
+    fn model(&self) -> &Model {
+        &self.model
+    }
+
+    fn forward(
+        &self,
+        state: &mut State,
+        controls: &StepControls,
+        first_step: usize,
+        n_steps: usize,
+        mut tape: Option<&mut Rk4RunTape>,
+    ) -> Result<(), SimError> {
+        let params = self.controls.zero_params();
+        let mut s = to_ode(state);
+        self.check_state(&s, first_step)?;
+        if let Some(t) = tape.as_deref_mut() {
+            t.first_step = first_step;
+            t.steps.clear();
+        }
+        for k in 0..n_steps {
+            let fc = controls.get(k).and_then(|c| c.as_deref());
+            self.check_control(fc, first_step + k)?;
+            let stages = self.rk4_step(&mut s, &params, fc, first_step + k, tape.is_some())?;
+            if let (Some(t), Some(st)) = (tape.as_deref_mut(), stages) {
+                t.steps.push(st);
+            }
+        }
+        *state = from_ode(s);
+        if let Some(t) = tape {
+            t.last = state.clone();
+        }
+        Ok(())
+    }
+
+    fn backward(
+        &self,
+        tape: &Rk4RunTape,
+        controls: &StepControls,
+        grad_last: StateGrad,
+    ) -> Gradients {
+        let params = self.controls.zero_params();
+        let mut grad_params = self.controls.zero_params();
+        let mut effect_params = self.zero_effect_params();
+        let mut adj = to_ode(&grad_last);
+        let first_step = tape.first_step;
+        let mut grad_controls = vec![None; tape.steps.len()];
+        for k in (0..tape.steps.len()).rev() {
+            let fc = controls.get(k).and_then(|c| c.as_deref());
+            let g = self.rk4_step_reverse(
+                &tape.steps[k],
+                &params,
+                fc,
+                first_step + k,
+                &mut adj,
+                &mut grad_params,
+                &mut effect_params,
+            );
+            if fc.is_some() {
+                grad_controls[k] = Some(g);
+            }
+        }
+        Gradients {
+            initial: from_ode(adj),
+            controls: grad_controls,
+            effect_params,
+        }
+    }
+}
+
+impl RunTape for Rk4RunTape {
+    fn len(&self) -> usize {
+        self.steps.len()
+    }
+
+    fn state_at(&self, k: usize) -> Cow<'_, State> {
+        match self.steps.get(k) {
+            Some(st) => Cow::Owned(from_ode(st[0].clone())),
+            None => Cow::Borrowed(&self.last),
+        }
+    }
+
+    fn last(&self) -> &State {
+        &self.last
+    }
+
+    fn split_off(&mut self, k: usize) -> Self {
+        Rk4RunTape {
+            first_step: self.first_step + k,
+            steps: self.steps.split_off(k),
+            last: std::mem::take(&mut self.last),
+        }
+    }
+
+    fn append(&mut self, tail: Self) {
+        self.steps.extend(tail.steps);
+        self.last = tail.last;
     }
 }

@@ -3,6 +3,7 @@
 
 use crate::effects::{Drag, Effect, Gravity, WallMode, Walls};
 use crate::material::{ConstitutiveModel, MaterialModel};
+use crate::mpm::model::Model;
 use crate::mpm::{GridSpec, KernelKind, SimError, Simulator};
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
@@ -100,8 +101,14 @@ impl SceneConfig {
         crate::material::stable_dt(m.build().wave_modulus(), m.density, self.grid.dx)
     }
 
-    /// Builds the simulator for particles of the given rest volumes (mass = density x volume).
+    /// Builds the Euler simulator for particles of the given rest volumes.
     pub fn build(&self, volumes: Vec<f64>) -> Result<Simulator, SimError> {
+        self.model(volumes).map(Simulator::from)
+    }
+
+    /// Builds the model for particles of the given rest volumes (mass = density x volume), in
+    /// one place for both integrators.
+    pub fn model(&self, volumes: Vec<f64>) -> Result<Model, SimError> {
         let m = &self.material;
         for (name, val) in [("mu", m.mu), ("lambda", m.lambda), ("density", m.density)] {
             if !val.is_finite() || val < 0.0 || (name == "density" && val == 0.0) {
@@ -116,7 +123,7 @@ impl SceneConfig {
             .map(EffectConfig::build)
             .collect::<Result<Vec<_>, _>>()?;
         let mass = volumes.iter().map(|v| v * m.density).collect();
-        Simulator::new(
+        Model::new(
             self.grid.clone(),
             self.dt,
             self.kernel,

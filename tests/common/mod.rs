@@ -1,8 +1,10 @@
 //! Shared scene builders for the integration tests.
 #![allow(dead_code)]
 
+use morph::integrator::{Engine, Integrator, IntegratorKind};
 use morph::loss::{MassLoss, MassLossKind};
-use morph::mpm::{GridSpec, KernelKind, Simulator, State, StateGrad, Tape};
+use morph::mpm::model::Model;
+use morph::mpm::{GridSpec, KernelKind, Simulator, State, StateGrad};
 use morph::scene::{EffectConfig, MaterialConfig, SceneConfig, ball_particles};
 use nalgebra::{Matrix3, Vector3};
 
@@ -73,24 +75,32 @@ pub fn controls(
         .collect()
 }
 
-/// Mass loss of the final state after `steps` steps (and the tape when asked).
-pub fn rollout_loss(
-    sim: &Simulator,
+/// Mass loss of the final state after `steps` steps (and the tape when asked), with either
+/// integrator.
+pub fn rollout_loss<I: Integrator>(
+    sim: &I,
     init: &State,
     ctrl: &[Option<Vec<Matrix3<f64>>>],
     steps: usize,
     loss: &MassLoss,
-    tape: Option<&mut Tape>,
+    tape: Option<&mut I::Tape>,
 ) -> (f64, State) {
     let mut s = init.clone();
     sim.forward(&mut s, ctrl, 0, steps, tape).expect("forward");
-    let m = sim.mass_grid(&s.x).expect("mass grid");
+    let m = sim.model().mass_grid(&s.x).expect("mass grid");
     (loss.value_and_grad(&m).0, s)
+}
+
+/// The ball of [`ball`] with the integrator `kind`.
+pub fn ball_engine(scene: &SceneConfig, radius: f64, kind: IntegratorKind) -> (Engine, State) {
+    let (x, vol) = ball_particles(&scene.grid, Vector3::new(0.1, -0.2, 0.05), radius, 2);
+    let engine = Engine::new(scene.model(vol).expect("valid scene"), kind).expect("engine");
+    (engine, State::at_rest(x))
 }
 
 /// Target masses: the initial body shifted by `shift`.
 pub fn shifted_target(
-    sim: &Simulator,
+    sim: &Model,
     init: &State,
     shift: Vector3<f64>,
     kind: MassLossKind,
@@ -100,7 +110,7 @@ pub fn shifted_target(
 }
 
 /// Seed dL/d(final state) for a mass loss.
-pub fn loss_seed(sim: &Simulator, last: &State, loss: &MassLoss) -> StateGrad {
+pub fn loss_seed(sim: &Model, last: &State, loss: &MassLoss) -> StateGrad {
     let m = sim.mass_grid(&last.x).unwrap();
     let (_, gm) = loss.value_and_grad(&m);
     let mut seed = StateGrad::zeros(last.len());
