@@ -5,7 +5,7 @@
 
 use crate::mpm::model::Model;
 use crate::mpm::{Gradients, SimError, Simulator, State, StateGrad};
-use crate::ode::OdeSystem;
+use crate::ode::{ControlParams, OdeSystem};
 use nalgebra::Matrix3;
 use serde::{Deserialize, Serialize};
 use std::borrow::Cow;
@@ -137,6 +137,109 @@ impl Integrator for Simulator {
     }
 }
 
+/// dL/d(inputs) of a controlled run: initial state, control knots, effect parameters.
+#[derive(Clone, Debug)]
+pub struct ControlGradient {
+    pub initial: StateGrad,
+    pub params: ControlParams,
+    pub effect_params: Vec<Vec<f64>>,
+}
+
+/// Runs driven by the model's boundary controls (body forces, prescribed velocities or
+/// positions, see [`crate::ode::controls`]) and the active-damping cost: the kinetic energy
+/// of the motion summed over the steps. What the rope's controllers need, with either
+/// integrator.
+pub trait Controlled: Integrator {
+    /// Runs `n_steps` steps from `state` (global steps `first_step..`) with the control knots
+    /// `params`, recording a tape when given one. Returns the kinetic energy of the motion
+    /// after each step; `on_step(k, state)` sees the state after global step `k`.
+    #[allow(clippy::too_many_arguments)]
+    fn run(
+        &self,
+        state: &mut State,
+        params: &ControlParams,
+        first_step: usize,
+        n_steps: usize,
+        tape: Option<&mut Self::Tape>,
+        on_step: &mut dyn FnMut(usize, &State),
+    ) -> Result<Vec<f64>, SimError>;
+
+    /// Gradient of `weight * sum_k KE(S_{k+1}) + <grad_last, S_last>` over a taped run.
+    fn kinetic_cost_gradient(
+        &self,
+        tape: &Self::Tape,
+        params: &ControlParams,
+        weight: f64,
+        grad_last: Option<&StateGrad>,
+    ) -> ControlGradient;
+
+    /// Kinetic energy of the particle velocities `1/2 sum m |v|^2` after global step `step`
+    /// (clamped particles at their prescribed velocity).
+    fn particle_energy(&self, state: &State, params: &ControlParams, step: usize) -> f64;
+}
+
+/// Kinetic energy `1/2 sum m |v|^2` of velocities `v`.
+fn kinetic(mass: &[f64], v: &[nalgebra::Vector3<f64>]) -> f64 {
+    v.iter()
+        .zip(mass)
+        .map(|(v, m)| 0.5 * m * v.norm_squared())
+        .sum()
+}
+
+/// The Euler step moves each particle with its state velocity (the grid's, or the prescribed
+/// one), so the motion's kinetic energy is that of the state's velocities.
+impl Controlled for Simulator {
+    fn run(
+        &self,
+        state: &mut State,
+        params: &ControlParams,
+        first_step: usize,
+        n_steps: usize,
+        tape: Option<&mut Self::Tape>,
+        on_step: &mut dyn FnMut(usize, &State),
+    ) -> Result<Vec<f64>, SimError> {
+        let mut energy = Vec::with_capacity(n_steps);
+        self.forward_driven(
+            state,
+            &[],
+            Some(params),
+            first_step,
+            n_steps,
+            tape,
+            |k, s| {
+                energy.push(kinetic(&self.mass, &s.v));
+                on_step(k, s);
+            },
+        )?;
+        Ok(energy)
+    }
+
+    fn kinetic_cost_gradient(
+        &self,
+        tape: &Self::Tape,
+        params: &ControlParams,
+        weight: f64,
+        grad_last: Option<&StateGrad>,
+    ) -> ControlGradient {
+        let n = tape.last.len();
+        let seed = grad_last.cloned().unwrap_or_else(|| StateGrad::zeros(n));
+        let (g, params) = self.backward_driven(tape, &[], Some(params), seed, |_, post, adj| {
+            for (p, a) in adj.v.iter_mut().enumerate() {
+                *a += (weight * self.mass[p]) * post.v[p];
+            }
+        });
+        ControlGradient {
+            initial: g.initial,
+            params,
+            effect_params: g.effect_params,
+        }
+    }
+
+    fn particle_energy(&self, state: &State, _: &ControlParams, _: usize) -> f64 {
+        kinetic(&self.mass, &state.v)
+    }
+}
+
 /// The integrator a run uses, chosen at run time.
 #[derive(Debug)]
 pub enum Engine {
@@ -145,13 +248,11 @@ pub enum Engine {
 }
 
 impl Engine {
-    /// `model` advanced by the integrator `kind` (RK4 without boundary controls).
+    /// `model` advanced by the integrator `kind`.
     pub fn new(model: Model, kind: IntegratorKind) -> Result<Engine, SimError> {
         Ok(match kind {
             IntegratorKind::Euler => Engine::Euler(Simulator::from(model)),
-            IntegratorKind::Rk4 => {
-                Engine::Rk4(OdeSystem::new(model, crate::ode::ControlPlan::none(1))?)
-            }
+            IntegratorKind::Rk4 => Engine::Rk4(OdeSystem::new(model)?),
         })
     }
 

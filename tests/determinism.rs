@@ -117,11 +117,19 @@ fn same_bits(kernel: KernelKind, (s1, g1): (State, Gradients), (s2, g2): (State,
     }
 }
 
-/// The ODE form's parallel path (2,048 particles or more): an RK4 run with controls and its
-/// reverse pass give the same bits on 1 and 2 threads.
+/// The rope (2,048 particles or more, the ODE form's parallel path) with its boundary
+/// controls and the kinetic-energy cost, under both integrators: a run and its reverse pass
+/// give the same bits on 1 and 2 threads.
 #[test]
 fn ode_parallel_path_is_bitwise_identical_across_thread_counts() {
+    for kind in IntegratorKind::ALL {
+        controlled_rope_bits(kind);
+    }
+}
+
+fn controlled_rope_bits(integrator: IntegratorKind) {
     use morph::control::rope::{Actuation, RopeConfig};
+    use morph::integrator::Controlled;
     let run = |threads: usize| {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)
@@ -135,25 +143,26 @@ fn ode_parallel_path_is_bitwise_identical_across_thread_counts() {
                 steps: 6,
                 control_interval: 2,
                 actuation: Actuation::Both,
+                integrator,
                 ..RopeConfig::default()
             };
             let rope = cfg.build().unwrap();
-            let sys = &rope.system;
-            assert!(sys.num_particles() >= 2048, "{}", sys.num_particles());
-            let mut params = sys.controls.zero_params();
+            morph::with_integrator!(&rope.engine, sys => {
+            let model = sys.model();
+            assert!(model.num_particles() >= 2048, "{}", model.num_particles());
+            let mut params = model.controls.zero_params();
             let mut rng = Lcg(9);
             for knots in params.iter_mut() {
                 for k in knots.iter_mut() {
                     *k = 0.002 * Vector3::new(rng.next(), rng.next(), 0.0);
                 }
             }
-            sys.controls.project(&mut params);
+            model.controls.project(&mut params);
             let mut s = rope.initial.clone();
-            let mut tape = morph::ode::Rk4Tape::default();
-            let energy = sys
-                .run(&mut s, &params, 0, 6, Some(&mut tape), |_, _| {})
+            let mut tape = Default::default();
+            let energy = Controlled::run(sys, &mut s, &params, 0, 6, Some(&mut tape), &mut |_, _| {})
                 .unwrap();
-            let grad = sys.kinetic_cost_gradient(&tape, &params, &s, 1.0, None);
+            let grad = sys.kinetic_cost_gradient(&tape, &params, 1.0, None);
             let mut out: Vec<u64> = energy.iter().map(|e| e.to_bits()).collect();
             for p in 0..s.len() {
                 out.extend(s.x[p].iter().chain(s.v[p].iter()).map(|a| a.to_bits()));
@@ -167,10 +176,11 @@ fn ode_parallel_path_is_bitwise_identical_across_thread_counts() {
             // Gravity's parameter gradient, summed over the grid nodes.
             out.extend(grad.effect_params.iter().flatten().map(|a| a.to_bits()));
             out
+            })
         })
     };
     assert!(
         run(1) == run(2),
-        "the ODE path differs between 1 and 2 threads"
+        "{integrator:?}: the controlled rope differs between 1 and 2 threads"
     );
 }

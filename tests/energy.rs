@@ -7,7 +7,7 @@
 use morph::material::{ConstitutiveModel, FixedCorotated};
 use morph::mpm::model::Model;
 use morph::mpm::{GridSpec, KernelKind, Simulator, State};
-use morph::ode::{ControlPlan, OdeState, OdeSystem};
+use morph::ode::{OdeState, OdeSystem};
 use nalgebra::{Matrix3, Vector3};
 use std::f64::consts::PI;
 use std::sync::Arc;
@@ -122,13 +122,14 @@ fn rk4(b: &Bar, dt: f64) -> (f64, f64) {
         vec![b.vol; n],
     )
     .unwrap();
-    let sys = OdeSystem::new(model, ControlPlan::none(steps)).unwrap();
+    let sys = OdeSystem::new(model).unwrap();
     let mut s = OdeState::at_rest(b.x.clone());
     s.v = b.v.clone();
     let e0 = kinetic(&s.v, m) + sys.elastic_energy(&s);
     let params = sys.controls.zero_params();
     let t = Instant::now();
-    sys.run(&mut s, &params, 0, steps, None, |_, _| {}).unwrap();
+    sys.rollout(&mut s, &params, 0, steps, None, |_, _| {})
+        .unwrap();
     let secs = t.elapsed().as_secs_f64();
     let e = kinetic(&s.v, m) + sys.elastic_energy(&s);
     (e / e0, secs)

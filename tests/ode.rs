@@ -1,14 +1,17 @@
-//! Finite-difference checks of the ODE form's reverse pass: the right-hand side, RK4 through
-//! 12 steps, and both control effects (prescribed clamp velocity and body force), with
-//! prescribed clamp position, piecewise-constant and piecewise-linear schedules (f64, 4th-order central differences).
+//! Finite-difference checks of the boundary controls' reverse pass, through both integrators
+//! (RK4 on the ODE form and the Euler step) over 12 steps: both control effects (prescribed
+//! clamp velocity or position, and body force) with piecewise-constant and piecewise-linear
+//! schedules, the kinetic-energy cost, and the initial state (f64, 4th-order central
+//! differences).
 
 mod common;
 
 use common::Lcg;
 use morph::control::rope::{Actuation, ClampMode, RopeConfig};
+use morph::integrator::{Controlled, Engine, IntegratorKind};
 use morph::material::MaterialModel;
-use morph::mpm::KernelKind;
-use morph::ode::{ControlParams, Interpolation, OdeState, OdeSystem, Rk4Tape};
+use morph::mpm::{KernelKind, State};
+use morph::ode::{ControlParams, Interpolation};
 use nalgebra::{Matrix3, Vector3};
 
 const STEPS: usize = 12;
@@ -23,6 +26,17 @@ fn rel_err(a: f64, b: f64) -> f64 {
     (a - b).abs() / a.abs().max(b.abs()).max(1e-300)
 }
 
+/// `<a, b>` over every field of two states.
+fn dot(a: &State, b: &State) -> f64 {
+    let v = |p: &[Vector3<f64>], q: &[Vector3<f64>]| -> f64 {
+        p.iter().zip(q).map(|(a, b)| a.dot(b)).sum()
+    };
+    let m = |p: &[Matrix3<f64>], q: &[Matrix3<f64>]| -> f64 {
+        p.iter().zip(q).map(|(a, b)| a.dot(b)).sum()
+    };
+    v(&a.x, &b.x) + v(&a.v, &b.v) + m(&a.c, &b.c) + m(&a.f, &b.f)
+}
+
 /// A small rope with both controls, a deformed and moving initial state, and random knots.
 fn setup(
     kernel: KernelKind,
@@ -30,9 +44,11 @@ fn setup(
     clamp_mode: ClampMode,
     seed: u64,
     material: MaterialModel,
-) -> (OdeSystem, OdeState, ControlParams) {
+    integrator: IntegratorKind,
+) -> (Engine, State, ControlParams) {
     let cfg = RopeConfig {
         material,
+        integrator,
         clamp_mode,
         cells_along: 8,
         steps: STEPS,
@@ -50,8 +66,11 @@ fn setup(
         let r = s.x[p];
         s.v[p] = Vector3::new(-r[1], r[0], 0.3 * r[2]) * 4.0 + 0.5 * rng.vec3();
         s.f[p] = Matrix3::identity() + 0.05 * rng.mat3();
+        if integrator == IntegratorKind::Euler {
+            s.c[p] = 0.5 * rng.mat3();
+        }
     }
-    let mut params = rope.system.controls.zero_params();
+    let mut params = rope.engine.model().controls.zero_params();
     for (e, knots) in params.iter_mut().enumerate() {
         let amp = match (e, clamp_mode) {
             (0, ClampMode::Velocity) => 0.2,
@@ -62,39 +81,48 @@ fn setup(
             *k = amp * Vector3::new(rng.next(), rng.next(), 0.0);
         }
     }
-    (rope.system, s, params)
+    (rope.engine, s, params)
 }
 
 /// Cost: kinetic energy summed over the steps plus a random linear function of the final state
 /// (so every field of the final state is seeded).
 struct Cost {
-    probe: OdeState,
+    probe: State,
 }
 
 impl Cost {
     fn new(n: usize, rng: &mut Lcg) -> Cost {
         Cost {
-            probe: OdeState {
+            probe: State {
                 x: (0..n).map(|_| rng.vec3()).collect(),
                 v: (0..n).map(|_| 0.1 * rng.vec3()).collect(),
+                c: (0..n).map(|_| 0.01 * rng.mat3()).collect(),
                 f: (0..n).map(|_| rng.mat3()).collect(),
             },
         }
     }
 
-    fn eval(&self, sys: &OdeSystem, init: &OdeState, params: &ControlParams) -> f64 {
+    fn eval<S: Controlled>(&self, sys: &S, init: &State, params: &ControlParams) -> f64 {
         let mut s = init.clone();
-        let e = sys.run(&mut s, params, 0, STEPS, None, |_, _| {}).unwrap();
-        e.iter().sum::<f64>() + self.probe.dot(&s)
+        let e = sys
+            .run(&mut s, params, 0, STEPS, None, &mut |_, _| {})
+            .unwrap();
+        e.iter().sum::<f64>() + dot(&self.probe, &s)
     }
 }
 
-fn check(kernel: KernelKind, interpolation: Interpolation, clamp_mode: ClampMode) {
+fn check(
+    kernel: KernelKind,
+    interpolation: Interpolation,
+    clamp_mode: ClampMode,
+    integrator: IntegratorKind,
+) {
     check_material(
         kernel,
         interpolation,
         clamp_mode,
         MaterialModel::FixedCorotated,
+        integrator,
     );
 }
 
@@ -103,25 +131,39 @@ fn check_material(
     interpolation: Interpolation,
     clamp_mode: ClampMode,
     material: MaterialModel,
+    integrator: IntegratorKind,
 ) {
-    let (sys, init, params) = setup(
+    let (engine, init, params) = setup(
         kernel,
         interpolation,
         clamp_mode,
         7 + kernel as u64,
         material,
+        integrator,
     );
+    morph::with_integrator!(&engine, sys => check_run(sys, init, params, &format!(
+        "{integrator:?}/{kernel:?}/{interpolation:?}/{clamp_mode:?}/{material:?}"
+    )));
+}
+
+fn check_run<S: Controlled>(sys: &S, init: State, params: ControlParams, label: &str) {
     let mut rng = Lcg(99);
     let cost = Cost::new(init.len(), &mut rng);
-    let mut tape = Rk4Tape::default();
+    let mut tape = S::Tape::default();
     let mut last = init.clone();
-    sys.run(&mut last, &params, 0, STEPS, Some(&mut tape), |_, _| {})
-        .unwrap();
-    let g = sys.kinetic_cost_gradient(&tape, &params, &last, 1.0, Some(&cost.probe));
-    let label = format!("{kernel:?}/{interpolation:?}/{clamp_mode:?}/{material:?}");
+    sys.run(
+        &mut last,
+        &params,
+        0,
+        STEPS,
+        Some(&mut tape),
+        &mut |_, _| {},
+    )
+    .unwrap();
+    let g = sys.kinetic_cost_gradient(&tape, &params, 1.0, Some(&cost.probe));
 
     // Control knots of each effect, along a random direction (in-plane components).
-    for (e, name) in [(0, "clamp velocity"), (1, "tip body force")] {
+    for (e, name) in [(0, "clamp"), (1, "tip body force")] {
         let dir: Vec<Vector3<f64>> = params[e]
             .iter()
             .map(|_| Vector3::new(rng.next(), rng.next(), 0.0))
@@ -133,7 +175,7 @@ fn check_material(
                 for (k, d) in p[e].iter_mut().zip(&dir) {
                     *k += t * d;
                 }
-                cost.eval(&sys, &init, &p)
+                cost.eval(sys, &init, &p)
             },
             H,
         );
@@ -145,27 +187,28 @@ fn check_material(
 
     // Initial state, field by field.
     let n = init.len();
-    let dir = OdeState {
-        x: (0..n).map(|_| rng.vec3()).collect(),
-        v: (0..n).map(|_| rng.vec3()).collect(),
-        f: (0..n).map(|_| rng.mat3()).collect(),
-    };
-    for field in ["x", "v", "F"] {
-        let mut d = OdeState::zeros(n);
+    for field in ["x", "v", "C", "F"] {
+        let mut d = State::zeros(n);
         match field {
-            "x" => d.x = dir.x.clone(),
-            "v" => d.v = dir.v.clone(),
-            _ => d.f = dir.f.clone(),
+            "x" => d.x = (0..n).map(|_| rng.vec3()).collect(),
+            "v" => d.v = (0..n).map(|_| rng.vec3()).collect(),
+            "C" => d.c = (0..n).map(|_| rng.mat3()).collect(),
+            _ => d.f = (0..n).map(|_| rng.mat3()).collect(),
         }
-        let analytic = g.initial.dot(&d);
+        let analytic = dot(&g.initial, &d);
         // Positions move the B-spline weights, whose second derivative jumps at cell
         // boundaries: a smaller step keeps a particle near a boundary from biasing the FD.
         let h = if field == "x" { H / 5.0 } else { H };
         let numeric = fd(
             |t| {
                 let mut s = init.clone();
-                s.axpy(t, &d);
-                cost.eval(&sys, &s, &params)
+                for p in 0..n {
+                    s.x[p] += t * d.x[p];
+                    s.v[p] += t * d.v[p];
+                    s.c[p] += t * d.c[p];
+                    s.f[p] += t * d.f[p];
+                }
+                cost.eval(sys, &s, &params)
             },
             h,
         );
@@ -183,6 +226,7 @@ fn rk4_reverse_and_controls_match_finite_differences_quadratic_linear_position()
         KernelKind::Quadratic,
         Interpolation::Linear,
         ClampMode::Position,
+        IntegratorKind::Rk4,
     );
 }
 
@@ -192,6 +236,7 @@ fn rk4_reverse_and_controls_match_finite_differences_quadratic_constant_velocity
         KernelKind::Quadratic,
         Interpolation::Constant,
         ClampMode::Velocity,
+        IntegratorKind::Rk4,
     );
 }
 
@@ -201,6 +246,7 @@ fn rk4_reverse_and_controls_match_finite_differences_cubic_linear_velocity() {
         KernelKind::Cubic,
         Interpolation::Linear,
         ClampMode::Velocity,
+        IntegratorKind::Rk4,
     );
 }
 
@@ -212,5 +258,28 @@ fn rk4_reverse_matches_finite_differences_stable_neo_hookean() {
         Interpolation::Linear,
         ClampMode::Velocity,
         MaterialModel::StableNeoHookean,
+        IntegratorKind::Rk4,
+    );
+}
+
+/// The Euler step with the same boundary controls and cost (clamp read at mid-step, body
+/// force as momentum impulse).
+#[test]
+fn euler_reverse_and_controls_match_finite_differences_quadratic_linear_position() {
+    check(
+        KernelKind::Quadratic,
+        Interpolation::Linear,
+        ClampMode::Position,
+        IntegratorKind::Euler,
+    );
+}
+
+#[test]
+fn euler_reverse_and_controls_match_finite_differences_cubic_constant_velocity() {
+    check(
+        KernelKind::Cubic,
+        Interpolation::Constant,
+        ClampMode::Velocity,
+        IntegratorKind::Euler,
     );
 }

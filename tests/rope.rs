@@ -3,6 +3,7 @@
 //! controller's committed steps replay exactly and MPPI is deterministic across thread counts.
 
 use morph::control::compare::{RopeSettings, run_rope};
+use morph::integrator::Controlled;
 use morph::ode::{ControlParams, ControlPlan};
 use nalgebra::Vector3;
 use std::process::Command;
@@ -83,15 +84,13 @@ fn bad_control_settings_are_clear_errors() {
 fn non_finite_or_misshapen_control_knots_are_refused() {
     let settings = RopeSettings::default();
     let rope = settings.rope.build().unwrap();
-    let plan: &ControlPlan = &rope.system.controls;
+    let plan: &ControlPlan = &rope.engine.model().controls;
     let mut p: ControlParams = plan.zero_params();
     p[0][3] = Vector3::new(f64::NAN, 0.0, 0.0);
     let err = plan.check_params(&p).unwrap_err().to_string();
     assert!(err.contains("knot 3 is not finite"), "{err}");
     let mut s = rope.initial.clone();
-    let err = rope
-        .system
-        .run(&mut s, &p, 0, 5, None, |_, _| {})
+    let err = morph::with_integrator!(&rope.engine, sys => sys.run(&mut s, &p, 0, 5, None, &mut |_, _| {}))
         .unwrap_err()
         .to_string();
     assert!(err.contains("not finite"), "{err}");

@@ -40,6 +40,8 @@ pub struct RopeArgs {
     cells_along: Option<i64>,
     #[arg(long, value_parser = choice(&morph::material::MaterialModel::ALL), help = h("Constitutive model of the rope", name(&d().rope.material)))]
     material: Option<morph::material::MaterialModel>,
+    #[arg(long, value_parser = choice(&morph::integrator::IntegratorKind::ALL), help = h("Time integrator: rk4 (four evaluations a step, little numerical damping) or euler (the MLS-MPM step)", name(&d().rope.integrator)))]
+    integrator: Option<morph::integrator::IntegratorKind>,
     #[arg(long, help = h("Young's modulus (Pa)", d().rope.youngs_modulus))]
     youngs_modulus: Option<f64>,
     #[arg(long, value_parser = choice(&Actuation::ALL), help = h("What the controllers actuate: segment forces, the tip force, the clamp, or the clamp and the tip", name(&d().rope.actuation)))]
@@ -148,6 +150,9 @@ fn rope_settings(a: &RopeArgs) -> Result<RopeSettings, String> {
     }
     if let Some(v) = a.material {
         s.rope.material = v;
+    }
+    if let Some(v) = a.integrator {
+        s.rope.integrator = v;
     }
     if let Some(v) = a.seed {
         s.mppi.seed = v;

@@ -12,12 +12,15 @@ use super::gradient::{ControllerRun, GradientSettings, gradient_control};
 use super::mppi::{MppiSettings, mppi_control};
 use super::rope::{Rope, RopeConfig};
 use super::{Committed, ControlEvent};
+use crate::integrator::{Controlled, IntegratorKind};
 use crate::io::frames::write_points_ply;
 use crate::io::images::{PALETTE, Series, write_two_panels};
 use crate::io::outdir;
 use crate::io::write_atomically;
+use crate::material::MaterialModel;
 use crate::mpm::SimError;
-use crate::ode::{ControlParams, OdeState};
+use crate::mpm::State;
+use crate::ode::ControlParams;
 use serde::Serialize;
 use std::io::Write;
 use std::path::{Path, PathBuf};
@@ -110,8 +113,8 @@ pub struct Ratios {
 pub struct RopeReport {
     pub tool: &'static str,
     pub version: &'static str,
-    pub integrator: &'static str,
-    pub material: &'static str,
+    pub integrator: IntegratorKind,
+    pub material: MaterialModel,
     pub settings: RopeSettings,
     pub particles: usize,
     pub clamped_particles: usize,
@@ -129,24 +132,25 @@ pub struct RopeReport {
 /// What [`run_rope`] hands to its writer: the report and the frames of each method.
 pub struct RopeResult {
     pub report: RopeReport,
-    pub frames: [Vec<(usize, OdeState)>; 3],
+    pub frames: [Vec<(usize, State)>; 3],
 }
 
 pub const METHODS: [&str; 3] = ["uncontrolled", "mppi", "gradient"];
 
 /// States saved as frames, with the step each was taken after.
-type Frames = Vec<(usize, OdeState)>;
+type Frames = Vec<(usize, State)>;
 
 /// Replays `params` from the initial state: energy per step, frames and the clamp's travel.
-fn replay(
+fn replay<S: Controlled>(
+    sys: &S,
     rope: &Rope,
     params: &ControlParams,
     frame_every: usize,
 ) -> Result<(Vec<f64>, Frames, f64, f64), SimError> {
-    let sys = &rope.system;
+    let model = sys.model();
     let steps = rope.config.steps;
     let mut s = rope.initial.clone();
-    let clamp: Vec<usize> = (0..s.len()).filter(|&p| sys.is_clamped(p)).collect();
+    let clamp: Vec<usize> = (0..s.len()).filter(|&p| model.is_clamped(p)).collect();
     let start: Vec<_> = clamp.iter().map(|&p| s.x[p]).collect();
     let mut frames = Vec::new();
     if frame_every > 0 {
@@ -154,9 +158,9 @@ fn replay(
     }
     let mut max_offset = 0.0f64;
     let mut particle_energy = 0.0;
-    let energy = sys.run(&mut s, params, 0, steps, None, |k, st| {
+    let energy = sys.run(&mut s, params, 0, steps, None, &mut |k, st| {
         if k + 1 == steps {
-            particle_energy = sys.kinetic_energy(st, &sys.control_values(params, k, 1.0));
+            particle_energy = sys.particle_energy(st, params, k);
         }
         if let Some((&p, x0)) = clamp.first().zip(start.first()) {
             max_offset = max_offset.max((st.x[p] - x0).norm());
@@ -179,15 +183,16 @@ fn time_to_low(energy: &[f64], threshold: f64, dt: f64) -> Option<f64> {
     Some(i as f64 * dt)
 }
 
-fn method_report(
+fn method_report<S: Controlled>(
+    sys: &S,
     rope: &Rope,
     params: &ControlParams,
     run: Option<&ControllerRun>,
     frame_every: usize,
-) -> Result<(MethodReport, Vec<(usize, OdeState)>), SimError> {
+) -> Result<(MethodReport, Frames), SimError> {
     let (energy, frames, max_clamp_offset, last_step_particle_energy) =
-        replay(rope, params, frame_every)?;
-    let dt = rope.system.dt;
+        replay(sys, rope, params, frame_every)?;
+    let dt = sys.model().dt;
     let quarter = (energy.len() / 4).max(1);
     let tail = &energy[energy.len() - quarter..];
     let committed_at_s = run.map_or(Vec::new(), |r| {
@@ -262,16 +267,33 @@ pub fn run_rope(
     mut on_event: impl FnMut(ControlEvent),
 ) -> Result<RopeResult, RopeError> {
     let rope = settings.validate()?;
-    let steps = settings.rope.steps;
-    let sys = &rope.system;
-    let every = settings.frame_every;
+    crate::with_integrator!(&rope.engine, sys => compare_methods(sys, &rope, settings, &mut on_event))
+}
 
-    let zero = sys.controls.zero_params();
-    let (mut uncontrolled, f0) = method_report(&rope, &zero, None, every)?;
-    let mppi_run = mppi_control(sys, &rope.initial, &settings.mppi, steps, &mut on_event)?;
-    let (mut mppi, f1) = method_report(&rope, &mppi_run.params, Some(&mppi_run), every)?;
-    let grad_run = gradient_control(sys, &rope.initial, &settings.gradient, steps, &mut on_event)?;
-    let (mut gradient, f2) = method_report(&rope, &grad_run.params, Some(&grad_run), every)?;
+/// The three methods with the integrator the settings chose.
+fn compare_methods<S: Controlled>(
+    sys: &S,
+    rope: &Rope,
+    settings: &RopeSettings,
+    on_event: &mut dyn FnMut(ControlEvent),
+) -> Result<RopeResult, RopeError> {
+    let steps = settings.rope.steps;
+    let every = settings.frame_every;
+    let model = sys.model();
+
+    let zero = model.controls.zero_params();
+    let (mut uncontrolled, f0) = method_report(sys, rope, &zero, None, every)?;
+    let mppi_run = mppi_control(sys, &rope.initial, &settings.mppi, steps, &mut *on_event)?;
+    let (mut mppi, f1) = method_report(sys, rope, &mppi_run.params, Some(&mppi_run), every)?;
+    let grad_run = gradient_control(
+        sys,
+        &rope.initial,
+        &settings.gradient,
+        steps,
+        &mut *on_event,
+    )?;
+    let (mut gradient, f2) = method_report(sys, rope, &grad_run.params, Some(&grad_run), every)?;
+    let sys = model;
 
     let peak = uncontrolled.energy.iter().copied().fold(0.0, f64::max);
     let threshold = settings.low_energy_fraction * peak;
@@ -294,8 +316,8 @@ pub fn run_rope(
     let report = RopeReport {
         tool: "morph rope",
         version: env!("CARGO_PKG_VERSION"),
-        integrator: "rk4",
-        material: "fixed-corotated",
+        integrator: rope.engine.kind(),
+        material: settings.rope.material,
         settings: settings.clone(),
         particles: sys.num_particles(),
         clamped_particles: (0..sys.num_particles())
@@ -303,7 +325,7 @@ pub fn run_rope(
             .count(),
         grid_cells: sys.grid.cells,
         dx: sys.grid.dx,
-        wave_speed: sys.wave_speed(),
+        wave_speed: sys.stable_dt().1,
         threads: rayon::current_num_threads(),
         low_energy_threshold: threshold,
         uncontrolled,

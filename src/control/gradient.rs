@@ -7,8 +7,10 @@
 //! committed and its end state carried over.
 
 use super::{Committed, ControlEvent, free_knots};
+use crate::integrator::Controlled;
 use crate::mpm::SimError;
-use crate::ode::{ControlParams, OdeState, OdeSystem, Rk4Tape};
+use crate::mpm::State;
+use crate::ode::ControlParams;
 use crate::optim::Adam;
 use serde::Serialize;
 use std::time::Instant;
@@ -99,24 +101,30 @@ impl GradientSettings {
 }
 
 /// Runs the gradient controller over the whole horizon from `init`.
-pub fn gradient_control(
-    sys: &OdeSystem,
-    init: &OdeState,
+pub fn gradient_control<S: Controlled>(
+    sys: &S,
+    init: &State,
     settings: &GradientSettings,
     horizon: usize,
     mut on_event: impl FnMut(ControlEvent),
 ) -> Result<ControllerRun, SimError> {
-    let schedule = sys.controls.schedule;
+    let schedule = sys.model().controls.schedule;
     settings.validate(horizon, schedule.steps_per_interval)?;
     let started = Instant::now();
-    let mut params = sys.controls.zero_params();
+    let mut params = sys.model().controls.zero_params();
     let mut state = init.clone();
     let mut committed = Vec::with_capacity(horizon);
     let mut evaluations = Vec::new();
     let mut simulated_steps = 0;
     let n = settings.batch_steps;
-    let dt = sys.dt;
-    let bounds: Vec<_> = sys.controls.effects.iter().map(|e| e.bound).collect();
+    let dt = sys.model().dt;
+    let bounds: Vec<_> = sys
+        .model()
+        .controls
+        .effects
+        .iter()
+        .map(|e| e.bound)
+        .collect();
     for a in (0..horizon).step_by(n) {
         let len = (n + settings.lookahead_steps).min(horizon - a);
         let knots = free_knots(&schedule, a, a + len);
@@ -125,15 +133,15 @@ pub fn gradient_control(
         // Adam over this batch's knots: entry (e, knot, axis), stepped by the control's bound.
         let mut adam = Adam::new(ne * knots.len() * 3, settings.beta1, settings.beta2, 1e-12);
         let scale = |i: usize| bounds[i / (3 * knots.len())][i % 3];
-        let mut best: Option<(f64, ControlParams, OdeState, Vec<f64>)> = None;
+        let mut best: Option<(f64, ControlParams, State, Vec<f64>)> = None;
         let mut lr = settings.learning_rate;
         let mut failures = 0;
         for _ in 0..settings.iterations {
             let mut s = state.clone();
-            let mut tape = Rk4Tape::default();
+            let mut tape = S::Tape::default();
             simulated_steps += len;
             let mut mid = None;
-            let run = sys.run(&mut s, &params, a, len, Some(&mut tape), |k, st| {
+            let run = sys.run(&mut s, &params, a, len, Some(&mut tape), &mut |k, st| {
                 if k + 1 == a + n {
                     mid = Some(st.clone());
                 }
@@ -165,7 +173,7 @@ pub fn gradient_control(
                 }
                 continue;
             }
-            let grad = sys.kinetic_cost_gradient(&tape, &params, &s, dt, None);
+            let grad = sys.kinetic_cost_gradient(&tape, &params, dt, None);
             // Adam on this batch's knots, then projection onto the bounds.
             let batch = |p: &ControlParams| -> Vec<f64> {
                 p.iter()
@@ -182,7 +190,7 @@ pub fn gradient_control(
                     }
                 }
             }
-            sys.controls.project(&mut params);
+            sys.model().controls.project(&mut params);
         }
         let (cost, best_params, end, energy) = best.expect("at least one evaluation");
         // Commit the batch's best knots; the lookahead's knots are the next batch's warm

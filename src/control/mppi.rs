@@ -9,8 +9,10 @@
 
 use super::gradient::ControllerRun;
 use super::{ControlEvent, free_knots};
+use crate::integrator::Controlled;
 use crate::mpm::SimError;
-use crate::ode::{ControlParams, OdeState, OdeSystem};
+use crate::mpm::State;
+use crate::ode::ControlParams;
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 use rand_pcg::Pcg64;
@@ -98,23 +100,29 @@ impl MppiSettings {
 }
 
 /// Runs MPPI over the whole run of `total` steps from `init`.
-pub fn mppi_control(
-    sys: &OdeSystem,
-    init: &OdeState,
+pub fn mppi_control<S: Controlled>(
+    sys: &S,
+    init: &State,
     settings: &MppiSettings,
     total: usize,
     mut on_event: impl FnMut(ControlEvent),
 ) -> Result<ControllerRun, SimError> {
-    let schedule = sys.controls.schedule;
+    let schedule = sys.model().controls.schedule;
     settings.validate(total, schedule.steps_per_interval)?;
     let started = Instant::now();
-    let mut params = sys.controls.zero_params();
+    let mut params = sys.model().controls.zero_params();
     let mut state = init.clone();
     let mut committed = Vec::with_capacity(total);
     let mut evaluations = Vec::new();
     let mut simulated_steps = 0;
-    let dt = sys.dt;
-    let bounds: Vec<_> = sys.controls.effects.iter().map(|e| e.bound).collect();
+    let dt = sys.model().dt;
+    let bounds: Vec<_> = sys
+        .model()
+        .controls
+        .effects
+        .iter()
+        .map(|e| e.bound)
+        .collect();
     for (window, k) in (0..total).step_by(settings.replan_steps).enumerate() {
         let len = settings.horizon_steps.min(total - k);
         let knots = free_knots(&schedule, k, k + len);
@@ -136,7 +144,7 @@ pub fn mppi_control(
                                 }
                             }
                         }
-                        sys.controls.project(&mut p);
+                        sys.model().controls.project(&mut p);
                     }
                     p
                 })
@@ -145,7 +153,7 @@ pub fn mppi_control(
                 .par_iter()
                 .map(|p| {
                     let mut s = state.clone();
-                    match sys.run(&mut s, p, k, len, None, |_, _| {}) {
+                    match sys.run(&mut s, p, k, len, None, &mut |_, _| {}) {
                         Ok(e) => dt * e.iter().sum::<f64>(),
                         Err(_) => f64::INFINITY,
                     }
@@ -187,7 +195,7 @@ pub fn mppi_control(
         // Commit the first steps of the plan and shift the window (new knots hold the plan's
         // last value as a warm start).
         let commit = settings.replan_steps.min(total - k);
-        let energy = sys.run(&mut state, &params, k, commit, None, |_, _| {})?;
+        let energy = sys.run(&mut state, &params, k, commit, None, &mut |_, _| {})?;
         simulated_steps += commit;
         let now = started.elapsed().as_secs_f64();
         super::commit(&mut committed, k, now, &energy);

@@ -6,12 +6,12 @@
 //! Units are SI. docs/control.md gives the numbers and why they were chosen.
 
 use crate::effects::Gravity;
+use crate::integrator::{Engine, IntegratorKind};
 use crate::material::{MaterialModel, lame_from_young_poisson};
+use crate::mpm::State;
 use crate::mpm::model::Model;
 use crate::mpm::{GridSpec, KernelKind, SimError};
-use crate::ode::{
-    ControlEffect, ControlKind, ControlPlan, Interpolation, OdeState, OdeSystem, Schedule,
-};
+use crate::ode::{ControlEffect, ControlKind, ControlPlan, Interpolation, Schedule};
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
@@ -69,6 +69,9 @@ pub struct RopeConfig {
     pub density: f64,
     /// The constitutive model (fixed-corotated by default).
     pub material: MaterialModel,
+    /// The time integrator (RK4 by default: far less numerical damping than Euler, which
+    /// matters when the controllers are judged by the energy left).
+    pub integrator: IntegratorKind,
     pub youngs_modulus: f64,
     pub poisson_ratio: f64,
     pub gravity: f64,
@@ -102,6 +105,7 @@ impl Default for RopeConfig {
             particles_per_cell: 2,
             density: 1000.0,
             material: MaterialModel::FixedCorotated,
+            integrator: IntegratorKind::Rk4,
             youngs_modulus: 1.0e5,
             poisson_ratio: 0.3,
             gravity: 9.81,
@@ -121,10 +125,10 @@ impl Default for RopeConfig {
     }
 }
 
-/// A built rope: the ODE system and its initial state.
+/// A built rope: the model with its controls and integrator, and its initial state.
 pub struct Rope {
-    pub system: OdeSystem,
-    pub initial: OdeState,
+    pub engine: Engine,
+    pub initial: State,
     pub config: RopeConfig,
 }
 
@@ -313,11 +317,12 @@ impl RopeConfig {
             vec![Box::new(gravity)],
             vec![self.density * vol; n],
             vec![vol; n],
-        )?;
-        let system = OdeSystem::new(model, plan)?;
+        )?
+        .with_controls(plan)?;
+        let engine = Engine::new(model, self.integrator)?;
         Ok(Rope {
-            system,
-            initial: OdeState::at_rest(x),
+            engine,
+            initial: State::at_rest(x),
             config: self.clone(),
         })
     }

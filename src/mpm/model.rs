@@ -6,6 +6,7 @@ use super::transfer;
 use super::{GridSpec, KernelKind, SimError};
 use crate::effects::Effect;
 use crate::material::ConstitutiveModel;
+use crate::ode::{ControlKind, ControlParams, ControlPlan};
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 use std::sync::Arc;
@@ -23,7 +24,15 @@ pub struct Model {
     pub volume: Vec<f64>,
     /// Largest allowed particle displacement per step, in cells.
     pub max_cfl: f64,
+    /// Boundary controls the scene declares (body forces, prescribed velocities or
+    /// positions) and their schedule; none unless [`Model::with_controls`] set them.
+    pub controls: ControlPlan,
+    /// The kinematic control moving each particle (`FREE` for free particles).
+    clamp_of: Vec<u32>,
 }
+
+/// `clamp_of` entry of a particle no kinematic control moves.
+const FREE: u32 = u32::MAX;
 
 impl Model {
     /// Validates the scene: a sane grid, a positive finite `dt`, one positive finite mass and
@@ -38,6 +47,7 @@ impl Model {
         volume: Vec<f64>,
     ) -> Result<Model, SimError> {
         validate(&grid, dt, material.as_ref(), &mass, &volume)?;
+        let clamp_of = vec![FREE; mass.len()];
         Ok(Model {
             grid,
             dt,
@@ -45,9 +55,95 @@ impl Model {
             material,
             effects,
             mass,
+            clamp_of,
             volume,
             max_cfl: 1.0,
+            controls: ControlPlan::none(1),
         })
+    }
+
+    /// The model with boundary controls (validated against its particles).
+    pub fn with_controls(mut self, controls: ControlPlan) -> Result<Model, SimError> {
+        controls.validate(self.num_particles())?;
+        self.clamp_of = vec![FREE; self.num_particles()];
+        for (e, c) in controls.effects.iter().enumerate() {
+            if c.kind.is_kinematic() {
+                for &p in &c.particles {
+                    self.clamp_of[p] = e as u32;
+                }
+            }
+        }
+        self.controls = controls;
+        Ok(self)
+    }
+
+    /// Whether particle `p` moves with a prescribed velocity.
+    #[inline]
+    pub fn is_clamped(&self, p: usize) -> bool {
+        self.clamp_of[p] != FREE
+    }
+
+    /// The kinematic control moving particle `p`, if any.
+    #[inline]
+    pub fn kinematic_control(&self, p: usize) -> Option<usize> {
+        match self.clamp_of[p] {
+            FREE => None,
+            e => Some(e as usize),
+        }
+    }
+
+    /// The prescribed velocity of particle `p` given the control values, if it has one.
+    #[inline]
+    pub fn prescribed_velocity(&self, values: &[Vector3<f64>], p: usize) -> Option<Vector3<f64>> {
+        match self.clamp_of[p] {
+            FREE => None,
+            e => Some(values[e as usize]),
+        }
+    }
+
+    /// Per-particle body accelerations from the body-force controls' values.
+    pub fn body_accelerations(&self, values: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
+        let mut b = vec![Vector3::zeros(); self.num_particles()];
+        for (e, c) in self.controls.effects.iter().enumerate() {
+            if c.kind == ControlKind::BodyForce {
+                for &p in &c.particles {
+                    b[p] += values[e];
+                }
+            }
+        }
+        b
+    }
+
+    /// Sums per-particle adjoints into one per control: `grad_u` (of the prescribed
+    /// velocities) for kinematic controls, `grad_body` (of the body accelerations) for body
+    /// forces; in particle order, so the sums do not depend on the thread count.
+    pub fn control_value_grads(
+        &self,
+        grad_u: &[Vector3<f64>],
+        grad_body: &[Vector3<f64>],
+    ) -> Vec<Vector3<f64>> {
+        self.controls
+            .effects
+            .iter()
+            .map(|c| {
+                let src = if c.kind.is_kinematic() {
+                    grad_u
+                } else {
+                    grad_body
+                };
+                c.particles.iter().map(|&p| src[p]).sum()
+            })
+            .collect()
+    }
+
+    /// The control values at fraction `theta` of step `step`.
+    pub fn control_values(
+        &self,
+        params: &ControlParams,
+        step: usize,
+        theta: f64,
+    ) -> Vec<Vector3<f64>> {
+        self.controls.values(params, step, theta, self.dt)
     }
 
     pub fn num_particles(&self) -> usize {

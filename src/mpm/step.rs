@@ -11,6 +11,7 @@ use super::stress::StressInputs;
 use super::transfer::{self, Affine, Node};
 use crate::effects::{Effect, GridContext};
 use crate::material::ConstitutiveModel;
+use crate::ode::ControlParams;
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 use std::sync::Arc;
@@ -84,6 +85,10 @@ pub struct Gradients {
     pub effect_params: Vec<Vec<f64>>,
 }
 
+/// Where in each step the Euler integrator reads the boundary controls: the middle, so a
+/// clamped particle moves by exactly `dt u(t + dt/2)`, the step's mean for linear `u`.
+pub const CONTROL_THETA: f64 = 0.5;
+
 /// Control `Fc` for local step `s`, if any.
 fn control_at(controls: &[Option<Vec<Matrix3<f64>>>], s: usize) -> Option<&[Matrix3<f64>]> {
     controls.get(s).and_then(|c| c.as_deref())
@@ -136,8 +141,8 @@ impl Simulator {
         ws: &mut Workspace,
     ) -> Result<(), SimError> {
         match self.kernel {
-            KernelKind::Quadratic => self.step_impl::<3>(state, fc, step, ws, None),
-            KernelKind::Cubic => self.step_impl::<4>(state, fc, step, ws, None),
+            KernelKind::Quadratic => self.step_impl::<3>(state, fc, None, step, ws, None),
+            KernelKind::Cubic => self.step_impl::<4>(state, fc, None, step, ws, None),
         }
     }
 
@@ -149,24 +154,45 @@ impl Simulator {
         controls: &[Option<Vec<Matrix3<f64>>>],
         first_step: usize,
         n_steps: usize,
+        tape: Option<&mut Tape>,
+    ) -> Result<(), SimError> {
+        self.forward_driven(state, controls, None, first_step, n_steps, tape, |_, _| {})
+    }
+
+    /// [`Simulator::forward`] with the model's boundary controls driven by the knots
+    /// `params` (read at the middle of each step: a clamped particle moves by exactly
+    /// `dt u(t + dt/2)`, a body force acts as `m b dt` on the momentum). `on_step(k, state)`
+    /// sees the state after every global step `k`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn forward_driven(
+        &self,
+        state: &mut State,
+        controls: &[Option<Vec<Matrix3<f64>>>],
+        params: Option<&ControlParams>,
+        first_step: usize,
+        n_steps: usize,
         mut tape: Option<&mut Tape>,
+        mut on_step: impl FnMut(usize, &State),
     ) -> Result<(), SimError> {
         let mut ws = Workspace::default();
         if let Some(t) = tape.as_deref_mut() {
             t.steps.clear();
         }
         self.check_state(state, first_step)?;
+        if let Some(params) = params {
+            self.controls.check_params(params)?;
+        }
         for s in 0..n_steps {
+            let k = first_step + s;
             let fc = control_at(controls, s);
+            let values = params.map(|p| self.control_values(p, k, CONTROL_THETA));
+            let values = values.as_deref();
             let rec = tape.as_deref_mut().map(|t| &mut t.steps);
             match self.kernel {
-                KernelKind::Quadratic => {
-                    self.step_impl::<3>(state, fc, first_step + s, &mut ws, rec)?
-                }
-                KernelKind::Cubic => {
-                    self.step_impl::<4>(state, fc, first_step + s, &mut ws, rec)?
-                }
+                KernelKind::Quadratic => self.step_impl::<3>(state, fc, values, k, &mut ws, rec)?,
+                KernelKind::Cubic => self.step_impl::<4>(state, fc, values, k, &mut ws, rec)?,
             }
+            on_step(k, state);
         }
         if let Some(t) = tape {
             t.last = state.clone();
@@ -174,10 +200,12 @@ impl Simulator {
         Ok(())
     }
 
+    #[allow(clippy::too_many_arguments)]
     fn step_impl<const N: usize>(
         &self,
         state: &mut State,
         fc: Option<&[Matrix3<f64>]>,
+        values: Option<&[Vector3<f64>]>,
         step: usize,
         ws: &mut Workspace,
         tape: Option<&mut Vec<StepTape>>,
@@ -218,13 +246,14 @@ impl Simulator {
         ws.nodes.clear();
         ws.nodes.resize(self.grid.node_count(), Node::ZERO);
         let retention = self.momentum_retention();
+        let body = values.map(|v| self.body_accelerations(v));
         {
             let nodes = SharedMut::new(&mut ws.nodes);
             let (affine, mass) = (&ws.affine, &self.mass);
             ws.bins.for_each_coloured(|p| {
                 let s = Stencil::<N>::new(&state.x[p], &origin, dx);
                 let momentum = Affine {
-                    value: (retention * mass[p]) * state.v[p],
+                    value: self.particle_momentum(state, values, body.as_deref(), retention, p),
                     slope: affine[p],
                 };
                 transfer::scatter(&s, &strides, mass[p], &[momentum], &nodes);
@@ -258,6 +287,13 @@ impl Simulator {
                 e.apply_grid(&ctx, &mut ws.grid_v);
             }
         }
+        // Kinematic controls hold the nodes their particles touch at the prescribed velocity
+        // (a grid boundary condition: the body near a clamp feels it through its stress).
+        if let Some(vals) = values {
+            for (i, e) in self.clamp_nodes::<N>(&state.x) {
+                ws.grid_v[i] = vals[e];
+            }
+        }
         if let Some(tape) = tape {
             tape.push(StepTape {
                 pre: state.clone(),
@@ -279,7 +315,11 @@ impl Simulator {
             .enumerate()
             .for_each(|(p, ((x, v), (c, f)))| {
                 let s = Stencil::<N>::new(x, &origin, dx);
-                let (vel, cn) = transfer::gather_affine(&s, &strides, grid_v, inv_d);
+                let (mut vel, mut cn) = transfer::gather_affine(&s, &strides, grid_v, inv_d);
+                if let Some(u) = values.and_then(|vals| self.prescribed_velocity(vals, p)) {
+                    vel = u;
+                    cn = Matrix3::zeros();
+                }
                 let (xn, fnew) = advance(x, &fe[p], &vel, &cn, dt);
                 *x = xn;
                 *v = vel;
@@ -297,48 +337,117 @@ impl Simulator {
         controls: &[Option<Vec<Matrix3<f64>>>],
         grad_last: StateGrad,
     ) -> Gradients {
+        self.backward_driven(tape, controls, None, grad_last, |_, _, _| {})
+            .0
+    }
+
+    /// Reverse of [`Simulator::forward_driven`]: also returns dL/d(control knots) (empty
+    /// without `params`). `seed_after(k, state, adj)` may add to `adj` the adjoint of a cost
+    /// on the state after global step `k` before that step is reversed.
+    pub fn backward_driven(
+        &self,
+        tape: &Tape,
+        controls: &[Option<Vec<Matrix3<f64>>>],
+        params: Option<&ControlParams>,
+        grad_last: StateGrad,
+        mut seed_after: impl FnMut(usize, &State, &mut StateGrad),
+    ) -> (Gradients, ControlParams) {
         let mut adj = grad_last;
         let mut grad_controls = vec![None; tape.steps.len()];
-        let mut effect_params: Vec<Vec<f64>> = self
-            .effects
-            .iter()
-            .map(|e| vec![0.0; e.num_params()])
-            .collect();
+        let mut effect_params = self.zero_effect_params();
+        let mut grad_params = match params {
+            Some(_) => self.controls.zero_params(),
+            None => Vec::new(),
+        };
         for s in (0..tape.steps.len()).rev() {
             let post = if s + 1 < tape.steps.len() {
                 &tape.steps[s + 1].pre
             } else {
                 &tape.last
             };
+            let step = &tape.steps[s];
+            seed_after(step.step, post, &mut adj);
             let fc = control_at(controls, s);
-            let g = match self.kernel {
+            let values = params.map(|p| self.control_values(p, step.step, CONTROL_THETA));
+            let values = values.as_deref();
+            let (g, g_values) = match self.kernel {
                 KernelKind::Quadratic => {
-                    self.reverse_impl::<3>(&tape.steps[s], post, fc, &mut adj, &mut effect_params)
+                    self.reverse_impl::<3>(step, post, fc, values, &mut adj, &mut effect_params)
                 }
                 KernelKind::Cubic => {
-                    self.reverse_impl::<4>(&tape.steps[s], post, fc, &mut adj, &mut effect_params)
+                    self.reverse_impl::<4>(step, post, fc, values, &mut adj, &mut effect_params)
                 }
             };
             if fc.is_some() {
                 grad_controls[s] = Some(g);
             }
+            if values.is_some() {
+                self.controls.values_reverse(
+                    step.step,
+                    CONTROL_THETA,
+                    self.dt,
+                    &g_values,
+                    &mut grad_params,
+                );
+            }
         }
-        Gradients {
+        let grads = Gradients {
             initial: adj,
             controls: grad_controls,
             effect_params,
+        };
+        (grads, grad_params)
+    }
+
+    /// The grid nodes the kinematic controls hold, with the control holding each: every node
+    /// in a clamped particle's stencil (sorted by node; where two controls meet, the first).
+    fn clamp_nodes<const N: usize>(&self, x: &[Vector3<f64>]) -> Vec<(usize, usize)> {
+        let (strides, origin, dx) = (self.grid.strides(), self.grid.origin_vec(), self.grid.dx);
+        let mut nodes = Vec::new();
+        for (p, xp) in x.iter().enumerate() {
+            if let Some(e) = self.kinematic_control(p) {
+                Stencil::<N>::new(xp, &origin, dx)
+                    .for_each_node(&strides, |i, _, _, _| nodes.push((i, e)));
+            }
+        }
+        nodes.sort_unstable();
+        nodes.dedup_by_key(|n| n.0);
+        nodes
+    }
+
+    /// The momentum particle `p` scatters: its prescribed velocity's, or `m v` after drag
+    /// plus the body force's impulse `m b dt`.
+    #[inline]
+    fn particle_momentum(
+        &self,
+        state: &State,
+        values: Option<&[Vector3<f64>]>,
+        body: Option<&[Vector3<f64>]>,
+        retention: f64,
+        p: usize,
+    ) -> Vector3<f64> {
+        let m = self.mass[p];
+        if let Some(u) = values.and_then(|v| self.prescribed_velocity(v, p)) {
+            return m * u;
+        }
+        let momentum = (retention * m) * state.v[p];
+        match body {
+            Some(b) => momentum + (self.dt * m) * b[p],
+            None => momentum,
         }
     }
 
     /// Reverse of one step: turns `adj` from dL/d(post) into dL/d(pre) and returns dL/dFc.
+    /// Also returns dL/d(control values) when `values` (the forward pass's) are given.
     fn reverse_impl<const N: usize>(
         &self,
         tape: &StepTape,
         post: &State,
         fc: Option<&[Matrix3<f64>]>,
+        values: Option<&[Vector3<f64>]>,
         adj: &mut StateGrad,
         effect_params: &mut [Vec<f64>],
-    ) -> Vec<Matrix3<f64>> {
+    ) -> (Vec<Matrix3<f64>>, Vec<Vector3<f64>>) {
         let pre = &tape.pre;
         let n = pre.len();
         let dt = self.dt;
@@ -371,11 +480,24 @@ impl Simulator {
             effect_inputs.push(grid_v.clone());
             self.effects[e].apply_grid(&ctx, &mut grid_v);
         }
+        let clamp_nodes = match values {
+            Some(vals) => {
+                let nodes = self.clamp_nodes::<N>(&pre.x);
+                for &(i, e) in &nodes {
+                    grid_v[i] = vals[e];
+                }
+                nodes
+            }
+            None => Vec::new(),
+        };
 
-        // P2 reverse.
+        // P2 reverse. A clamped particle's velocity is its prescribed one: its adjoint goes to
+        // the control (`grad_u`), not to the gather.
+        let clamped = |p: usize| values.is_some() && self.is_clamped(p);
         let mut grad_fe = vec![Matrix3::zeros(); n];
         let mut grad_vel = vec![Vector3::zeros(); n];
         let mut grad_cn = vec![Matrix3::zeros(); n];
+        let mut grad_u = vec![Vector3::zeros(); if values.is_some() { n } else { 0 }];
         (
             grad_fe.par_iter_mut(),
             grad_vel.par_iter_mut(),
@@ -388,9 +510,16 @@ impl Simulator {
                     &fe[p], &post.c[p], dt, &adj.x[p], &adj.v[p], &adj.c[p], &adj.f[p],
                 );
                 *gfe = g.fe;
-                *gv = g.vel;
+                *gv = if clamped(p) { Vector3::zeros() } else { g.vel };
                 *gc = g.c;
             });
+        if values.is_some() {
+            grad_u.par_iter_mut().enumerate().for_each(|(p, gu)| {
+                if self.is_clamped(p) {
+                    *gu = adj.v[p] + dt * adj.x[p];
+                }
+            });
+        }
 
         // G2P reverse (coloured scatter into the grid velocity adjoint).
         let mut grad_grid_v = vec![Vector3::zeros(); self.grid.node_count()];
@@ -399,6 +528,13 @@ impl Simulator {
             let gx = SharedMut::new(&mut adj.x);
             tape.bins.for_each_coloured(|p| {
                 let s = Stencil::<N>::new(&pre.x[p], &origin, dx);
+                // The gather's own velocity (a clamped particle's state holds the prescribed
+                // one instead).
+                let gathered = if clamped(p) {
+                    transfer::gather_affine(&s, &strides, &grid_v, inv_d).0
+                } else {
+                    post.v[p]
+                };
                 let d = transfer::gather_affine_reverse(
                     &s,
                     &strides,
@@ -406,12 +542,19 @@ impl Simulator {
                     inv_d,
                     &grad_vel[p],
                     &grad_cn[p],
-                    &post.v[p],
+                    &gathered,
                     &ggv,
                 );
                 // SAFETY: each particle is visited exactly once.
                 unsafe { *gx.get(p) += d };
             });
+        }
+
+        // The clamped nodes' velocities are the controls' values.
+        let mut grad_clamp = vec![Vector3::zeros(); self.controls.effects.len()];
+        for &(i, e) in &clamp_nodes {
+            grad_clamp[e] += grad_grid_v[i];
+            grad_grid_v[i] = Vector3::zeros();
         }
 
         // G reverse: effects backwards, then v = p / m.
@@ -428,7 +571,11 @@ impl Simulator {
 
         // P2G reverse (gather) and P1 reverse.
         let retention = self.momentum_retention();
+        let body = values.map(|v| self.body_accelerations(v));
         let mut grad_fc = vec![Matrix3::zeros(); n];
+        // dL/d(scattered momentum) per particle, for the controls.
+        let mut grad_mom = vec![Vector3::zeros(); if values.is_some() { n } else { 0 }];
+        let gm = SharedMut::new(&mut grad_mom);
         let StateGrad {
             x: ax,
             v: av,
@@ -450,18 +597,45 @@ impl Simulator {
                 let s = Stencil::<N>::new(&pre.x[p], &origin, dx);
                 let m = self.mass[p];
                 let momentum = Affine {
-                    value: (retention * m) * pre.v[p],
+                    value: self.particle_momentum(pre, values, body.as_deref(), retention, p),
                     slope: affine,
                 };
                 let g = transfer::scatter_reverse(&s, &strides, m, &[momentum], &grad_nodes);
                 let (g_c, g_fe) = inputs.affine_momentum_reverse(&fe[p], &g.slope[0]);
                 *gx += g.x;
-                *gv = (retention * m) * g.value[0];
+                *gv = if clamped(p) {
+                    Vector3::zeros()
+                } else {
+                    (retention * m) * g.value[0]
+                };
+                if values.is_some() {
+                    // SAFETY: each particle is visited exactly once.
+                    unsafe { *gm.get(p) = g.value[0] };
+                }
                 *gc = g_c;
                 let total_fe = grad_fe[p] + g_fe;
                 *gf = total_fe;
                 *gfc = total_fe;
             });
-        grad_fc
+        let grad_values = match values {
+            None => Vec::new(),
+            Some(_) => {
+                let mut grad_body = vec![Vector3::zeros(); n];
+                for p in 0..n {
+                    let m = self.mass[p];
+                    if self.is_clamped(p) {
+                        grad_u[p] += m * grad_mom[p];
+                    } else {
+                        grad_body[p] = (dt * m) * grad_mom[p];
+                    }
+                }
+                let mut g = self.control_value_grads(&grad_u, &grad_body);
+                for (g, c) in g.iter_mut().zip(&grad_clamp) {
+                    *g += c;
+                }
+                g
+            }
+        };
+        (grad_fc, grad_values)
     }
 }

@@ -137,8 +137,8 @@ pub fn scatter_reverse<const N: usize, const K: usize>(
         }
     }
     // The offsets x_i - x_p move with the particle (derivative -I).
-    for k in 0..K {
-        out.x -= fields[k].slope.transpose() * out.value[k];
+    for (field, value) in fields.iter().zip(&out.value) {
+        out.x -= field.slope.transpose() * value;
     }
     out
 }

@@ -12,7 +12,6 @@
 //! system conserves kinetic + elastic + gravitational energy exactly: the only losses left are
 //! the integrator's (see docs/control.md).
 
-use super::controls::{ControlKind, ControlParams, ControlPlan};
 use super::state::OdeState;
 use crate::effects::GridContext;
 use crate::mpm::SimError;
@@ -29,9 +28,6 @@ use rayon::prelude::*;
 #[derive(Debug)]
 pub struct OdeSystem {
     pub model: Model,
-    pub controls: ControlPlan,
-    /// Prescribed-velocity control of each particle (`u32::MAX` for free particles).
-    clamp_of: Vec<u32>,
     /// Effects that act on the grid rates, in model order.
     rate_effects: Vec<usize>,
     pool: BufferPool,
@@ -43,8 +39,6 @@ impl std::ops::Deref for OdeSystem {
         &self.model
     }
 }
-
-const FREE: u32 = u32::MAX;
 
 /// Most effects a node's rates may pass through (their inputs are kept on the stack).
 const MAX_RATE_EFFECTS: usize = 8;
@@ -71,19 +65,10 @@ pub struct RhsGrad {
 }
 
 impl OdeSystem {
-    /// The RK4 integrator of `model` with `controls`. RK4's stability region on the imaginary
-    /// axis (|h w| < 2.8) leaves a margin above the model's elastic bound.
-    pub fn new(model: Model, controls: ControlPlan) -> Result<OdeSystem, SimError> {
-        let n = model.num_particles();
-        controls.validate(n)?;
-        let mut clamp_of = vec![FREE; n];
-        for (e, c) in controls.effects.iter().enumerate() {
-            if c.kind.is_kinematic() {
-                for &p in &c.particles {
-                    clamp_of[p] = e as u32;
-                }
-            }
-        }
+    /// The RK4 integrator of `model` (with the boundary controls it declares). RK4's
+    /// stability region on the imaginary axis (|h w| < 2.8) leaves a margin above the
+    /// model's elastic bound.
+    pub fn new(model: Model) -> Result<OdeSystem, SimError> {
         let rate_effects: Vec<usize> = (0..model.effects.len())
             .filter(|&e| model.effects[e].acts_on_rates())
             .collect();
@@ -95,8 +80,6 @@ impl OdeSystem {
         }
         Ok(OdeSystem {
             model,
-            controls,
-            clamp_of,
             rate_effects,
             pool: BufferPool::default(),
         })
@@ -107,11 +90,6 @@ impl OdeSystem {
         self.stable_dt().1
     }
 
-    /// Whether particle `p` moves with a prescribed velocity.
-    pub fn is_clamped(&self, p: usize) -> bool {
-        self.clamp_of[p] != FREE
-    }
-
     /// The velocity particle `p` carries to the grid given the control values.
     #[inline]
     pub fn transfer_velocity(
@@ -120,10 +98,7 @@ impl OdeSystem {
         values: &[Vector3<f64>],
         p: usize,
     ) -> Vector3<f64> {
-        match self.clamp_of[p] {
-            FREE => s.v[p],
-            e => values[e as usize],
-        }
+        self.prescribed_velocity(values, p).unwrap_or(s.v[p])
     }
 
     /// Kinetic energy of the particle velocities `1/2 sum m |v~|^2` (clamped particles at their
@@ -201,19 +176,6 @@ impl OdeSystem {
     /// Potential energy of the conservative effects (gravity `-sum m g . x`).
     pub fn potential_energy(&self, s: &OdeState) -> f64 {
         self.model.potential_energy(&s.x)
-    }
-
-    /// Per-particle body accelerations from the body-force controls.
-    fn body_accelerations(&self, values: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
-        let mut b = vec![Vector3::zeros(); self.num_particles()];
-        for (e, c) in self.controls.effects.iter().enumerate() {
-            if c.kind == ControlKind::BodyForce {
-                for &p in &c.particles {
-                    b[p] += values[e];
-                }
-            }
-        }
-        b
     }
 
     /// The two fields particle `p` scatters: momentum `m v~` and force
@@ -419,13 +381,13 @@ impl OdeSystem {
             .enumerate()
             .for_each(|(p, (dx, dv, df))| {
                 let g = &fw.gathered[p];
-                match self.clamp_of[p] {
-                    FREE => {
+                match self.prescribed_velocity(values, p) {
+                    None => {
                         *dx = g.velocity;
                         *dv = g.acceleration;
                     }
-                    e => {
-                        *dx = values[e as usize];
+                    Some(u) => {
+                        *dx = u;
                         *dv = Vector3::zeros();
                     }
                 }
@@ -485,7 +447,7 @@ impl OdeSystem {
                     acceleration: grad_out.v[p],
                     grad_v: g_df * s.f[p].transpose(),
                 };
-                if self.clamp_of[p] != FREE {
+                if self.is_clamped(p) {
                     // SAFETY: each particle is visited exactly once.
                     unsafe { *gu.get(p) += g.velocity };
                     g.velocity = Vector3::zeros();
@@ -594,9 +556,9 @@ impl OdeSystem {
                 let g = transfer::scatter_reverse(&st, &strides, m, &fields, grad_nodes);
                 *gx += g.x;
                 // Momentum field m v~, force field m b + K (x_i - x_p).
-                match self.clamp_of[p] {
-                    FREE => *gv += m * g.value[0],
-                    _ => *gu += m * g.value[0],
+                match self.is_clamped(p) {
+                    false => *gv += m * g.value[0],
+                    true => *gu += m * g.value[0],
                 }
                 *gb = m * g.value[1];
                 let (_, g_f) = self
@@ -607,19 +569,7 @@ impl OdeSystem {
             });
         self.pool.put(fw.buf);
 
-        // Per-particle control adjoints summed per control, sequentially.
-        let controls = self
-            .controls
-            .effects
-            .iter()
-            .map(|c| {
-                let src = match c.kind {
-                    ControlKind::PrescribedVelocity | ControlKind::PrescribedPosition => &grad_u,
-                    ControlKind::BodyForce => &grad_body,
-                };
-                c.particles.iter().map(|&p| src[p]).sum()
-            })
-            .collect();
+        let controls = self.control_value_grads(&grad_u, &grad_body);
         RhsGrad {
             state: grad,
             controls,
@@ -637,16 +587,6 @@ impl OdeSystem {
         }
         self.check_size(s.len())?;
         self.check_finite_and_cfl(s.first_non_finite(), &[], step)
-    }
-
-    /// The control values at fraction `theta` of step `step`.
-    pub fn control_values(
-        &self,
-        params: &ControlParams,
-        step: usize,
-        theta: f64,
-    ) -> Vec<Vector3<f64>> {
-        self.controls.values(params, step, theta, self.dt)
     }
 }
 

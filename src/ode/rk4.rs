@@ -23,13 +23,6 @@ pub const STAGE_THETA: [f64; 4] = [0.0, 0.5, 0.5, 1.0];
 /// The four stage inputs of one step.
 pub type StepStages = [OdeState; 4];
 
-/// Recorded forward steps: the stage inputs of each step, and the first step's index.
-#[derive(Clone, Debug, Default)]
-pub struct Rk4Tape {
-    pub first_step: usize,
-    pub steps: Vec<StepStages>,
-}
-
 impl OdeSystem {
     /// Advances `s` by one RK4 step (global index `step`, used for the control schedule and
     /// to label errors). Returns the stage inputs when asked (for the tape).
@@ -148,25 +141,21 @@ impl OdeSystem {
     }
 }
 
-/// A taped RK4 run for the [`Integrator`] interface: the stage inputs of every step and the
-/// final state (as [`State`], with no APIC matrix: `c` is zero).
+/// A taped RK4 run: the stage inputs of every step, the first step's global index
+/// (time-dependent effects and controls read it in reverse too) and the final state (as
+/// [`State`], whose APIC matrix `c` the ODE form does not use: zero).
 #[derive(Clone, Debug, Default)]
-pub struct Rk4RunTape {
-    /// Global index of the first step (time-dependent effects read it in reverse too).
+pub struct Rk4Tape {
     pub first_step: usize,
     pub steps: Vec<StepStages>,
     pub last: State,
 }
 
-fn to_ode(s: &State) -> OdeState {
-    OdeState {
-        x: s.x.clone(),
-        v: s.v.clone(),
-        f: s.f.clone(),
-    }
+pub(crate) fn to_ode(s: &State) -> OdeState {
+    OdeState::from(s)
 }
 
-fn from_ode(s: OdeState) -> State {
+pub(crate) fn from_ode(s: OdeState) -> State {
     let n = s.len();
     State {
         x: s.x,
@@ -177,7 +166,7 @@ fn from_ode(s: OdeState) -> State {
 }
 
 impl Integrator for OdeSystem {
-    type Tape = Rk4RunTape;
+    type Tape = Rk4Tape;
 
     fn model(&self) -> &Model {
         &self.model
@@ -189,7 +178,7 @@ impl Integrator for OdeSystem {
         controls: &StepControls,
         first_step: usize,
         n_steps: usize,
-        mut tape: Option<&mut Rk4RunTape>,
+        mut tape: Option<&mut Rk4Tape>,
     ) -> Result<(), SimError> {
         let params = self.controls.zero_params();
         let mut s = to_ode(state);
@@ -213,12 +202,7 @@ impl Integrator for OdeSystem {
         Ok(())
     }
 
-    fn backward(
-        &self,
-        tape: &Rk4RunTape,
-        controls: &StepControls,
-        grad_last: StateGrad,
-    ) -> Gradients {
+    fn backward(&self, tape: &Rk4Tape, controls: &StepControls, grad_last: StateGrad) -> Gradients {
         let params = self.controls.zero_params();
         let mut grad_params = self.controls.zero_params();
         let mut effect_params = self.zero_effect_params();
@@ -248,7 +232,7 @@ impl Integrator for OdeSystem {
     }
 }
 
-impl RunTape for Rk4RunTape {
+impl RunTape for Rk4Tape {
     fn len(&self) -> usize {
         self.steps.len()
     }
@@ -265,7 +249,7 @@ impl RunTape for Rk4RunTape {
     }
 
     fn split_off(&mut self, k: usize) -> Self {
-        Rk4RunTape {
+        Rk4Tape {
             first_step: self.first_step + k,
             steps: self.steps.split_off(k),
             last: std::mem::take(&mut self.last),

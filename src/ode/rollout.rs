@@ -7,9 +7,12 @@
 
 use super::controls::ControlParams;
 use super::rhs::OdeSystem;
-use super::rk4::Rk4Tape;
+use super::rk4::{Rk4Tape, from_ode, to_ode};
 use super::state::OdeState;
+use crate::integrator::{ControlGradient, Controlled};
 use crate::mpm::SimError;
+use crate::mpm::State;
+use crate::mpm::StateGrad;
 use rayon::prelude::*;
 
 /// dL/d(initial state) and dL/d(control knots) of a run.
@@ -25,7 +28,7 @@ impl OdeSystem {
     /// Runs `n_steps` RK4 steps from `s` (global steps `first_step..`), recording a tape when
     /// given one. Returns the kinetic energy at the end of each step; `on_step(k, state)` sees
     /// every state after step `k`.
-    pub fn run(
+    pub fn rollout(
         &self,
         s: &mut OdeState,
         params: &ControlParams,
@@ -53,6 +56,7 @@ impl OdeSystem {
             on_step(k, s);
         }
         if let Some(t) = tape {
+            t.last = super::rk4::from_ode(s.clone());
             // With a tape every state is kept, so the energies can be evaluated afterwards in
             // parallel (the same evaluations, so the same bits).
             energy = (0..n_steps)
@@ -69,7 +73,7 @@ impl OdeSystem {
 
     /// Gradient of `weight * sum_k KE(S_{k+1}) + <grad_last, S_last>` over a taped run whose
     /// final state is `last`.
-    pub fn kinetic_cost_gradient(
+    pub fn rollout_cost_gradient(
         &self,
         tape: &Rk4Tape,
         params: &ControlParams,
@@ -117,5 +121,47 @@ impl OdeSystem {
             params: grad_params,
             effect_params: grad_effects,
         }
+    }
+}
+
+/// The ODE form through the common interface: states convert to and from [`OdeState`]
+/// (the APIC matrix `c` is not part of the ODE form).
+impl Controlled for OdeSystem {
+    fn run(
+        &self,
+        state: &mut State,
+        params: &ControlParams,
+        first_step: usize,
+        n_steps: usize,
+        tape: Option<&mut Rk4Tape>,
+        on_step: &mut dyn FnMut(usize, &State),
+    ) -> Result<Vec<f64>, SimError> {
+        let mut s = to_ode(state);
+        let energy = self.rollout(&mut s, params, first_step, n_steps, tape, |k, st| {
+            on_step(k, &from_ode(st.clone()))
+        })?;
+        *state = from_ode(s);
+        Ok(energy)
+    }
+
+    fn kinetic_cost_gradient(
+        &self,
+        tape: &Rk4Tape,
+        params: &ControlParams,
+        weight: f64,
+        grad_last: Option<&StateGrad>,
+    ) -> ControlGradient {
+        let last = to_ode(&tape.last);
+        let seed = grad_last.map(to_ode);
+        let g = self.rollout_cost_gradient(tape, params, &last, weight, seed.as_ref());
+        ControlGradient {
+            initial: from_ode(g.initial),
+            params: g.params,
+            effect_params: g.effect_params,
+        }
+    }
+
+    fn particle_energy(&self, state: &State, params: &ControlParams, step: usize) -> f64 {
+        self.kinetic_energy(&to_ode(state), &self.control_values(params, step, 1.0))
     }
 }

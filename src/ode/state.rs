@@ -16,6 +16,17 @@ pub struct OdeState {
     pub f: Vec<Matrix3<f64>>,
 }
 
+impl From<&crate::mpm::State> for OdeState {
+    /// The ODE form's part of a state (the APIC matrix `c` is not part of it).
+    fn from(s: &crate::mpm::State) -> OdeState {
+        OdeState {
+            x: s.x.clone(),
+            v: s.v.clone(),
+            f: s.f.clone(),
+        }
+    }
+}
+
 impl OdeState {
     /// Particles at `positions`, at rest and undeformed.
     pub fn at_rest(positions: Vec<Vector3<f64>>) -> OdeState {
