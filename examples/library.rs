@@ -4,19 +4,17 @@
 //! `cargo run --release --example library`
 
 use morph::geometry::{assets, prepare_mesh};
-use morph::morph::{MorphError, MorphEvent, MorphSettings, Observer, Prepared, Preset};
-use morph::mpm::State;
+use morph::{Frame, Job, MeshSource, MorphError, MorphEvent, MorphSettings, Observer, Preset};
 use std::path::Path;
 
 /// Receives progress and frames; asks to stop after `budget` optimizer evaluations.
-struct Watcher<'a> {
-    prep: &'a Prepared,
+struct Watcher {
     evaluations: usize,
     budget: usize,
     frames: Vec<f64>,
 }
 
-impl Observer for Watcher<'_> {
+impl Observer for Watcher {
     fn event(&mut self, event: &MorphEvent) {
         if let MorphEvent::Iteration { loss, .. } = event {
             self.evaluations += 1;
@@ -24,13 +22,14 @@ impl Observer for Watcher<'_> {
         }
     }
 
-    fn frame(&mut self, index: usize, _step: usize, state: &State) -> Result<(), MorphError> {
+    fn frame(&mut self, frame: &Frame) -> Result<(), MorphError> {
         // World units: the source mesh's own coordinates.
-        let frame = self.prep.world_frame(state);
-        let top = frame.x.iter().map(|p| p.y).fold(f64::MIN, f64::max);
+        let top = frame.world.x.iter().map(|p| p.y).fold(f64::MIN, f64::max);
         println!(
-            "frame {index}: {} points, top at y = {top:.3}",
-            frame.x.len()
+            "frame {} (t = {:.3} s): {} points, top at y = {top:.3}",
+            frame.index,
+            frame.time,
+            frame.world.x.len()
         );
         self.frames.push(top);
         Ok(())
@@ -53,24 +52,29 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     settings.resolution = 16;
     settings.segments = 2;
     settings.optimizer.iterations = 3;
-    let prep = Prepared::from_meshes(
-        &settings,
-        (&sphere, Path::new("<sphere>")),
-        (&cube, Path::new("<cube>")),
-    )?;
+    let job = Job {
+        source: MeshSource::Memory {
+            name: "<sphere>".into(),
+            mesh: sphere,
+        },
+        target: MeshSource::Memory {
+            name: "<cube>".into(),
+            mesh: cube,
+        },
+        settings,
+    };
     let mut watcher = Watcher {
-        prep: &prep,
         evaluations: 0,
         budget: 4,
         frames: Vec::new(),
     };
-    match morph::morph::run(&prep, None, &mut watcher) {
+    match morph::run(&job, &mut watcher) {
         Err(MorphError::Interrupted { .. }) => println!(
             "cancelled by the observer after {} evaluations and {} frames",
             watcher.evaluations,
             watcher.frames.len()
         ),
-        Ok(result) => println!("finished: loss {:.4e}", result.final_loss),
+        Ok((_, result)) => println!("finished: loss {:.4e}", result.final_loss),
         Err(e) => return Err(e.into()),
     }
     Ok(())

@@ -22,6 +22,10 @@
 //! - [`bench`](mod@bench): the benchmark workloads.
 //!
 //! The `morph` binary (`src/cli/`, one file per subcommand) only parses and reports.
+//!
+//! A program drives a morph through [`run`]: a [`Job`] (source and target as files or meshes
+//! in memory, and [`MorphSettings`]) and an [`Observer`] that receives events and frames in
+//! world units and may cancel. `examples/library.rs` shows one.
 
 pub mod bench;
 pub mod control;
@@ -36,3 +40,15 @@ pub mod mpm;
 pub mod ode;
 pub mod optim;
 pub mod scene;
+
+pub use morph::{
+    Frame, FrameSink, Job, MeshSource, MorphError, MorphEvent, MorphResult, MorphSettings,
+    Observer, Prepared, Preset,
+};
+
+/// Runs `job`: loads and places the meshes, optimizes the morph, and hands every event and
+/// exported frame (world units) to `observer`, which may cancel it
+/// ([`MorphError::Interrupted`]). Returns the prepared morph and its result.
+pub fn run(job: &Job, observer: &mut dyn Observer) -> Result<(Prepared, MorphResult), MorphError> {
+    job.run(observer)
+}

@@ -1,29 +1,45 @@
-//! The library entry point: in-memory meshes, frames in world units, cancel from the observer.
+//! The library entry point ([`morph::run`] with a [`morph::Job`]): in-memory meshes, frames
+//! in world units, cancel from the observer, and a frame sink of a program's own.
 
 use morph::geometry::{assets, prepare_mesh};
-use morph::morph::{MorphError, MorphEvent, MorphSettings, Observer, Prepared, Preset};
-use morph::mpm::State;
+use morph::{
+    Frame, FrameSink, Job, MeshSource, MorphError, MorphEvent, MorphSettings, Observer, Preset,
+};
 use std::path::Path;
 
-struct Watch<'a> {
-    prep: &'a Prepared,
+/// A program's own output format: records each frame's time and its highest point.
+#[derive(Default)]
+struct TopSink {
+    tops: Vec<(f64, f64)>,
+}
+
+impl FrameSink for TopSink {
+    fn frame(&mut self, frame: &Frame) -> Result<(), MorphError> {
+        let top = frame.world.x.iter().map(|p| p.y).fold(f64::MIN, f64::max);
+        self.tops.push((frame.time, top));
+        Ok(())
+    }
+}
+
+#[derive(Default)]
+struct Watch {
     evaluations: usize,
     stop_after: Option<usize>,
     first_frame: Option<Vec<nalgebra::Vector3<f64>>>,
     frames: usize,
+    sink: TopSink,
 }
 
-impl Observer for Watch<'_> {
+impl Observer for Watch {
     fn event(&mut self, e: &MorphEvent) {
         if matches!(e, MorphEvent::Iteration { .. }) {
             self.evaluations += 1;
         }
     }
-    fn frame(&mut self, _i: usize, _step: usize, state: &State) -> Result<(), MorphError> {
-        let f = self.prep.world_frame(state);
-        self.first_frame.get_or_insert(f.x);
+    fn frame(&mut self, frame: &Frame) -> Result<(), MorphError> {
+        self.first_frame.get_or_insert(frame.world.x.clone());
         self.frames += 1;
-        Ok(())
+        self.sink.frame(frame)
     }
     fn stop_requested(&self) -> usize {
         self.stop_after
@@ -31,7 +47,7 @@ impl Observer for Watch<'_> {
     }
 }
 
-fn prepared() -> Prepared {
+fn job() -> Job {
     // A sphere of radius 3 centred at (10, 0, 0), in its own units: the world frame.
     let mut sphere = assets::uv_sphere(3.0, 12, 24, |_, _| 1.0);
     for v in &mut sphere.vertices {
@@ -43,25 +59,24 @@ fn prepared() -> Prepared {
     s.resolution = 12;
     s.segments = 2;
     s.optimizer.iterations = 2;
-    Prepared::from_meshes(
-        &s,
-        (&sphere, Path::new("<sphere>")),
-        (&cube, Path::new("<cube>")),
-    )
-    .unwrap()
+    Job {
+        source: MeshSource::Memory {
+            name: "<sphere>".into(),
+            mesh: sphere,
+        },
+        target: MeshSource::Memory {
+            name: "<cube>".into(),
+            mesh: cube,
+        },
+        settings: s,
+    }
 }
 
 #[test]
 fn in_memory_meshes_world_frames_and_cancel() {
-    let prep = prepared();
-    let mut w = Watch {
-        prep: &prep,
-        evaluations: 0,
-        stop_after: None,
-        first_frame: None,
-        frames: 0,
-    };
-    let result = morph::morph::run(&prep, None, &mut w).unwrap();
+    let job = job();
+    let mut w = Watch::default();
+    let (prep, result) = morph::run(&job, &mut w).unwrap();
     assert_eq!(w.frames, prep.frame_count());
     assert!(result.final_loss < result.initial_loss);
     // Frame 1 is the source in its own units: inside the sphere of radius 3 about (10, 0, 0).
@@ -71,17 +86,18 @@ fn in_memory_meshes_world_frames_and_cancel() {
             .iter()
             .all(|p| (p - nalgebra::Vector3::new(10.0, 0.0, 0.0)).norm() < 3.0)
     );
+    // The sink saw every frame, at times step * dt that increase.
+    assert_eq!(w.sink.tops.len(), w.frames);
+    assert!(w.sink.tops.windows(2).all(|p| p[1].0 > p[0].0));
+    assert_eq!(w.sink.tops[0].0, 0.0);
 
     let mut w = Watch {
-        prep: &prep,
-        evaluations: 0,
         stop_after: Some(2),
-        first_frame: None,
-        frames: 0,
+        ..Watch::default()
     };
-    match morph::morph::run(&prep, None, &mut w) {
+    match morph::run(&job, &mut w) {
         Err(MorphError::Interrupted { signal, .. }) => assert_eq!(signal, 1),
-        other => panic!("expected a cancel, got {:?}", other.map(|r| r.final_loss)),
+        other => panic!("expected a cancel, got {:?}", other.map(|r| r.1.final_loss)),
     }
     assert_eq!(w.evaluations, 2, "stopped at the evaluation it asked");
 }

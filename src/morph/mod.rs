@@ -22,7 +22,7 @@ use nalgebra::{Matrix3, Vector3};
 use segment::{Layers, Segment};
 use serde::{Deserialize, Serialize};
 pub use settings::{MorphSettings, Preset};
-use std::path::Path;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 /// Progress of a morph, one value per event (printed as JSON lines by `--json`).
@@ -228,6 +228,98 @@ impl Prepared {
     }
 }
 
+/// One exported frame: which, when, and the particles in world units.
+pub struct Frame<'a> {
+    /// 0-based frame number.
+    pub index: usize,
+    /// Global simulation step.
+    pub step: usize,
+    /// Simulated time, `step * dt` (seconds).
+    pub time: f64,
+    /// Positions, velocities and volume ratios in the source mesh's units.
+    pub world: WorldFrame,
+    /// The simulation state (simulation units), for writers that work on the grid's scale.
+    pub state: &'a State,
+    /// The morph the frame belongs to (its placement maps simulation to world units).
+    pub prep: &'a Prepared,
+}
+
+impl<'a> Frame<'a> {
+    fn new(prep: &'a Prepared, index: usize, step: usize, state: &'a State) -> Frame<'a> {
+        Frame {
+            index,
+            step,
+            time: step as f64 * prep.model().dt,
+            world: prep.world_frame(state),
+            state,
+            prep,
+        }
+    }
+}
+
+/// Where frames go: one implementation per output format (the folder of PLY points and OBJ
+/// surfaces is [`output::PlyObjSink`]). A new format is one more implementation, handed to
+/// the folder writer or called from an [`Observer`].
+pub trait FrameSink {
+    fn frame(&mut self, frame: &Frame) -> Result<(), MorphError>;
+}
+
+/// A mesh a [`Job`] morphs: a file, or a mesh a program holds (checked and repaired by
+/// [`crate::geometry::prepare_mesh`]) with the name its messages use.
+pub enum MeshSource {
+    File(PathBuf),
+    Memory { name: String, mesh: LoadedMesh },
+}
+
+impl MeshSource {
+    /// The name messages use for this mesh.
+    fn name(&self) -> PathBuf {
+        match self {
+            MeshSource::File(p) => p.clone(),
+            MeshSource::Memory { name, .. } => PathBuf::from(name),
+        }
+    }
+}
+
+/// One morph: source, target and settings.
+pub struct Job {
+    pub source: MeshSource,
+    pub target: MeshSource,
+    pub settings: MorphSettings,
+}
+
+impl Job {
+    /// Loads and places the meshes, fills the source with particles, builds the model.
+    pub fn prepare(&self) -> Result<Prepared, MorphError> {
+        self.settings.validate().map_err(MorphError::Settings)?;
+        let (src_file, tgt_file);
+        let src = match &self.source {
+            MeshSource::File(p) => {
+                src_file = crate::geometry::load_mesh(p)?;
+                &src_file
+            }
+            MeshSource::Memory { mesh, .. } => mesh,
+        };
+        let tgt = match &self.target {
+            MeshSource::File(p) => {
+                tgt_file = crate::geometry::load_mesh(p)?;
+                &tgt_file
+            }
+            MeshSource::Memory { mesh, .. } => mesh,
+        };
+        let (src_name, tgt_name) = (self.source.name(), self.target.name());
+        Prepared::from_meshes(&self.settings, (src, &src_name), (tgt, &tgt_name))
+    }
+
+    /// Prepares and runs the morph; the observer sees events and frames (world units) and
+    /// may cancel it. Returns the prepared morph with its result.
+    pub fn run(&self, observer: &mut dyn Observer) -> Result<(Prepared, MorphResult), MorphError> {
+        let prep = self.prepare()?;
+        let result = run(&prep, None, observer)?;
+        Ok((prep, result))
+    }
+}
+
 /// One frame in world units, see [`Prepared::world_frame`].
 #[derive(Clone, Debug)]
 pub struct WorldFrame {
@@ -260,8 +352,8 @@ pub struct RunProgress {
 /// checkpoint them) and whether to stop.
 pub trait Observer {
     fn event(&mut self, _event: &MorphEvent) {}
-    /// Exported frame `index` (0-based) at global step `step`.
-    fn frame(&mut self, _index: usize, _step: usize, _state: &State) -> Result<(), MorphError> {
+    /// An exported frame, in world units (and the simulation state it came from).
+    fn frame(&mut self, _frame: &Frame) -> Result<(), MorphError> {
         Ok(())
     }
     /// A segment is complete; `segment` is the index whose controls changed.
@@ -359,7 +451,7 @@ fn chain<I: Integrator>(
             progress.state = prep.initial.clone();
             progress.segments_done = 0;
             if last_pass {
-                observer.frame(progress.frames, 0, &progress.state)?;
+                observer.frame(&Frame::new(prep, progress.frames, 0, &progress.state))?;
                 progress.frames += 1;
             }
         }
@@ -425,7 +517,8 @@ fn chain<I: Integrator>(
                 for local in 1..=s.steps_per_segment {
                     let global = k * s.steps_per_segment + local;
                     if global.is_multiple_of(s.frame_every) {
-                        observer.frame(progress.frames, global, &tape.state_at(local))?;
+                        let state = tape.state_at(local);
+                        observer.frame(&Frame::new(prep, progress.frames, global, &state))?;
                         progress.frames += 1;
                     }
                 }

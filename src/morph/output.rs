@@ -15,13 +15,12 @@
 
 use super::metrics::{FillMetrics, fill_metrics};
 use super::{
-    IterationRecord, MorphError, MorphEvent, MorphSettings, Observer, Prepared, RunProgress,
-    SegmentRecord, WorldFrame, checkpoint, run,
+    Frame, FrameSink, IterationRecord, MorphError, MorphEvent, MorphSettings, Observer, Prepared,
+    RunProgress, SegmentRecord, WorldFrame, checkpoint, run,
 };
 use crate::geometry::{Similarity, extract_surface};
 use crate::io::outdir::{self, Previous, Staging};
 use crate::io::{frames::write_points_ply, images, massgrid::MassGrid, sha256_file};
-use crate::mpm::State;
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -373,17 +372,44 @@ fn sha256_hex(bytes: &[u8]) -> String {
         .collect()
 }
 
-/// Writes frames as the chain produces them, checkpoints completed segments, and passes on
-/// events and stop requests.
+/// The folder's frame format: binary PLY points (`x y z vx vy vz J`) in `frames/` and, when
+/// asked, a closed OBJ surface per frame in `meshes/`, all in world units.
+pub struct PlyObjSink {
+    pub dir: PathBuf,
+    pub n_frames: usize,
+    pub surfaces: bool,
+    /// Particle spacing (simulation units) and rest volume, for the surface.
+    pub spacing: f64,
+    pub rest_volume: f64,
+    pub to_world: Similarity,
+}
+
+impl FrameSink for PlyObjSink {
+    fn frame(&mut self, frame: &Frame) -> Result<(), MorphError> {
+        let name = frame_name(frame.index, self.n_frames);
+        let WorldFrame { x, v, j } = &frame.world;
+        let points = self.dir.join("frames").join(format!("{name}.ply"));
+        write_points_ply(&points, x, v, j).map_err(|e| out_err("frame", &points, e))?;
+        if self.surfaces {
+            let volumes: Vec<f64> = j.iter().map(|j| self.rest_volume * j.max(0.0)).collect();
+            let surface = extract_surface(&frame.state.x, &volumes, self.spacing)
+                .map_err(|e| MorphError::Output(e.to_string()))?;
+            let path = self.dir.join("meshes").join(format!("{name}.obj"));
+            self.to_world
+                .apply_mesh(&surface)
+                .write_obj(&path)
+                .map_err(|e| out_err("surface", &path, e))?;
+        }
+        Ok(())
+    }
+}
+
+/// Writes frames through its sinks as the chain produces them, checkpoints completed
+/// segments, and passes on events and stop requests.
 struct FolderWriter<'a> {
-    prep: &'a Prepared,
     dir: &'a Path,
-    settings: &'a MorphSettings,
-    to_world: Similarity,
-    spacing: f64,
-    rest_volume: f64,
+    sinks: Vec<Box<dyn FrameSink>>,
     particles: usize,
-    n_frames: usize,
     preview_at: Vec<usize>,
     preview: Vec<(usize, Vec<Vector3<f64>>)>,
     stop: Option<&'a AtomicUsize>,
@@ -418,23 +444,14 @@ impl Observer for FolderWriter<'_> {
         (self.on_event)(event);
     }
 
-    fn frame(&mut self, index: usize, _step: usize, state: &State) -> Result<(), MorphError> {
-        let name = frame_name(index, self.n_frames);
-        let WorldFrame { x, v, j } = self.prep.world_frame(state);
-        let points = self.dir.join("frames").join(format!("{name}.ply"));
-        write_points_ply(&points, &x, &v, &j).map_err(|e| out_err("frame", &points, e))?;
-        if self.settings.surfaces {
-            let volumes: Vec<f64> = j.iter().map(|j| self.rest_volume * j.max(0.0)).collect();
-            let surface = extract_surface(&state.x, &volumes, self.spacing)
-                .map_err(|e| MorphError::Output(e.to_string()))?;
-            let path = self.dir.join("meshes").join(format!("{name}.obj"));
-            self.to_world
-                .apply_mesh(&surface)
-                .write_obj(&path)
-                .map_err(|e| out_err("surface", &path, e))?;
+    fn frame(&mut self, frame: &Frame) -> Result<(), MorphError> {
+        for sink in &mut self.sinks {
+            sink.frame(frame)?;
         }
+        let index = frame.index;
         if self.preview_at.contains(&index) {
             let path = self.preview_path(index);
+            let x = frame.world.x.clone();
             let flat: Vec<f64> = x.iter().flat_map(|p| p.iter().copied()).collect();
             checkpoint::write_f64s(&path, &flat).map_err(|e| out_err("checkpoint", &path, e))?;
             self.preview.push((index + 1, x));
@@ -477,15 +494,18 @@ fn write_run(
     let resumed_from = resume
         .as_ref()
         .map(|p| checkpoint::describe(p, settings.passes, settings.segments));
-    let mut writer = FolderWriter {
-        prep,
-        dir,
-        settings,
-        to_world,
+    let sink = PlyObjSink {
+        dir: dir.to_path_buf(),
+        n_frames,
+        surfaces: settings.surfaces,
         spacing,
         rest_volume: prep.geometry.source.volume,
+        to_world,
+    };
+    let mut writer = FolderWriter {
+        dir,
+        sinks: vec![Box::new(sink)],
         particles: prep.initial.len(),
-        n_frames,
         preview_at: (0..6).map(|i| i * (n_frames - 1) / 5).collect(),
         preview: Vec::new(),
         stop,
