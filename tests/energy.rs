@@ -86,16 +86,18 @@ fn kinetic(v: &[Vector3<f64>], m: f64) -> f64 {
 fn euler(b: &Bar, dt: f64) -> (f64, f64) {
     let n = b.x.len();
     let m = DENSITY * b.vol;
-    let sim = Simulator::new(
-        b.grid.clone(),
-        dt,
-        KernelKind::Quadratic,
-        b.material.clone(),
-        Vec::new(),
-        vec![m; n],
-        vec![b.vol; n],
-    )
-    .unwrap();
+    let sim = Simulator::from(
+        Model::new(
+            b.grid.clone(),
+            dt,
+            KernelKind::Quadratic,
+            b.material.clone(),
+            Vec::new(),
+            vec![m; n],
+            vec![b.vol; n],
+        )
+        .unwrap(),
+    );
     let mut s = State::at_rest(b.x.clone());
     s.v = b.v.clone();
     s.c = b.grad_v.clone();

@@ -95,19 +95,6 @@ fn control_at(controls: &[Option<Vec<Matrix3<f64>>>], s: usize) -> Option<&[Matr
 }
 
 impl Simulator {
-    /// Validates the scene (see [`Model::new`]) and makes its Euler integrator.
-    pub fn new(
-        grid: GridSpec,
-        dt: f64,
-        kernel: KernelKind,
-        material: Arc<dyn ConstitutiveModel>,
-        effects: Vec<Box<dyn Effect>>,
-        mass: Vec<f64>,
-        volume: Vec<f64>,
-    ) -> Result<Simulator, SimError> {
-        Model::new(grid, dt, kernel, material, effects, mass, volume).map(Simulator::from)
-    }
-
     fn stress_inputs(&self, p: usize) -> StressInputs<'_> {
         StressInputs {
             model: self.material.as_ref(),

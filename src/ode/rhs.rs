@@ -53,6 +53,18 @@ pub struct At<'a> {
     pub theta: f64,
 }
 
+impl<'a> At<'a> {
+    /// The end of step `step` (where the motion's energy is measured), with no `Fc`.
+    pub fn end_of_step(values: &'a [Vector3<f64>], step: usize) -> At<'a> {
+        At {
+            values,
+            fc: None,
+            step,
+            theta: 1.0,
+        }
+    }
+}
+
 /// dL/d(inputs) of one right-hand-side evaluation.
 pub struct RhsGrad {
     pub state: OdeState,
@@ -121,12 +133,7 @@ impl OdeSystem {
         step: usize,
     ) -> Result<f64, SimError> {
         let mut d = OdeState::zeros(0);
-        let at = At {
-            values,
-            fc: None,
-            step,
-            theta: 1.0,
-        };
+        let at = At::end_of_step(values, step);
         self.rhs(s, &at, &mut d)?;
         Ok(d.x
             .iter()
@@ -144,12 +151,7 @@ impl OdeSystem {
         weight: f64,
     ) -> RhsGrad {
         let mut d = OdeState::zeros(0);
-        let at = At {
-            values,
-            fc: None,
-            step,
-            theta: 1.0,
-        };
+        let at = At::end_of_step(values, step);
         self.rhs(s, &at, &mut d)
             .expect("reverse pass replays a forward evaluation that succeeded");
         let n = s.len();

@@ -20,6 +20,21 @@ use std::borrow::Cow;
 /// Stage fractions of the step at which RK4 evaluates `f`.
 pub const STAGE_THETA: [f64; 4] = [0.0, 0.5, 0.5, 1.0];
 
+/// Where RK4's stage `i` of step `step` evaluates the right-hand side.
+fn stage_at<'a>(
+    values: &'a [nalgebra::Vector3<f64>],
+    fc: Option<&'a [Matrix3<f64>]>,
+    step: usize,
+    i: usize,
+) -> At<'a> {
+    At {
+        values,
+        fc,
+        step,
+        theta: STAGE_THETA[i],
+    }
+}
+
 /// The four stage inputs of one step.
 pub type StepStages = [OdeState; 4];
 
@@ -50,12 +65,7 @@ impl OdeSystem {
                 s.combine_into(scale[i - 1], &k[i - 1], &mut stage);
             }
             let values = self.control_values(params, step, STAGE_THETA[i]);
-            let at = At {
-                values: &values,
-                fc,
-                step,
-                theta: STAGE_THETA[i],
-            };
+            let at = stage_at(&values, fc, step, i);
             self.rhs(&stage, &at, &mut k[i])?;
             if record {
                 stages.push(stage.clone());
@@ -111,12 +121,7 @@ impl OdeSystem {
                 gk.axpy(scale[i + 1], &g_next);
             }
             let values = self.control_values(params, step, STAGE_THETA[i]);
-            let at = At {
-                values: &values,
-                fc,
-                step,
-                theta: STAGE_THETA[i],
-            };
+            let at = stage_at(&values, fc, step, i);
             let g = self.rhs_reverse(&stages[i], &at, &gk);
             self.controls
                 .values_reverse(step, STAGE_THETA[i], self.dt, &g.controls, grad_params);
