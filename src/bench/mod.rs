@@ -5,31 +5,38 @@
 
 pub mod geometry;
 
+use crate::integrator::{Engine, Integrator, IntegratorKind};
 use crate::loss::{MassLoss, MassLossKind};
 use crate::material::svd::{svd3, svd3_x4};
-use crate::mpm::{KernelKind, SimError, Simulator, State, StateGrad, Tape};
+use crate::mpm::{KernelKind, SimError, State, StateGrad};
 use crate::scene::{EffectConfig, SceneConfig, ball_particles};
 use nalgebra::{Matrix3, Vector3};
 use serde_json::json;
 use std::time::Instant;
 
-/// The reference scene, its deforming initial state and per-step controls.
+/// The reference scene (with the integrator asked), its deforming initial state and per-step
+/// controls.
 pub struct Workload {
-    pub sim: Simulator,
+    pub engine: Engine,
     pub initial: State,
     pub controls: Vec<Option<Vec<Matrix3<f64>>>>,
     pub loss: MassLoss,
 }
 
 /// Builds the reference workload for `steps` steps with the given kernel.
-pub fn reference_workload(kernel: KernelKind, steps: usize) -> Result<Workload, SimError> {
+pub fn reference_workload(
+    kernel: KernelKind,
+    integrator: IntegratorKind,
+    steps: usize,
+) -> Result<Workload, SimError> {
     let scene = SceneConfig::reference();
-    workload(kernel, steps, scene.effects, true)
+    workload(kernel, integrator, steps, scene.effects, true)
 }
 
 /// The reference ball with the given effects, with or without control `Fc`.
 pub fn workload(
     kernel: KernelKind,
+    integrator: IntegratorKind,
     steps: usize,
     effects: Vec<EffectConfig>,
     with_controls: bool,
@@ -38,7 +45,7 @@ pub fn workload(
     scene.kernel = kernel;
     scene.effects = effects;
     let (x, vol) = ball_particles(&scene.grid, Vector3::zeros(), 8.0, 2);
-    let sim = scene.build(vol)?;
+    let engine = Engine::new(scene.model(vol)?, integrator)?;
     let mut initial = State::at_rest(x);
     for p in 0..initial.len() {
         let r = initial.x[p];
@@ -64,9 +71,9 @@ pub fn workload(
         .iter()
         .map(|x| x + Vector3::new(2.0, 0.0, 0.0))
         .collect();
-    let target = sim.mass_grid(&shifted)?;
+    let target = engine.model().mass_grid(&shifted)?;
     Ok(Workload {
-        sim,
+        engine,
         initial,
         controls,
         loss: MassLoss::new(MassLossKind::Log, target),
@@ -77,7 +84,9 @@ impl Workload {
     /// Forward only.
     pub fn run_forward(&self, steps: usize) -> Result<State, SimError> {
         let mut s = self.initial.clone();
-        self.sim.forward(&mut s, &self.controls, 0, steps, None)?;
+        crate::with_integrator!(&self.engine, sim => {
+            sim.forward(&mut s, &self.controls, 0, steps, None)
+        })?;
         Ok(s)
     }
 
@@ -86,15 +95,17 @@ impl Workload {
         &self,
         steps: usize,
     ) -> Result<(f64, crate::mpm::Gradients), SimError> {
-        let mut s = self.initial.clone();
-        let mut tape = Tape::default();
-        self.sim
-            .forward(&mut s, &self.controls, 0, steps, Some(&mut tape))?;
-        let mass = self.sim.mass_grid(&s.x)?;
-        let (loss, gm) = self.loss.value_and_grad(&mass);
-        let mut seed = StateGrad::zeros(s.len());
-        seed.x = self.sim.mass_grid_reverse(&s.x, &gm);
-        Ok((loss, self.sim.backward(&tape, &self.controls, seed)))
+        crate::with_integrator!(&self.engine, sim => {
+            let mut s = self.initial.clone();
+            let mut tape = Default::default();
+            sim.forward(&mut s, &self.controls, 0, steps, Some(&mut tape))?;
+            let model = sim.model();
+            let mass = model.mass_grid(&s.x)?;
+            let (loss, gm) = self.loss.value_and_grad(&mass);
+            let mut seed = StateGrad::zeros(s.len());
+            seed.x = model.mass_grid_reverse(&s.x, &gm);
+            Ok((loss, sim.backward(&tape, &self.controls, seed)))
+        })
     }
 }
 
@@ -104,6 +115,7 @@ pub fn run(
     repeats: usize,
     threads: &[usize],
     kernels: &[KernelKind],
+    integrators: &[IntegratorKind],
 ) -> anyhow::Result<()> {
     // SVD: ours against nalgebra's general SVD, single thread.
     let mats: Vec<Matrix3<f64>> = (0..200_000)
@@ -154,8 +166,11 @@ pub fn run(
                "ns_per_call_nalgebra": theirs})
     );
 
-    for &kernel in kernels {
-        let w = reference_workload(kernel, steps)?;
+    for (&kernel, &integrator) in kernels
+        .iter()
+        .flat_map(|k| integrators.iter().map(move |i| (k, i)))
+    {
+        let w = reference_workload(kernel, integrator, steps)?;
         for &t in threads {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build()?;
             let (fwd, fwdrev) = pool.install(|| -> Result<(f64, f64), SimError> {
@@ -171,12 +186,13 @@ pub fn run(
                 }
                 Ok((best_f, best_fr))
             })?;
-            let n = w.sim.num_particles();
+            let n = w.engine.model().num_particles();
             for (mode, secs) in [("forward", fwd), ("forward_reverse", fwdrev)] {
                 println!(
                     "{}",
                     json!({
-                        "bench": mode, "particles": n, "kernel": kernel.name(), "threads": t,
+                        "bench": mode, "particles": n, "kernel": kernel.name(),
+                        "integrator": integrator, "threads": t,
                         "steps": steps, "seconds": secs,
                         "particle_steps_per_s": (n * steps) as f64 / secs,
                         "ms_per_step": secs / steps as f64 * 1e3,
@@ -213,7 +229,13 @@ fn effect_costs(steps: usize, repeats: usize) -> anyhow::Result<()> {
     ];
     let mut baseline = None;
     for (name, effects, controls) in cases {
-        let w = workload(KernelKind::Cubic, steps, effects, controls)?;
+        let w = workload(
+            KernelKind::Cubic,
+            IntegratorKind::Euler,
+            steps,
+            effects,
+            controls,
+        )?;
         let mut best = f64::INFINITY;
         for _ in 0..repeats.max(1) {
             let t0 = Instant::now();

@@ -2,6 +2,7 @@
 
 use super::fail;
 use clap::Args;
+use morph::integrator::IntegratorKind;
 use morph::morph::settings::limits;
 use morph::mpm::KernelKind;
 use std::path::PathBuf;
@@ -22,6 +23,10 @@ pub struct BenchArgs {
     #[arg(long, value_delimiter = ',', value_parser = super::choice(&KernelKind::ALL),
           default_values = KernelKind::ALL.map(|k| super::name(&k)))]
     kernels: Vec<KernelKind>,
+    /// Integrators to measure, comma separated (rk4 costs four evaluations a step).
+    #[arg(long, value_delimiter = ',', value_parser = super::choice(&IntegratorKind::ALL),
+          default_values = [super::name(&IntegratorKind::Euler)])]
+    integrators: Vec<IntegratorKind>,
 }
 
 pub fn run(a: &BenchArgs) -> ExitCode {
@@ -37,6 +42,7 @@ pub fn run(a: &BenchArgs) -> ExitCode {
         a.repeats,
         &a.thread_counts,
         &a.kernels,
+        &a.integrators,
     ))
 }
 

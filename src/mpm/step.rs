@@ -2,19 +2,17 @@
 
 use super::advance::{advance, advance_reverse};
 use super::error::SimError;
-use super::grid::{Bins, GridSpec, SharedMut};
+use super::grid::{Bins, SharedMut};
 use super::grid_update::{grid_velocity, grid_velocity_reverse};
 use super::kernel::{KernelKind, Stencil};
 use super::model::Model;
 use super::state::{State, StateGrad};
 use super::stress::StressInputs;
 use super::transfer::{self, Affine, Node};
-use crate::effects::{Effect, GridContext};
-use crate::material::ConstitutiveModel;
+use crate::effects::GridContext;
 use crate::ode::ControlParams;
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
-use std::sync::Arc;
 
 /// The symplectic-Euler MLS-MPM integrator over a [`Model`] (which it dereferences to).
 #[derive(Debug)]
