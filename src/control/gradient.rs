@@ -108,23 +108,16 @@ pub fn gradient_control<S: Controlled>(
     horizon: usize,
     mut on_event: impl FnMut(ControlEvent),
 ) -> Result<ControllerRun, SimError> {
-    let schedule = sys.model().controls.schedule;
+    let (plan, dt) = (&sys.model().controls, sys.model().dt);
+    let (schedule, bounds) = (plan.schedule, plan.bounds());
     settings.validate(horizon, schedule.steps_per_interval)?;
     let started = Instant::now();
-    let mut params = sys.model().controls.zero_params();
+    let mut params = plan.zero_params();
     let mut state = init.clone();
     let mut committed = Vec::with_capacity(horizon);
     let mut evaluations = Vec::new();
     let mut simulated_steps = 0;
     let n = settings.batch_steps;
-    let dt = sys.model().dt;
-    let bounds: Vec<_> = sys
-        .model()
-        .controls
-        .effects
-        .iter()
-        .map(|e| e.bound)
-        .collect();
     for a in (0..horizon).step_by(n) {
         let len = (n + settings.lookahead_steps).min(horizon - a);
         let knots = free_knots(&schedule, a, a + len);
@@ -190,7 +183,7 @@ pub fn gradient_control<S: Controlled>(
                     }
                 }
             }
-            sys.model().controls.project(&mut params);
+            plan.project(&mut params);
         }
         let (cost, best_params, end, energy) = best.expect("at least one evaluation");
         // Commit the batch's best knots; the lookahead's knots are the next batch's warm

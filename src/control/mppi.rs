@@ -107,22 +107,15 @@ pub fn mppi_control<S: Controlled>(
     total: usize,
     mut on_event: impl FnMut(ControlEvent),
 ) -> Result<ControllerRun, SimError> {
-    let schedule = sys.model().controls.schedule;
+    let (plan, dt) = (&sys.model().controls, sys.model().dt);
+    let (schedule, bounds) = (plan.schedule, plan.bounds());
     settings.validate(total, schedule.steps_per_interval)?;
     let started = Instant::now();
-    let mut params = sys.model().controls.zero_params();
+    let mut params = plan.zero_params();
     let mut state = init.clone();
     let mut committed = Vec::with_capacity(total);
     let mut evaluations = Vec::new();
     let mut simulated_steps = 0;
-    let dt = sys.model().dt;
-    let bounds: Vec<_> = sys
-        .model()
-        .controls
-        .effects
-        .iter()
-        .map(|e| e.bound)
-        .collect();
     for (window, k) in (0..total).step_by(settings.replan_steps).enumerate() {
         let len = settings.horizon_steps.min(total - k);
         let knots = free_knots(&schedule, k, k + len);
@@ -144,7 +137,7 @@ pub fn mppi_control<S: Controlled>(
                                 }
                             }
                         }
-                        sys.model().controls.project(&mut p);
+                        plan.project(&mut p);
                     }
                     p
                 })

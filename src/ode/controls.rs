@@ -122,6 +122,11 @@ impl ControlPlan {
         }
     }
 
+    /// Each control's per-component bound.
+    pub fn bounds(&self) -> Vec<Vector3<f64>> {
+        self.effects.iter().map(|e| e.bound).collect()
+    }
+
     /// Checks the schedule, particle sets and bounds against `n` particles.
     pub fn validate(&self, n: usize) -> Result<(), SimError> {
         let bad = |m: String| Err(SimError::InvalidScene(m));

@@ -7,8 +7,7 @@
 //! - G2P: `dx_p/dt = sum w v_i`, `dv_p/dt = sum w a_i`, `dF_p/dt = B_p F_p`.
 //!
 //! Particles of a prescribed-velocity control use `v~_p = u(t)`, `dx_p/dt = u(t)` and
-//! `dv_p/dt = 0`. A deformation-gradient control `Fc` (the morph's) enters the stress as
-//! `P(F + Fc)`. With the same MLS gradient in the force and in `B_p`, the semi-discrete
+//! `dv_p/dt = 0`. With the same MLS gradient in the force and in `B_p`, the semi-discrete
 //! system conserves kinetic + elastic + gravitational energy exactly: the only losses left are
 //! the integrator's (see docs/control.md).
 
@@ -43,22 +42,20 @@ impl std::ops::Deref for OdeSystem {
 /// Most effects a node's rates may pass through (their inputs are kept on the stack).
 const MAX_RATE_EFFECTS: usize = 8;
 
-/// Where and with what one right-hand side is evaluated: the controls' values, an optional
-/// deformation-gradient control, and the time (step and fraction of the step).
+/// Where and with what one right-hand side is evaluated: the controls' values and the time
+/// (step and fraction of the step).
 #[derive(Clone, Copy, Debug)]
 pub struct At<'a> {
     pub values: &'a [Vector3<f64>],
-    pub fc: Option<&'a [Matrix3<f64>]>,
     pub step: usize,
     pub theta: f64,
 }
 
 impl<'a> At<'a> {
-    /// The end of step `step` (where the motion's energy is measured), with no `Fc`.
+    /// The end of step `step` (where the motion's energy is measured).
     pub fn end_of_step(values: &'a [Vector3<f64>], step: usize) -> At<'a> {
         At {
             values,
-            fc: None,
             step,
             theta: 1.0,
         }
@@ -70,8 +67,6 @@ pub struct RhsGrad {
     pub state: OdeState,
     /// dL/d(control values) at the evaluation time, one per control.
     pub controls: Vec<Vector3<f64>>,
-    /// dL/dFc per particle (empty without a deformation-gradient control).
-    pub fc: Vec<Matrix3<f64>>,
     /// dL/d(effect parameters), in model order.
     pub effect_params: Vec<Vec<f64>>,
 }
@@ -242,15 +237,6 @@ impl OdeSystem {
         }
     }
 
-    /// The elastic deformation gradient of particle `p`: `F + Fc`.
-    #[inline]
-    fn elastic_f(s: &OdeState, at: &At, p: usize) -> Matrix3<f64> {
-        match at.fc {
-            Some(fc) => s.f[p] + fc[p],
-            None => s.f[p],
-        }
-    }
-
     /// Forward pieces shared by the evaluation and its reverse. Only the grid nodes inside
     /// some particle's stencil (the active nodes) are touched, in dense buffers borrowed from
     /// the pool, so the cost follows the particles and not the domain's size.
@@ -266,18 +252,10 @@ impl OdeSystem {
         // Stresses in chunks, so a material can batch them (fixed-corotated interleaves four
         // SVDs); the same bits as one at a time.
         const CHUNK: usize = 64;
-        let fe_owned: Vec<Matrix3<f64>>;
-        let fe: &[Matrix3<f64>] = match at.fc {
-            Some(_) => {
-                fe_owned = (0..n).map(|p| Self::elastic_f(s, at, p)).collect();
-                &fe_owned
-            }
-            None => &s.f,
-        };
         let mut stress_force = vec![Matrix3::zeros(); n];
         stress_force
             .par_chunks_mut(CHUNK)
-            .zip(fe.par_chunks(CHUNK))
+            .zip(s.f.par_chunks(CHUNK))
             .with_min_len(PARALLEL_MIN / CHUNK)
             .enumerate()
             .for_each(|(k, (out, f))| {
@@ -538,20 +516,18 @@ impl OdeSystem {
 
         // P2G reverse (gather) and the stress reverse.
         let mut grad_body = vec![Vector3::zeros(); n];
-        // dL/d(F + Fc) of the stress, per particle: dL/dFc when a control is given.
-        let mut grad_fe = vec![Matrix3::zeros(); n];
         let grad_nodes = &fw.buf.grad_nodes;
         (
             grad.x.par_iter_mut(),
             grad.v.par_iter_mut(),
             grad.f.par_iter_mut(),
             grad_u.par_iter_mut(),
-            (grad_body.par_iter_mut(), grad_fe.par_iter_mut()),
+            grad_body.par_iter_mut(),
         )
             .into_par_iter()
             .with_min_len(PARALLEL_MIN)
             .enumerate()
-            .for_each(|(p, (gx, gv, gf, gu, (gb, gfe)))| {
+            .for_each(|(p, (gx, gv, gf, gu, gb))| {
                 let st = Stencil::<N>::new(&s.x[p], &origin, dx);
                 let fields = self.scatter_fields(s, values, &fw.stress_force, &fw.body, p);
                 let m = self.mass[p];
@@ -565,9 +541,8 @@ impl OdeSystem {
                 *gb = m * g.value[1];
                 let (_, g_f) = self
                     .stress_inputs(p)
-                    .affine_momentum_reverse(&Self::elastic_f(s, at, p), &g.slope[1]);
+                    .affine_momentum_reverse(&s.f[p], &g.slope[1]);
                 *gf += g_f;
-                *gfe = g_f;
             });
         self.pool.put(fw.buf);
 
@@ -575,7 +550,6 @@ impl OdeSystem {
         RhsGrad {
             state: grad,
             controls,
-            fc: if at.fc.is_some() { grad_fe } else { Vec::new() },
             effect_params,
         }
     }

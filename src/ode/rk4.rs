@@ -21,15 +21,9 @@ use std::borrow::Cow;
 pub const STAGE_THETA: [f64; 4] = [0.0, 0.5, 0.5, 1.0];
 
 /// Where RK4's stage `i` of step `step` evaluates the right-hand side.
-fn stage_at<'a>(
-    values: &'a [nalgebra::Vector3<f64>],
-    fc: Option<&'a [Matrix3<f64>]>,
-    step: usize,
-    i: usize,
-) -> At<'a> {
+fn stage_at(values: &[nalgebra::Vector3<f64>], step: usize, i: usize) -> At<'_> {
     At {
         values,
-        fc,
         step,
         theta: STAGE_THETA[i],
     }
@@ -45,7 +39,6 @@ impl OdeSystem {
         &self,
         s: &mut OdeState,
         params: &ControlParams,
-        fc: Option<&[Matrix3<f64>]>,
         step: usize,
         record: bool,
     ) -> Result<Option<StepStages>, SimError> {
@@ -65,7 +58,7 @@ impl OdeSystem {
                 s.combine_into(scale[i - 1], &k[i - 1], &mut stage);
             }
             let values = self.control_values(params, step, STAGE_THETA[i]);
-            let at = stage_at(&values, fc, step, i);
+            let at = stage_at(&values, step, i);
             self.rhs(&stage, &at, &mut k[i])?;
             if record {
                 stages.push(stage.clone());
@@ -84,27 +77,23 @@ impl OdeSystem {
         self.check_finite_and_cfl(s.first_non_finite(), &s.v, step)
     }
 
-    /// Reverse of one RK4 step: turns `adj` from dL/d(S') into dL/d(S), adds the control
-    /// knots' gradients into `grad_params` and the effects' into `grad_effects`, and returns
-    /// dL/dFc (empty without `fc`).
-    #[allow(clippy::too_many_arguments)]
+    /// Reverse of one RK4 step: turns `adj` from dL/d(S') into dL/d(S), and adds the control
+    /// knots' gradients into `grad_params` and the effects' into `grad_effects`.
     pub fn rk4_step_reverse(
         &self,
         stages: &StepStages,
         params: &ControlParams,
-        fc: Option<&[Matrix3<f64>]>,
         step: usize,
         adj: &mut OdeState,
         grad_params: &mut ControlParams,
         grad_effects: &mut [Vec<f64>],
-    ) -> Vec<Matrix3<f64>> {
+    ) {
         let h = self.dt;
         let weight = [h / 6.0, h / 3.0, h / 3.0, h / 6.0];
         // dL/d(S_i) passed on to stage i-1's k (S_i = S + scale_i k_{i-1}).
         let scale = [0.0, 0.5 * h, 0.5 * h, h];
         let out = adj.clone();
         let mut carried: Option<OdeState> = None;
-        let mut grad_fc: Vec<Matrix3<f64>> = Vec::new();
         for i in (0..4).rev() {
             let mut gk = out.clone();
             // gk_i = w_i gS' + scale_{i+1} gS_{i+1}
@@ -121,7 +110,7 @@ impl OdeSystem {
                 gk.axpy(scale[i + 1], &g_next);
             }
             let values = self.control_values(params, step, STAGE_THETA[i]);
-            let at = stage_at(&values, fc, step, i);
+            let at = stage_at(&values, step, i);
             let g = self.rhs_reverse(&stages[i], &at, &gk);
             self.controls
                 .values_reverse(step, STAGE_THETA[i], self.dt, &g.controls, grad_params);
@@ -130,19 +119,10 @@ impl OdeSystem {
                     *a += b;
                 }
             }
-            if fc.is_some() {
-                if grad_fc.is_empty() {
-                    grad_fc = g.fc;
-                } else {
-                    for (a, b) in grad_fc.iter_mut().zip(&g.fc) {
-                        *a += b;
-                    }
-                }
-            }
+
             adj.axpy(1.0, &g.state);
             carried = Some(g.state);
         }
-        grad_fc
     }
 }
 
@@ -153,6 +133,9 @@ impl OdeSystem {
 pub struct Rk4Tape {
     pub first_step: usize,
     pub steps: Vec<StepStages>,
+    /// Per step, the deformation gradients before a control `Fc` was added at its start
+    /// (`None` for steps without a control): the state the step started from.
+    pub pre_control_f: Vec<Option<Vec<Matrix3<f64>>>>,
     pub last: State,
 }
 
@@ -191,13 +174,23 @@ impl Integrator for OdeSystem {
         if let Some(t) = tape.as_deref_mut() {
             t.first_step = first_step;
             t.steps.clear();
+            t.pre_control_f.clear();
         }
         for k in 0..n_steps {
+            // The control jumps F at the step's start, as in the Euler step (`Fe = F + Fc`).
             let fc = controls.get(k).and_then(|c| c.as_deref());
             self.check_control(fc, first_step + k)?;
-            let stages = self.rk4_step(&mut s, &params, fc, first_step + k, tape.is_some())?;
+            let pre_f = fc.map(|fc| {
+                let pre = s.f.clone();
+                for (f, c) in s.f.iter_mut().zip(fc) {
+                    *f += c;
+                }
+                pre
+            });
+            let stages = self.rk4_step(&mut s, &params, first_step + k, tape.is_some())?;
             if let (Some(t), Some(st)) = (tape.as_deref_mut(), stages) {
                 t.steps.push(st);
+                t.pre_control_f.push(pre_f);
             }
         }
         *state = from_ode(s);
@@ -215,18 +208,17 @@ impl Integrator for OdeSystem {
         let first_step = tape.first_step;
         let mut grad_controls = vec![None; tape.steps.len()];
         for k in (0..tape.steps.len()).rev() {
-            let fc = controls.get(k).and_then(|c| c.as_deref());
-            let g = self.rk4_step_reverse(
+            self.rk4_step_reverse(
                 &tape.steps[k],
                 &params,
-                fc,
                 first_step + k,
                 &mut adj,
                 &mut grad_params,
                 &mut effect_params,
             );
-            if fc.is_some() {
-                grad_controls[k] = Some(g);
+            // F + Fc passes dL/dF on unchanged to both.
+            if controls.get(k).is_some_and(|c| c.is_some()) {
+                grad_controls[k] = Some(adj.f.clone());
             }
         }
         Gradients {
@@ -244,7 +236,13 @@ impl RunTape for Rk4Tape {
 
     fn state_at(&self, k: usize) -> Cow<'_, State> {
         match self.steps.get(k) {
-            Some(st) => Cow::Owned(from_ode(st[0].clone())),
+            Some(st) => {
+                let mut s = from_ode(st[0].clone());
+                if let Some(Some(f)) = self.pre_control_f.get(k) {
+                    s.f = f.clone();
+                }
+                Cow::Owned(s)
+            }
             None => Cow::Borrowed(&self.last),
         }
     }
@@ -257,12 +255,16 @@ impl RunTape for Rk4Tape {
         Rk4Tape {
             first_step: self.first_step + k,
             steps: self.steps.split_off(k),
+            pre_control_f: self
+                .pre_control_f
+                .split_off(k.min(self.pre_control_f.len())),
             last: std::mem::take(&mut self.last),
         }
     }
 
     fn append(&mut self, tail: Self) {
         self.steps.extend(tail.steps);
+        self.pre_control_f.extend(tail.pre_control_f);
         self.last = tail.last;
     }
 }

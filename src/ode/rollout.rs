@@ -46,7 +46,7 @@ impl OdeSystem {
         let mut energy = Vec::with_capacity(n_steps);
         let taped = tape.is_some();
         for k in first_step..first_step + n_steps {
-            let stages = self.rk4_step(s, params, None, k, taped)?;
+            let stages = self.rk4_step(s, params, k, taped)?;
             if let (Some(t), Some(st)) = (tape.as_deref_mut(), stages) {
                 t.steps.push(st);
             }
@@ -109,7 +109,6 @@ impl OdeSystem {
             self.rk4_step_reverse(
                 &tape.steps[i],
                 params,
-                None,
                 k,
                 &mut adj,
                 &mut grad_params,
