@@ -108,6 +108,8 @@ pub struct MorphArgs {
     preset: Preset,
     #[arg(long, help = help("Grid cells across the domain's longest side", Some(limits::RESOLUTION), defaults().resolution))]
     resolution: Option<usize>,
+    #[arg(long, conflicts_with = "resolution", help = help("Particle budget: picks the resolution so the source gets about this many particles, whatever the shapes' proportions", Some(limits::PARTICLES), "off (use --resolution)"))]
+    particles: Option<usize>,
     #[arg(long, help = help("Segments in the chain", Some(limits::SEGMENTS), by_preset(|s| s.segments)))]
     segments: Option<usize>,
     #[arg(long, help = help("Simulation steps per segment (dt 1/120 s at the reference resolution)", Some(limits::STEPS), defaults().steps_per_segment))]
@@ -165,6 +167,7 @@ impl MorphArgs {
             }
         };
         set(&mut s.resolution, self.resolution);
+        s.particles = self.particles;
         set(&mut s.segments, self.segments);
         set(&mut s.steps_per_segment, self.steps);
         set(&mut s.control_stride, self.control_stride);
@@ -337,6 +340,17 @@ pub fn run(args: &MorphArgs) -> ExitCode {
                     100.0 * summary.fill.particles_ejected,
                     summary.seconds
                 );
+                if let Some(q) = &summary.quality {
+                    println!(
+                        "quality: fill {:.3} (1 = a lattice fill of the target), surface gap {:.2} spacings, ejected {:.2}%, J {:.2} to {:.2} ({:.2}% inverted)",
+                        q.fill,
+                        q.surface_gap,
+                        100.0 * q.ejected,
+                        q.min_j,
+                        q.max_j,
+                        100.0 * q.inverted
+                    );
+                }
             }
             ExitCode::SUCCESS
         }

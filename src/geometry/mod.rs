@@ -26,6 +26,8 @@ pub struct MorphGeometry {
     pub target: Particles,
     pub source_solid: Solid,
     pub target_solid: Solid,
+    /// The target's surface placed in sim coordinates (the quality judge reads it).
+    pub target_sim: TriMesh,
     /// Non-fatal findings (open meshes, flipped faces, a missing .mtl), one line each.
     pub warnings: Vec<String>,
 }
@@ -89,6 +91,7 @@ impl MorphGeometry {
             target,
             source_solid,
             target_solid,
+            target_sim,
             warnings,
         })
     }

@@ -9,6 +9,7 @@
 pub mod checkpoint;
 pub mod metrics;
 pub mod output;
+pub mod quality;
 pub mod segment;
 pub mod settings;
 
@@ -147,22 +148,44 @@ impl Prepared {
         target: (&LoadedMesh, &Path),
     ) -> Result<Prepared, MorphError> {
         settings.validate().map_err(MorphError::Settings)?;
-        let placement = PlacementOptions {
-            resolution: settings.resolution,
-            target_fit: settings.target_fit,
-            ..Default::default()
-        };
         let jitter = (settings.jitter > 0.0).then_some(Jitter {
             amount: settings.jitter,
             seed: settings.seed,
         });
-        let geometry = MorphGeometry::from_loaded(
-            source,
-            target,
-            &placement,
-            settings.particles_per_cell,
-            jitter,
-        )?;
+        let geometry_at = |resolution: usize| {
+            let placement = PlacementOptions {
+                resolution,
+                target_fit: settings.target_fit,
+                ..Default::default()
+            };
+            MorphGeometry::from_loaded(
+                source,
+                target,
+                &placement,
+                settings.particles_per_cell,
+                jitter,
+            )
+        };
+        let mut settings = settings.clone();
+        let geometry = match settings.particles {
+            None => geometry_at(settings.resolution)?,
+            Some(budget) => {
+                // Particles grow with the cube of the resolution: a probe fixes the scale, and
+                // one correction from the first estimate absorbs the coarse probe's error.
+                let limits = settings::limits::RESOLUTION;
+                let next = |r: usize, count: usize| {
+                    let r = r as f64 * (budget as f64 / count.max(1) as f64).cbrt();
+                    (r.round() as usize).clamp(*limits.start(), *limits.end())
+                };
+                const PROBE: usize = 24;
+                let r = next(PROBE, geometry_at(PROBE)?.source.positions.len());
+                let first = geometry_at(r)?;
+                let r2 = next(r, first.source.positions.len());
+                settings.resolution = r2;
+                if r2 == r { first } else { geometry_at(r2)? }
+            }
+        };
+        let settings = &settings;
         let grid = geometry.placement.grid.clone();
         let mut scene = SceneConfig {
             grid,
@@ -220,6 +243,18 @@ impl Prepared {
     /// Frames the chain exports: the initial state and every `frame_every`-th step.
     pub fn frame_count(&self) -> usize {
         self.settings.total_steps() / self.settings.frame_every + 1
+    }
+
+    /// The quality judge's verdict on `state` (see [`quality`]).
+    pub fn quality(&self, state: &State) -> quality::Quality {
+        let spacing = self.model().grid.dx / self.settings.particles_per_cell as f64;
+        let judge = quality::Judge::new(
+            &self.geometry.target_sim,
+            spacing,
+            &self.geometry.target.positions,
+        );
+        let j: Vec<f64> = state.f.iter().map(|f| f.determinant()).collect();
+        judge.judge(&state.x, &j)
     }
 
     pub fn loss_of(&self, state: &State) -> Result<f64, SimError> {

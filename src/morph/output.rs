@@ -14,6 +14,7 @@
 //! interrupted run keeps it and `--resume` continues bit for bit.
 
 use super::metrics::{FillMetrics, fill_metrics};
+use super::quality::Quality;
 use super::{
     Frame, FrameSink, IterationRecord, MorphError, MorphEvent, MorphSettings, Observer, Prepared,
     RunProgress, SegmentRecord, WorldFrame, checkpoint, run,
@@ -173,6 +174,9 @@ struct Manifest {
     initial_loss: f64,
     final_loss: f64,
     fill: FillMetrics,
+    /// The quality judge's verdict on the final state (`morph::quality`).
+    #[serde(default)]
+    quality: Option<Quality>,
     iterations: Vec<IterationRecord>,
     segments: Vec<SegmentRecord>,
     timings: Timings,
@@ -197,6 +201,9 @@ pub struct Summary {
     pub initial_loss: f64,
     pub final_loss: f64,
     pub fill: FillMetrics,
+    /// The quality judge's verdict (absent when `--resume` found an older complete folder
+    /// without one).
+    pub quality: Option<Quality>,
     pub seconds: f64,
     /// Where the run continued from (`--resume`), e.g. "pass 2 of 2, 5 of 12 segments done".
     pub resumed_from: Option<String>,
@@ -260,6 +267,7 @@ pub fn morph_to_folder(
                     initial_loss: m.initial_loss,
                     final_loss: m.final_loss,
                     fill: m.fill,
+                    quality: m.quality,
                     seconds: 0.0,
                     resumed_from: None,
                     already_complete: true,
@@ -537,6 +545,7 @@ fn write_run(
         &prep.initial.x,
         &result.final_state.x,
     );
+    let quality = Some(prep.quality(&result.final_state));
     let losses: Vec<(f64, f64)> = result
         .iterations
         .iter()
@@ -582,6 +591,7 @@ fn write_run(
         initial_loss: result.initial_loss,
         final_loss: result.final_loss,
         fill,
+        quality,
         iterations: result.iterations,
         segments: result.segments,
         timings: Timings {
@@ -608,6 +618,7 @@ fn write_run(
         initial_loss: result.initial_loss,
         final_loss: result.final_loss,
         fill,
+        quality,
         seconds: total_s,
         resumed_from,
         already_complete: false,

@@ -13,6 +13,8 @@ use serde::{Deserialize, Serialize};
 pub mod limits {
     use std::ops::RangeInclusive;
     pub const RESOLUTION: RangeInclusive<usize> = 8..=256;
+    /// Particle budget (`--particles`).
+    pub const PARTICLES: RangeInclusive<usize> = 100..=20_000_000;
     pub const PARTICLES_PER_CELL: RangeInclusive<usize> = 1..=4;
     pub const SEGMENTS: RangeInclusive<usize> = 1..=10_000;
     pub const STEPS: RangeInclusive<usize> = 1..=10_000;
@@ -45,6 +47,10 @@ pub struct MorphSettings {
     pub preset: Preset,
     /// Grid cells across the domain's longest side.
     pub resolution: usize,
+    /// A particle budget: when set, the resolution is chosen so the source gets about this
+    /// many particles, whatever the shapes' proportions (and `resolution` is ignored).
+    #[serde(default)]
+    pub particles: Option<usize>,
     /// Particles per cell along each axis (k; k^3 per cell).
     pub particles_per_cell: usize,
     /// Random particle offsets in particle spacings (0 = regular lattice).
@@ -86,6 +92,7 @@ impl MorphSettings {
         MorphSettings {
             preset,
             resolution: 32,
+            particles: None,
             particles_per_cell: 2,
             jitter: 0.0,
             seed: 0,
@@ -132,6 +139,9 @@ impl MorphSettings {
             }
         };
         range("resolution", self.resolution, limits::RESOLUTION)?;
+        if let Some(n) = self.particles {
+            range("particles", n, limits::PARTICLES)?;
+        }
         range(
             "particles-per-cell",
             self.particles_per_cell,

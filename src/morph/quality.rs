@@ -1,0 +1,273 @@
+//! The quality judge: how well a morph's final particles take the target's shape, measured the
+//! same way for every run and independently of the simulation's grid and loss.
+//!
+//! On a judge lattice of [`JUDGE_ACROSS`] points along the longest side of the target's box:
+//! - a point is **inside** if the target's winding number says so;
+//! - a point is **covered** if a final particle lies within `0.75 h` of it (`h` the initial
+//!   particle spacing);
+//! - **fill** is `IoU(covered, inside)` divided by the IoU that a perfect fill reaches: the
+//!   target's own particle lattice at the same spacing, judged the same way. 1 is perfect.
+//!
+//! Also: the **ejected** share (particles farther than `2 h` outside the target: no target
+//! lattice particle within `2.5 h`), the **surface gap** (area-weighted mean distance from the
+//! target's surface to the nearest particle, in spacings), and min/max `J = det F` with the
+//! share of inverted particles (`J <= 0`).
+
+use crate::geometry::{Lattice, TriMesh, voxelize};
+use nalgebra::Vector3;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use std::collections::HashMap;
+
+/// Judge points along the longest side of the target's box.
+pub const JUDGE_ACROSS: usize = 96;
+
+/// A point counts as covered by a particle within this many initial spacings.
+pub const COVER_RADIUS: f64 = 0.75;
+
+/// Where the surface gap stops searching, in spacings (a gap this large is reported as it).
+const GAP_CAP: f64 = 8.0;
+
+/// The judged quality of one morph's final state.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Quality {
+    /// `iou / perfect_iou`: 1 is as good as a lattice fill of the target.
+    pub fill: f64,
+    pub iou: f64,
+    pub perfect_iou: f64,
+    /// Share of particles farther than two spacings outside the target.
+    pub ejected: f64,
+    /// Mean distance from the target's surface to the nearest particle, in spacings.
+    pub surface_gap: f64,
+    pub min_j: f64,
+    pub max_j: f64,
+    /// Share of particles with `J <= 0`.
+    pub inverted: f64,
+    /// Judge lattice points.
+    pub judge_points: usize,
+}
+
+/// Particles bucketed in cubes of side `cell`, for radius and nearest-point queries.
+struct PointGrid<'a> {
+    points: &'a [Vector3<f64>],
+    cell: f64,
+    buckets: HashMap<[i64; 3], Vec<u32>>,
+}
+
+impl<'a> PointGrid<'a> {
+    fn new(points: &'a [Vector3<f64>], cell: f64) -> Self {
+        let mut buckets: HashMap<[i64; 3], Vec<u32>> = HashMap::new();
+        for (i, p) in points.iter().enumerate() {
+            buckets
+                .entry(Self::key(p, cell))
+                .or_default()
+                .push(i as u32);
+        }
+        PointGrid {
+            points,
+            cell,
+            buckets,
+        }
+    }
+
+    fn key(p: &Vector3<f64>, cell: f64) -> [i64; 3] {
+        [0, 1, 2].map(|a| (p[a] / cell).floor() as i64)
+    }
+
+    /// Distance from `q` to the nearest point, if one lies within `rings` cells.
+    fn nearest(&self, q: &Vector3<f64>, rings: i64) -> Option<f64> {
+        let c = Self::key(q, self.cell);
+        let mut best = f64::INFINITY;
+        for r in 0..=rings {
+            // Everything beyond ring r is at least (r - 1) cells away.
+            if best <= (r as f64 - 1.0).max(0.0) * self.cell {
+                break;
+            }
+            for dx in -r..=r {
+                for dy in -r..=r {
+                    for dz in -r..=r {
+                        if dx.abs().max(dy.abs()).max(dz.abs()) != r {
+                            continue;
+                        }
+                        let key = [c[0] + dx, c[1] + dy, c[2] + dz];
+                        for &i in self.buckets.get(&key).into_iter().flatten() {
+                            best = best.min((self.points[i as usize] - q).norm());
+                        }
+                    }
+                }
+            }
+        }
+        best.is_finite().then_some(best)
+    }
+
+    /// Whether some point lies within `radius` (at most one cell) of `q`.
+    fn any_within(&self, q: &Vector3<f64>, radius: f64) -> bool {
+        let c = Self::key(q, self.cell);
+        for dx in -1..=1 {
+            for dy in -1..=1 {
+                for dz in -1..=1 {
+                    let key = [c[0] + dx, c[1] + dy, c[2] + dz];
+                    for &i in self.buckets.get(&key).into_iter().flatten() {
+                        if (self.points[i as usize] - q).norm() <= radius {
+                            return true;
+                        }
+                    }
+                }
+            }
+        }
+        false
+    }
+}
+
+/// `|a and b| / |a or b|`.
+fn iou(a: &[bool], b: &[bool]) -> f64 {
+    let (mut both, mut either) = (0usize, 0usize);
+    for (x, y) in a.iter().zip(b) {
+        both += usize::from(*x && *y);
+        either += usize::from(*x || *y);
+    }
+    both as f64 / either.max(1) as f64
+}
+
+/// The judge lattice over the target's box and which of its points are inside the target.
+pub struct Judge {
+    lattice: Lattice,
+    inside: Vec<bool>,
+    /// Area-weighted surface samples (triangle centroids) of the target.
+    surface: Vec<(Vector3<f64>, f64)>,
+    spacing: f64,
+    /// The perfect fill's IoU: the target lattice particles judged the same way.
+    perfect_iou: f64,
+    target_lattice: Vec<Vector3<f64>>,
+}
+
+impl Judge {
+    /// A judge for `target` (sim coordinates), particles of initial spacing `spacing`, and
+    /// the target's own particle lattice at that spacing.
+    pub fn new(target: &TriMesh, spacing: f64, target_lattice: &[Vector3<f64>]) -> Judge {
+        let lattice = Lattice::covering(&target.bounds(), JUDGE_ACROSS);
+        let inside = voxelize(target, &lattice).inside;
+        let surface = target
+            .triangles
+            .iter()
+            .map(|t| {
+                let [a, b, c] = t.map(|i| target.vertices[i as usize]);
+                ((a + b + c) / 3.0, 0.5 * (b - a).cross(&(c - a)).norm())
+            })
+            .collect();
+        let mut judge = Judge {
+            lattice,
+            inside,
+            surface,
+            spacing,
+            perfect_iou: 1.0,
+            target_lattice: target_lattice.to_vec(),
+        };
+        judge.perfect_iou = iou(&judge.covered(target_lattice), &judge.inside);
+        judge
+    }
+
+    /// Which judge points lie within [`COVER_RADIUS`] spacings of a particle.
+    fn covered(&self, particles: &[Vector3<f64>]) -> Vec<bool> {
+        let radius = COVER_RADIUS * self.spacing;
+        let grid = PointGrid::new(particles, radius);
+        let d = self.lattice.dims;
+        (0..self.lattice.len())
+            .into_par_iter()
+            .map(|index| {
+                let k = index % d[2];
+                let j = (index / d[2]) % d[1];
+                let i = index / (d[1] * d[2]);
+                grid.any_within(&self.lattice.point(i, j, k), radius)
+            })
+            .collect()
+    }
+
+    /// Judges final particle positions `x` with volume ratios `j`.
+    pub fn judge(&self, x: &[Vector3<f64>], j: &[f64]) -> Quality {
+        let iou_final = iou(&self.covered(x), &self.inside);
+        // Ejected: no target lattice particle within 2.5 spacings.
+        let target = PointGrid::new(&self.target_lattice, self.spacing);
+        let ejected = x
+            .par_iter()
+            .filter(|p| target.nearest(p, 3).is_none_or(|d| d > 2.5 * self.spacing))
+            .count();
+        // Surface gap: the area-weighted mean distance to the nearest particle.
+        let particles = PointGrid::new(x, self.spacing);
+        let rings = GAP_CAP.ceil() as i64;
+        let (weighted, area) = self
+            .surface
+            .par_iter()
+            .map(|(c, a)| {
+                let d = particles
+                    .nearest(c, rings)
+                    .map_or(GAP_CAP, |d| (d / self.spacing).min(GAP_CAP));
+                (a * d, *a)
+            })
+            .reduce(|| (0.0, 0.0), |p, q| (p.0 + q.0, p.1 + q.1));
+        let n = x.len().max(1) as f64;
+        Quality {
+            fill: iou_final / self.perfect_iou.max(1e-300),
+            iou: iou_final,
+            perfect_iou: self.perfect_iou,
+            ejected: ejected as f64 / n,
+            surface_gap: weighted / area.max(1e-300),
+            min_j: j.iter().copied().fold(f64::INFINITY, f64::min),
+            max_j: j.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+            inverted: j.iter().filter(|j| **j <= 0.0).count() as f64 / n,
+            judge_points: self.lattice.len(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::{assets, particles_in};
+    use crate::mpm::GridSpec;
+
+    fn sphere() -> (TriMesh, GridSpec) {
+        let mesh = assets::uv_sphere(5.0, 24, 48, |_, _| 1.0);
+        (mesh, GridSpec::centred_cube(16, 1.0))
+    }
+
+    #[test]
+    fn a_lattice_fill_is_perfect_and_a_shrunken_one_is_not() {
+        let (mesh, grid) = sphere();
+        let lattice = particles_in(&mesh, &grid, 2, None).positions;
+        let judge = Judge::new(&mesh, 0.5, &lattice);
+        let ones = vec![1.0; lattice.len()];
+        let q = judge.judge(&lattice, &ones);
+        assert!((q.fill - 1.0).abs() < 1e-12, "{q:?}");
+        assert!(q.perfect_iou > 0.8, "{q:?}");
+        assert_eq!(q.ejected, 0.0);
+        assert!(q.surface_gap < 1.0, "{q:?}");
+        // The same particles squeezed to 80% of the size: a worse fill and a larger gap.
+        let small: Vec<_> = lattice.iter().map(|p| 0.8 * p).collect();
+        let s = judge.judge(&small, &ones);
+        assert!(s.fill < 0.7 * q.fill, "{s:?}");
+        assert!(s.surface_gap > q.surface_gap + 1.0, "{s:?}");
+        // Moved far away: every particle ejected, nothing covered.
+        let away: Vec<_> = lattice
+            .iter()
+            .map(|p| p + Vector3::new(20.0, 0.0, 0.0))
+            .collect();
+        let a = judge.judge(&away, &ones);
+        assert_eq!(a.ejected, 1.0);
+        assert_eq!(a.fill, 0.0);
+        assert_eq!(a.surface_gap, GAP_CAP);
+    }
+
+    #[test]
+    fn j_statistics() {
+        let (mesh, grid) = sphere();
+        let lattice = particles_in(&mesh, &grid, 2, None).positions;
+        let judge = Judge::new(&mesh, 0.5, &lattice);
+        let mut j = vec![1.0; lattice.len()];
+        j[0] = -0.5;
+        j[1] = 2.0;
+        let q = judge.judge(&lattice, &j);
+        assert_eq!((q.min_j, q.max_j), (-0.5, 2.0));
+        assert!((q.inverted - 1.0 / lattice.len() as f64).abs() < 1e-15);
+    }
+}
