@@ -19,6 +19,7 @@
 //! - [`control`]: control of deformable objects (the rope scene, gradient control, MPPI);
 //! - [`io`]: frame, mass-grid and image files, and the guarded output folder;
 //! - [`optim`]: Adam, shared by the morph and the gradient controller;
+//! - [`study`]: `morph study`, what accuracy costs in time (a grid of settings, each judged);
 //! - [`bench`](mod@bench): the benchmark workloads.
 //!
 //! The `morph` binary (`src/cli/`, one file per subcommand) only parses and reports.
@@ -40,6 +41,7 @@ pub mod mpm;
 pub mod ode;
 pub mod optim;
 pub mod scene;
+pub mod study;
 
 pub use morph::{
     Frame, FrameSink, Job, MeshSource, MorphError, MorphEvent, MorphResult, MorphSettings,

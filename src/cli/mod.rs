@@ -7,6 +7,7 @@ mod compare;
 mod inspect;
 mod morph;
 mod rope;
+mod study;
 
 use ::morph::morph::{MorphSettings, Preset};
 use clap::{Parser, Subcommand};
@@ -74,6 +75,15 @@ enum Command {
     Rope(Box<rope::RopeArgs>),
     /// Write the built-in meshes (sphere, torus, cube, two lobes) as OBJ into a folder.
     Assets(assets::AssetsArgs),
+    /// What accuracy costs in time: morph SOURCE into TARGET once per configuration of a
+    /// grid of settings, and record per configuration the wall and CPU seconds, peak memory,
+    /// evaluations and the quality judge's verdict (fill, surface gap, ejected share, J).
+    ///
+    /// Writes DIR/study.json, DIR/study.csv and DIR/study.png (fill against wall seconds with
+    /// the Pareto front), after every configuration; run it again on the same DIR to continue
+    /// an interrupted study. Exit 0: ok; 1: a run failed; 2: bad option or folder. Details:
+    /// docs/accuracy.md.
+    Study(study::StudyArgs),
 }
 
 pub fn main() -> ExitCode {
@@ -114,6 +124,7 @@ fn dispatch(cli: &Cli) -> ExitCode {
         Some(Command::Compare(args)) => compare::run(args),
         Some(Command::Rope(args)) => rope::run(args),
         Some(Command::Assets(args)) => assets::run(args),
+        Some(Command::Study(args)) => study::run(args),
     }
 }
 

@@ -333,3 +333,93 @@ pub fn write_preview(
     }
     save(path, &img)
 }
+
+/// `study.png`: one dot per configuration, fill (y, linear from 0 to the best) against wall
+/// seconds (x, log scale), the Pareto front (`true` entries) ringed and joined.
+pub fn write_front_plot(path: &Path, points: &[(f64, f64, bool)]) -> std::io::Result<()> {
+    let (w, h, left, top) = (700.0, 420.0, 90.0, 50.0);
+    let mut img = RgbImage::from_pixel(820, 540, BACKGROUND);
+    text(
+        &mut img,
+        left as i64,
+        top as i64 - 26,
+        "FILL VS WALL SECONDS",
+        3,
+        INK,
+    );
+    line(&mut img, (left, top + h), (left + w, top + h), INK);
+    line(&mut img, (left, top), (left, top + h), INK);
+    let ok: Vec<(f64, f64, bool)> = points
+        .iter()
+        .copied()
+        .filter(|(t, q, _)| t.is_finite() && *t > 0.0 && q.is_finite())
+        .collect();
+    if !ok.is_empty() {
+        let lo = ok
+            .iter()
+            .map(|p| p.0.log10())
+            .fold(f64::INFINITY, f64::min)
+            .floor();
+        let hi = ok
+            .iter()
+            .map(|p| p.0.log10())
+            .fold(f64::NEG_INFINITY, f64::max)
+            .ceil()
+            .max(lo + 1.0);
+        let qmax = ok.iter().map(|p| p.1).fold(0.0, f64::max).max(1e-9);
+        let qtop = (qmax * 10.0).ceil() / 10.0;
+        let px = |t: f64, q: f64| {
+            (
+                left + w * (t.log10() - lo) / (hi - lo),
+                top + h * (1.0 - q / qtop),
+            )
+        };
+        let mut decade = lo;
+        while decade <= hi + 1e-9 {
+            let x = left + w * (decade - lo) / (hi - lo);
+            line(&mut img, (x, top), (x, top + h - 1.0), GRID);
+            let l = label(10f64.powf(decade));
+            text(
+                &mut img,
+                x as i64 - 4 * l.len() as i64,
+                (top + h) as i64 + 8,
+                &l,
+                2,
+                INK,
+            );
+            decade += 1.0;
+        }
+        for k in 0..=5 {
+            let q = qtop * k as f64 / 5.0;
+            let y = top + h * (1.0 - q / qtop);
+            line(&mut img, (left + 1.0, y), (left + w, y), GRID);
+            text(&mut img, left as i64 - 50, y as i64 - 5, &label(q), 2, INK);
+        }
+        text(
+            &mut img,
+            (left + w) as i64 - 60,
+            (top + h) as i64 + 28,
+            "SECONDS",
+            2,
+            INK,
+        );
+        let mut front: Vec<(f64, f64)> = ok.iter().filter(|p| p.2).map(|p| px(p.0, p.1)).collect();
+        front.sort_by(|a, b| a.0.total_cmp(&b.0));
+        for pair in front.windows(2) {
+            line(&mut img, pair[0], pair[1], PALETTE[2]);
+        }
+        for &(t, q, on_front) in &ok {
+            let (x, y) = px(t, q);
+            let color = if on_front { PALETTE[2] } else { PALETTE[1] };
+            for dx in -3i64..=3 {
+                for dy in -3i64..=3 {
+                    let r2 = dx * dx + dy * dy;
+                    if r2 <= 9 && (!on_front || r2 >= 4 || r2 <= 1) {
+                        put(&mut img, x as i64 + dx, y as i64 + dy, color);
+                    }
+                }
+            }
+        }
+    }
+    save(path, &img)
+}

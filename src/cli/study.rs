@@ -1,0 +1,145 @@
+//! `morph study SOURCE TARGET -o DIR`: a grid of settings, each morph judged and timed.
+
+use super::{choice, fail};
+use clap::Args;
+use morph::integrator::IntegratorKind;
+use morph::morph::Preset;
+use morph::mpm::KernelKind;
+use morph::study::{self, StudyError, StudyEvent, StudyGrid};
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+#[derive(Args, Debug)]
+pub struct StudyArgs {
+    /// Source mesh (OBJ or PLY).
+    source: PathBuf,
+    /// Target mesh (OBJ or PLY).
+    target: PathBuf,
+    /// Study folder: new, empty, or an earlier study's (which continues, skipping what it
+    /// measured).
+    #[arg(short, long, default_value = "study")]
+    output: PathBuf,
+    /// A small grid for a first look (a few minutes): resolutions 16,24, both kernels,
+    /// 3 and 6 iterations, a 4-segment draft chain. Without it: resolutions 24,32,40, both
+    /// kernels, 6 and 12 iterations, 1 and 2 passes, the default 12-segment chain (24 runs).
+    #[arg(long)]
+    quick: bool,
+    /// Preset the other settings start from (default: draft with --quick, else default).
+    #[arg(long, value_parser = choice(&Preset::ALL))]
+    preset: Option<Preset>,
+    /// Resolutions to run, comma separated.
+    #[arg(long, value_delimiter = ',')]
+    resolutions: Option<Vec<usize>>,
+    /// Particles per cell axis to run, comma separated.
+    #[arg(long, value_delimiter = ',')]
+    particles_per_cell: Option<Vec<usize>>,
+    /// Kernels to run, comma separated.
+    #[arg(long, value_delimiter = ',', value_parser = choice(&KernelKind::ALL))]
+    kernels: Option<Vec<KernelKind>>,
+    /// Integrators to run, comma separated.
+    #[arg(long, value_delimiter = ',', value_parser = choice(&IntegratorKind::ALL))]
+    integrators: Option<Vec<IntegratorKind>>,
+    /// Optimizer iterations per segment, comma separated.
+    #[arg(long, value_delimiter = ',')]
+    iterations: Option<Vec<usize>>,
+    /// Passes, comma separated.
+    #[arg(long, value_delimiter = ',')]
+    passes: Option<Vec<usize>>,
+    /// Segments, comma separated.
+    #[arg(long, value_delimiter = ',')]
+    segments: Option<Vec<usize>>,
+    /// Print one JSON object per configuration instead of a line of text.
+    #[arg(long)]
+    json: bool,
+}
+
+impl StudyArgs {
+    fn grid(&self) -> StudyGrid {
+        let mut g = if self.quick {
+            StudyGrid::quick()
+        } else {
+            StudyGrid::full()
+        };
+        if let Some(p) = self.preset {
+            g.preset = p;
+        }
+        let set = |dst: &mut Vec<usize>, v: &Option<Vec<usize>>| {
+            if let Some(v) = v {
+                *dst = v.clone();
+            }
+        };
+        set(&mut g.resolutions, &self.resolutions);
+        set(&mut g.particles_per_cell, &self.particles_per_cell);
+        set(&mut g.iterations, &self.iterations);
+        set(&mut g.passes, &self.passes);
+        set(&mut g.segments, &self.segments);
+        if let Some(k) = &self.kernels {
+            g.kernels = k.clone();
+        }
+        if let Some(i) = &self.integrators {
+            g.integrators = i.clone();
+        }
+        g
+    }
+}
+
+pub fn run(args: &StudyArgs) -> ExitCode {
+    let grid = args.grid();
+    // Every configuration's settings are checked before the first one runs.
+    if let Err(e) = grid.validate().and_then(|()| {
+        grid.configs()
+            .iter()
+            .try_for_each(|c| c.settings().validate())
+    }) {
+        return fail(args.json, 2, &e);
+    }
+    let json = args.json;
+    let result = study::run(
+        &args.source,
+        &args.target,
+        &grid,
+        &args.output,
+        |e| match e {
+            StudyEvent::Skipped { index, of, id } if !json => {
+                println!("[{}/{of}] {id}: measured earlier, kept", index + 1)
+            }
+            StudyEvent::Running { index, of, id } if !json => {
+                eprintln!("[{}/{of}] {id} ...", index + 1)
+            }
+            StudyEvent::Measured { row, .. } if json => {
+                println!("{}", serde_json::to_string(row).expect("plain data"))
+            }
+            StudyEvent::Measured { index, of, row } => println!(
+                "[{}/{of}] {}: fill {:.3}, surface gap {:.2}, {} particles, {:.1} s wall, {} evaluations",
+                index + 1,
+                row.id,
+                row.quality.fill,
+                row.quality.surface_gap,
+                row.particles,
+                row.wall_s,
+                row.evaluations
+            ),
+            _ => {}
+        },
+    );
+    match result {
+        Ok(rows) => {
+            let front: Vec<&str> = rows
+                .iter()
+                .filter(|r| r.pareto)
+                .map(|r| r.id.as_str())
+                .collect();
+            if !json {
+                println!(
+                    "wrote {}: {} configurations; Pareto front (fill against wall time): {}",
+                    args.output.display(),
+                    rows.len(),
+                    front.join(", ")
+                );
+            }
+            ExitCode::SUCCESS
+        }
+        Err(e @ StudyError::Folder(_)) => fail(json, 2, &e.to_string()),
+        Err(e) => fail(json, 1, &e.to_string()),
+    }
+}

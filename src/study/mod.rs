@@ -1,0 +1,438 @@
+//! `morph study`: what accuracy costs in time. Runs one morph per configuration of a grid of
+//! settings and records, per configuration, wall and CPU seconds, peak memory, evaluations,
+//! the final loss and the quality judge's verdict ([`crate::morph::quality`]), then marks the
+//! Pareto front of quality against wall time.
+//!
+//! Files in the study folder, rewritten (atomically) after every configuration, so an
+//! interrupted study continues where it stopped and skips what it has measured:
+//! `study.json` (every row), `study.csv` (the same as a table), `study.png` (fill against wall
+//! seconds, log axis, with the front).
+
+use crate::integrator::IntegratorKind;
+use crate::morph::quality::Quality;
+use crate::morph::{Job, MeshSource, MorphError, MorphSettings, Observer, Preset};
+use crate::mpm::KernelKind;
+use serde::{Deserialize, Serialize};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+pub mod usage;
+
+/// The axes of a study: every combination is one configuration.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StudyGrid {
+    /// The preset the other settings start from.
+    pub preset: Preset,
+    pub resolutions: Vec<usize>,
+    pub particles_per_cell: Vec<usize>,
+    pub kernels: Vec<KernelKind>,
+    pub integrators: Vec<IntegratorKind>,
+    pub iterations: Vec<usize>,
+    pub passes: Vec<usize>,
+    pub segments: Vec<usize>,
+}
+
+impl StudyGrid {
+    /// The full grid: 3 resolutions x 2 kernels x 2 iteration counts x 2 pass counts = 24
+    /// configurations of the default chain (12 segments).
+    pub fn full() -> StudyGrid {
+        StudyGrid {
+            preset: Preset::Default,
+            resolutions: vec![24, 32, 40],
+            particles_per_cell: vec![2],
+            kernels: vec![KernelKind::Quadratic, KernelKind::Cubic],
+            integrators: vec![IntegratorKind::Euler],
+            iterations: vec![6, 12],
+            passes: vec![1, 2],
+            segments: vec![12],
+        }
+    }
+
+    /// A first look in a few minutes: 2 resolutions x 2 kernels x 2 iteration counts, a
+    /// four-segment chain.
+    pub fn quick() -> StudyGrid {
+        StudyGrid {
+            preset: Preset::Draft,
+            resolutions: vec![16, 24],
+            particles_per_cell: vec![2],
+            kernels: vec![KernelKind::Quadratic, KernelKind::Cubic],
+            integrators: vec![IntegratorKind::Euler],
+            iterations: vec![3, 6],
+            passes: vec![1],
+            segments: vec![4],
+        }
+    }
+
+    /// Every configuration, with its settings.
+    pub fn configs(&self) -> Vec<StudyConfig> {
+        let mut out = Vec::new();
+        for &resolution in &self.resolutions {
+            for &ppc in &self.particles_per_cell {
+                for &kernel in &self.kernels {
+                    for &integrator in &self.integrators {
+                        for &iterations in &self.iterations {
+                            for &passes in &self.passes {
+                                for &segments in &self.segments {
+                                    out.push(StudyConfig {
+                                        preset: self.preset,
+                                        resolution,
+                                        particles_per_cell: ppc,
+                                        kernel,
+                                        integrator,
+                                        iterations,
+                                        passes,
+                                        segments,
+                                    });
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    /// Every axis has at least one value.
+    pub fn validate(&self) -> Result<(), String> {
+        let lens = [
+            ("resolutions", self.resolutions.len()),
+            ("particles-per-cell", self.particles_per_cell.len()),
+            ("kernels", self.kernels.len()),
+            ("integrators", self.integrators.len()),
+            ("iterations", self.iterations.len()),
+            ("passes", self.passes.len()),
+            ("segments", self.segments.len()),
+        ];
+        match lens.iter().find(|(_, n)| *n == 0) {
+            Some((axis, _)) => Err(format!("--{axis} needs at least one value")),
+            None => Ok(()),
+        }
+    }
+}
+
+/// One configuration of a study.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StudyConfig {
+    pub preset: Preset,
+    pub resolution: usize,
+    pub particles_per_cell: usize,
+    pub kernel: KernelKind,
+    pub integrator: IntegratorKind,
+    pub iterations: usize,
+    pub passes: usize,
+    pub segments: usize,
+}
+
+impl StudyConfig {
+    /// A name that identifies the configuration (rows are matched by it when a study
+    /// continues).
+    pub fn id(&self) -> String {
+        let name = |v: &dyn erased::Named| v.name();
+        format!(
+            "{}-r{}-ppc{}-{}-{}-it{}-p{}-s{}",
+            name(&self.preset),
+            self.resolution,
+            self.particles_per_cell,
+            name(&self.kernel),
+            name(&self.integrator),
+            self.iterations,
+            self.passes,
+            self.segments
+        )
+    }
+
+    /// The morph settings this configuration runs (no surfaces: the study judges particles).
+    pub fn settings(&self) -> MorphSettings {
+        let mut s = MorphSettings::preset(self.preset);
+        s.resolution = self.resolution;
+        s.particles_per_cell = self.particles_per_cell;
+        s.kernel = self.kernel;
+        s.integrator = self.integrator;
+        s.optimizer.iterations = self.iterations;
+        s.passes = self.passes;
+        s.segments = self.segments;
+        s.surfaces = false;
+        s
+    }
+}
+
+/// Serde names of the settings' enums, for ids.
+mod erased {
+    pub trait Named {
+        fn name(&self) -> String;
+    }
+    impl<T: serde::Serialize> Named for T {
+        fn name(&self) -> String {
+            serde_json::to_value(self)
+                .ok()
+                .and_then(|v| v.as_str().map(str::to_string))
+                .unwrap_or_default()
+        }
+    }
+}
+
+/// One measured configuration.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StudyRow {
+    pub id: String,
+    pub config: StudyConfig,
+    pub particles: usize,
+    pub wall_s: f64,
+    /// CPU seconds of the process (all threads) during the run; absent where the platform
+    /// does not say.
+    pub cpu_s: Option<f64>,
+    /// Peak resident memory during the run (MB); absent where the platform does not say.
+    pub peak_mb: Option<f64>,
+    pub evaluations: usize,
+    pub final_loss: f64,
+    pub quality: Quality,
+    /// On the Pareto front of fill against wall seconds.
+    pub pareto: bool,
+}
+
+/// The CSV columns, in order.
+pub const CSV_COLUMNS: [&str; 22] = [
+    "id",
+    "preset",
+    "resolution",
+    "particles_per_cell",
+    "kernel",
+    "integrator",
+    "iterations",
+    "passes",
+    "segments",
+    "particles",
+    "wall_s",
+    "cpu_s",
+    "peak_mb",
+    "evaluations",
+    "final_loss",
+    "fill",
+    "iou",
+    "ejected",
+    "surface_gap",
+    "min_j",
+    "max_j",
+    "pareto",
+];
+
+impl StudyRow {
+    fn csv(&self) -> String {
+        let c = &self.config;
+        let q = &self.quality;
+        let opt = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v}"));
+        let name = |v: &dyn erased::Named| v.name();
+        [
+            self.id.clone(),
+            name(&c.preset),
+            c.resolution.to_string(),
+            c.particles_per_cell.to_string(),
+            name(&c.kernel),
+            name(&c.integrator),
+            c.iterations.to_string(),
+            c.passes.to_string(),
+            c.segments.to_string(),
+            self.particles.to_string(),
+            format!("{}", self.wall_s),
+            opt(self.cpu_s),
+            opt(self.peak_mb),
+            self.evaluations.to_string(),
+            format!("{}", self.final_loss),
+            format!("{}", q.fill),
+            format!("{}", q.iou),
+            format!("{}", q.ejected),
+            format!("{}", q.surface_gap),
+            format!("{}", q.min_j),
+            format!("{}", q.max_j),
+            self.pareto.to_string(),
+        ]
+        .join(",")
+    }
+}
+
+/// Marks the rows no other row beats on both fill (higher) and wall seconds (lower).
+pub fn mark_pareto(rows: &mut [StudyRow]) {
+    let points: Vec<(f64, f64)> = rows.iter().map(|r| (r.wall_s, r.quality.fill)).collect();
+    for (i, r) in rows.iter_mut().enumerate() {
+        let (t, q) = points[i];
+        r.pareto = !points
+            .iter()
+            .enumerate()
+            .any(|(j, &(tj, qj))| j != i && tj <= t && qj >= q && (tj < t || qj > q));
+    }
+}
+
+/// What a study reports as it goes.
+pub enum StudyEvent<'a> {
+    /// A configuration measured earlier, kept.
+    Skipped {
+        index: usize,
+        of: usize,
+        id: &'a str,
+    },
+    /// A configuration about to run.
+    Running {
+        index: usize,
+        of: usize,
+        id: &'a str,
+    },
+    /// A configuration measured now.
+    Measured {
+        index: usize,
+        of: usize,
+        row: &'a StudyRow,
+    },
+}
+
+/// Why a study stopped.
+#[derive(Debug, thiserror::Error)]
+pub enum StudyError {
+    #[error("{0}")]
+    Folder(String),
+    #[error("configuration {id}: {source}")]
+    Run { id: String, source: MorphError },
+    #[error("writing {path}: {source}")]
+    Write {
+        path: PathBuf,
+        source: std::io::Error,
+    },
+}
+
+pub const STUDY_JSON: &str = "study.json";
+pub const STUDY_CSV: &str = "study.csv";
+pub const STUDY_PNG: &str = "study.png";
+
+/// The study folder: new, empty, or an earlier study's (holding `study.json`). Anything else
+/// is refused, so a study never writes into a folder it did not make.
+fn open_folder(dir: &Path) -> Result<Vec<StudyRow>, StudyError> {
+    let bad = |m: String| Err(StudyError::Folder(m));
+    if dir.is_symlink() || dir.is_file() {
+        return bad(format!(
+            "'{}' is not a folder; choose another -o",
+            dir.display()
+        ));
+    }
+    let json = dir.join(STUDY_JSON);
+    if json.is_file() {
+        let bytes = std::fs::read(&json).map_err(|source| StudyError::Write {
+            path: json.clone(),
+            source,
+        })?;
+        return serde_json::from_slice(&bytes).or_else(|e| {
+            bad(format!(
+                "'{}' is not a readable study ({e}); choose another -o",
+                json.display()
+            ))
+        });
+    }
+    if dir.exists() {
+        let entries = std::fs::read_dir(dir).map_err(|source| StudyError::Write {
+            path: dir.into(),
+            source,
+        })?;
+        if entries.count() > 0 {
+            return bad(format!(
+                "'{}' is not empty and holds no {STUDY_JSON}; a study writes only into a new or empty folder, or continues its own",
+                dir.display()
+            ));
+        }
+    }
+    std::fs::create_dir_all(dir).map_err(|source| StudyError::Write {
+        path: dir.into(),
+        source,
+    })?;
+    Ok(Vec::new())
+}
+
+fn write_files(dir: &Path, rows: &[StudyRow]) -> Result<(), StudyError> {
+    let err = |path: PathBuf| move |source| StudyError::Write { path, source };
+    let json = serde_json::to_vec_pretty(rows).expect("plain data");
+    let path = dir.join(STUDY_JSON);
+    crate::io::write_atomically(&path, |w| std::io::Write::write_all(w, &json))
+        .map_err(err(path.clone()))?;
+    let mut csv = CSV_COLUMNS.join(",");
+    csv.push('\n');
+    for r in rows {
+        csv.push_str(&r.csv());
+        csv.push('\n');
+    }
+    let path = dir.join(STUDY_CSV);
+    crate::io::write_atomically(&path, |w| std::io::Write::write_all(w, csv.as_bytes()))
+        .map_err(err(path.clone()))?;
+    let points: Vec<(f64, f64, bool)> = rows
+        .iter()
+        .map(|r| (r.wall_s, r.quality.fill, r.pareto))
+        .collect();
+    let path = dir.join(STUDY_PNG);
+    crate::io::images::write_front_plot(&path, &points).map_err(err(path.clone()))?;
+    Ok(())
+}
+
+/// An observer that passes nothing on (a study only needs the result).
+struct Quiet;
+impl Observer for Quiet {}
+
+/// Runs the study of `source` -> `target` over `grid` in folder `dir`, continuing an earlier
+/// study there. Returns every row, the Pareto front marked.
+pub fn run(
+    source: &Path,
+    target: &Path,
+    grid: &StudyGrid,
+    dir: &Path,
+    mut on_event: impl FnMut(StudyEvent),
+) -> Result<Vec<StudyRow>, StudyError> {
+    grid.validate().map_err(StudyError::Folder)?;
+    let mut rows = open_folder(dir)?;
+    let configs = grid.configs();
+    let of = configs.len();
+    for (index, config) in configs.iter().enumerate() {
+        let id = config.id();
+        if rows.iter().any(|r| r.id == id) {
+            on_event(StudyEvent::Skipped { index, of, id: &id });
+            continue;
+        }
+        on_event(StudyEvent::Running { index, of, id: &id });
+        let row = measure(source, target, config).map_err(|source| StudyError::Run {
+            id: id.clone(),
+            source,
+        })?;
+        rows.push(row);
+        mark_pareto(&mut rows);
+        write_files(dir, &rows)?;
+        let row = rows.last().expect("just pushed");
+        on_event(StudyEvent::Measured { index, of, row });
+    }
+    mark_pareto(&mut rows);
+    write_files(dir, &rows)?;
+    Ok(rows)
+}
+
+/// Runs one configuration and measures it.
+pub fn measure(source: &Path, target: &Path, config: &StudyConfig) -> Result<StudyRow, MorphError> {
+    let job = Job {
+        source: MeshSource::File(source.into()),
+        target: MeshSource::File(target.into()),
+        settings: config.settings(),
+    };
+    usage::reset_peak();
+    let cpu0 = usage::cpu_seconds();
+    let clock = Instant::now();
+    let (prep, result) = job.run(&mut Quiet)?;
+    let wall_s = clock.elapsed().as_secs_f64();
+    let cpu_s = cpu0.zip(usage::cpu_seconds()).map(|(a, b)| b - a);
+    let peak_mb = usage::peak_mb();
+    let quality = prep.quality(&result.final_state);
+    Ok(StudyRow {
+        id: config.id(),
+        config: *config,
+        particles: prep.initial.len(),
+        wall_s,
+        cpu_s,
+        peak_mb,
+        evaluations: result.segments.iter().map(|s| s.evaluations).sum(),
+        final_loss: result.final_loss,
+        quality,
+        pareto: false,
+    })
+}

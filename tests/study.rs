@@ -1,0 +1,109 @@
+//! `morph study` on a tiny grid: the three files, their columns, finite figures, a readable
+//! plot, a continued study that skips what it measured, and a refused foreign folder.
+
+use std::path::PathBuf;
+use std::process::Command;
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("morph-study-tests");
+    std::fs::create_dir_all(&dir).unwrap();
+    let p = dir.join(name);
+    let _ = std::fs::remove_dir_all(&p);
+    p
+}
+
+fn study(out: &PathBuf, extra: &[&str]) -> std::process::Output {
+    let root = env!("CARGO_MANIFEST_DIR");
+    Command::new(env!("CARGO_BIN_EXE_morph"))
+        .args([
+            "study",
+            &format!("{root}/assets/sphere.obj"),
+            &format!("{root}/assets/two-lobes.obj"),
+        ])
+        .arg("-o")
+        .arg(out)
+        .args([
+            "--quick",
+            "--resolutions",
+            "10,12",
+            "--iterations",
+            "1",
+            "--segments",
+            "1",
+            "--kernels",
+            "quadratic",
+        ])
+        .args(extra)
+        .output()
+        .expect("run morph study")
+}
+
+#[test]
+fn a_tiny_study_writes_its_files_and_continues() {
+    let out = scratch("tiny");
+    let r = study(&out, &[]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+
+    let csv = std::fs::read_to_string(out.join("study.csv")).unwrap();
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    assert_eq!(header, morph::study::CSV_COLUMNS);
+    let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
+    assert_eq!(rows.len(), 2, "one row per configuration");
+    let text_columns = ["id", "preset", "kernel", "integrator", "pareto"];
+    for row in &rows {
+        assert_eq!(row.len(), header.len());
+        for (col, value) in header.iter().zip(row) {
+            if text_columns.contains(col) {
+                continue;
+            }
+            // CPU seconds and peak memory are measured on Linux, where the tests run.
+            let v: f64 = value
+                .parse()
+                .unwrap_or_else(|_| panic!("column {col} is not a number: '{value}'"));
+            assert!(v.is_finite(), "column {col} is {v}");
+        }
+    }
+    assert!(
+        rows.iter().any(|r| r[header.len() - 1] == "true"),
+        "a Pareto front"
+    );
+
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("study.json")).unwrap()).unwrap();
+    assert_eq!(json.as_array().unwrap().len(), 2);
+    let png = image::open(out.join("study.png")).expect("a readable PNG");
+    assert!(png.width() > 100 && png.height() > 100);
+
+    // Run again: both configurations are kept, none re-run; one more resolution adds one.
+    let again = study(&out, &[]);
+    assert!(again.status.success());
+    let said = String::from_utf8_lossy(&again.stdout);
+    assert_eq!(said.matches("measured earlier, kept").count(), 2, "{said}");
+    let more = study(&out, &["--resolutions", "10,12,14"]);
+    assert!(more.status.success());
+    let csv = std::fs::read_to_string(out.join("study.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 1 + 3);
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+#[test]
+fn a_study_refuses_a_folder_it_did_not_make() {
+    let out = scratch("foreign");
+    std::fs::create_dir_all(&out).unwrap();
+    std::fs::write(out.join("keep.txt"), "mine").unwrap();
+    let r = study(&out, &[]);
+    assert_eq!(r.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(
+        err.starts_with("morph: error: ") && err.contains("not empty"),
+        "{err}"
+    );
+    assert_eq!(
+        std::fs::read_to_string(out.join("keep.txt")).unwrap(),
+        "mine"
+    );
+    let bad = study(&scratch("bad"), &["--segments", "0"]);
+    assert_eq!(bad.status.code(), Some(2));
+    let _ = std::fs::remove_dir_all(&out);
+}
