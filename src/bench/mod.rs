@@ -4,6 +4,7 @@
 //! velocity and receives control deformation gradients every 10 steps.
 
 pub mod geometry;
+pub mod physics;
 
 use crate::integrator::{Engine, Integrator, IntegratorKind};
 use crate::loss::{MassLoss, MassLossKind};
