@@ -19,7 +19,7 @@ pub struct StudyArgs {
     /// measured).
     #[arg(short, long, default_value = "study")]
     output: PathBuf,
-    /// A small grid for a first look (a few minutes): resolutions 16,24, both kernels,
+    /// A small grid for a first look (about a minute): resolutions 16,24,32, both kernels,
     /// 3 and 6 iterations, a 4-segment draft chain. Without it: resolutions 24,32,40, both
     /// kernels, 6 and 12 iterations, 1 and 2 passes, the default 12-segment chain (24 runs).
     #[arg(long)]

@@ -48,12 +48,12 @@ impl StudyGrid {
         }
     }
 
-    /// A first look in a few minutes: 2 resolutions x 2 kernels x 2 iteration counts, a
+    /// A first look in about a minute: 3 resolutions x 2 kernels x 2 iteration counts, a
     /// four-segment chain.
     pub fn quick() -> StudyGrid {
         StudyGrid {
             preset: Preset::Draft,
-            resolutions: vec![16, 24],
+            resolutions: vec![16, 24, 32],
             particles_per_cell: vec![2],
             kernels: vec![KernelKind::Quadratic, KernelKind::Cubic],
             integrators: vec![IntegratorKind::Euler],
