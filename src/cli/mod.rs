@@ -86,8 +86,8 @@ enum Command {
     /// grid of settings, and record per configuration the wall and CPU seconds, peak memory,
     /// evaluations and the quality judge's verdict (fill, surface gap, ejected share, J).
     ///
-    /// Writes DIR/study.json, DIR/study.csv and DIR/study.png (fill against wall seconds with
-    /// the Pareto front), after every configuration; run it again on the same DIR to continue
+    /// Writes DIR/study.json, DIR/study.csv and DIR/study.png (the judge's IoU with the target
+    /// against wall seconds, with the Pareto front), after every configuration; run it again on the same DIR to continue
     /// an interrupted study. Exit 0: ok; 1: a run failed; 2: bad option or folder. Details:
     /// docs/accuracy.md.
     Study(study::StudyArgs),

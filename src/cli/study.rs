@@ -110,9 +110,10 @@ pub fn run(args: &StudyArgs) -> ExitCode {
                 println!("{}", serde_json::to_string(row).expect("plain data"))
             }
             StudyEvent::Measured { index, of, row } => println!(
-                "[{}/{of}] {}: fill {:.3}, surface gap {:.2}, {} particles, {:.1} s wall, {} evaluations",
+                "[{}/{of}] {}: IoU {:.3}, fill {:.3}, surface gap {:.2}, {} particles, {:.1} s wall, {} evaluations",
                 index + 1,
                 row.id,
+                row.quality.iou,
                 row.quality.fill,
                 row.quality.surface_gap,
                 row.particles,
@@ -131,7 +132,7 @@ pub fn run(args: &StudyArgs) -> ExitCode {
                 .collect();
             if !json {
                 println!(
-                    "wrote {}: {} configurations; Pareto front (fill against wall time): {}",
+                    "wrote {}: {} configurations; Pareto front (IoU against wall time): {}",
                     args.output.display(),
                     rows.len(),
                     front.join(", ")

@@ -334,8 +334,9 @@ pub fn write_preview(
     save(path, &img)
 }
 
-/// `study.png`: one dot per configuration, fill (y, linear from 0 to the best) against wall
-/// seconds (x, log scale), the Pareto front (`true` entries) ringed and joined.
+/// `study.png`: one dot per configuration, the judge's IoU with the target (y, linear from 0
+/// to the best) against wall seconds (x, log scale), the Pareto front (`true` entries) ringed
+/// and joined.
 pub fn write_front_plot(path: &Path, points: &[(f64, f64, bool)]) -> std::io::Result<()> {
     let (w, h, left, top) = (700.0, 420.0, 90.0, 50.0);
     let mut img = RgbImage::from_pixel(820, 540, BACKGROUND);
@@ -343,7 +344,7 @@ pub fn write_front_plot(path: &Path, points: &[(f64, f64, bool)]) -> std::io::Re
         &mut img,
         left as i64,
         top as i64 - 26,
-        "FILL VS WALL SECONDS",
+        "IOU WITH TARGET VS WALL SECONDS",
         3,
         INK,
     );

@@ -1,11 +1,13 @@
 //! `morph study`: what accuracy costs in time. Runs one morph per configuration of a grid of
 //! settings and records, per configuration, wall and CPU seconds, peak memory, evaluations,
 //! the final loss and the quality judge's verdict ([`crate::morph::quality`]), then marks the
-//! Pareto front of quality against wall time.
+//! Pareto front of quality against wall time. The front is on the judge's absolute IoU with
+//! the target: `fill` is normalised by what a lattice fill at the run's own spacing reaches,
+//! so it hides what a finer resolution buys (detail); the IoU shows it.
 //!
 //! Files in the study folder, rewritten (atomically) after every configuration, so an
 //! interrupted study continues where it stopped and skips what it has measured:
-//! `study.json` (every row), `study.csv` (the same as a table), `study.png` (fill against wall
+//! `study.json` (every row), `study.csv` (the same as a table), `study.png` (IoU against wall
 //! seconds, log axis, with the front).
 
 use crate::integrator::IntegratorKind;
@@ -187,7 +189,7 @@ pub struct StudyRow {
     pub evaluations: usize,
     pub final_loss: f64,
     pub quality: Quality,
-    /// On the Pareto front of fill against wall seconds.
+    /// On the Pareto front of IoU with the target against wall seconds.
     pub pareto: bool,
 }
 
@@ -251,9 +253,9 @@ impl StudyRow {
     }
 }
 
-/// Marks the rows no other row beats on both fill (higher) and wall seconds (lower).
+/// Marks the rows no other row beats on both IoU (higher) and wall seconds (lower).
 pub fn mark_pareto(rows: &mut [StudyRow]) {
-    let points: Vec<(f64, f64)> = rows.iter().map(|r| (r.wall_s, r.quality.fill)).collect();
+    let points: Vec<(f64, f64)> = rows.iter().map(|r| (r.wall_s, r.quality.iou)).collect();
     for (i, r) in rows.iter_mut().enumerate() {
         let (t, q) = points[i];
         r.pareto = !points
@@ -362,7 +364,7 @@ fn write_files(dir: &Path, rows: &[StudyRow]) -> Result<(), StudyError> {
         .map_err(err(path.clone()))?;
     let points: Vec<(f64, f64, bool)> = rows
         .iter()
-        .map(|r| (r.wall_s, r.quality.fill, r.pareto))
+        .map(|r| (r.wall_s, r.quality.iou, r.pareto))
         .collect();
     let path = dir.join(STUDY_PNG);
     crate::io::images::write_front_plot(&path, &points).map_err(err(path.clone()))?;
