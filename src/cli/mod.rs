@@ -88,7 +88,8 @@ enum Command {
     ///
     /// Writes DIR/study.json, DIR/study.csv and DIR/study.png (the judge's IoU with the target
     /// against wall seconds, with the Pareto front), after every configuration; run it again on the same DIR to continue
-    /// an interrupted study. Exit 0: ok; 1: a run failed; 2: bad option or folder. Details:
+    /// an interrupted study. A configuration whose morph fails is recorded with its error and
+    /// the study goes on. Exit 0: ok; 1: cannot write; 2: bad option or folder. Details:
     /// docs/accuracy.md.
     Study(study::StudyArgs),
 }

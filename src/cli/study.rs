@@ -109,17 +109,28 @@ pub fn run(args: &StudyArgs) -> ExitCode {
             StudyEvent::Measured { row, .. } if json => {
                 println!("{}", serde_json::to_string(row).expect("plain data"))
             }
-            StudyEvent::Measured { index, of, row } => println!(
-                "[{}/{of}] {}: IoU {:.3}, fill {:.3}, surface gap {:.2}, {} particles, {:.1} s wall, {} evaluations",
+            StudyEvent::Measured { index, of, row } if row.error.is_some() => println!(
+                "[{}/{of}] {}: failed after {:.1} s: {}",
                 index + 1,
                 row.id,
-                row.quality.iou,
-                row.quality.fill,
-                row.quality.surface_gap,
-                row.particles,
                 row.wall_s,
-                row.evaluations
+                row.error.as_deref().unwrap_or_default()
             ),
+            StudyEvent::Measured { index, of, row } => {
+                if let Some(q) = &row.quality {
+                    println!(
+                        "[{}/{of}] {}: IoU {:.3}, fill {:.3}, surface gap {:.2}, {} particles, {:.1} s wall, {} evaluations",
+                        index + 1,
+                        row.id,
+                        q.iou,
+                        q.fill,
+                        q.surface_gap,
+                        row.particles,
+                        row.wall_s,
+                        row.evaluations
+                    )
+                }
+            }
             _ => {}
         },
     );
@@ -130,11 +141,17 @@ pub fn run(args: &StudyArgs) -> ExitCode {
                 .filter(|r| r.pareto)
                 .map(|r| r.id.as_str())
                 .collect();
+            let failed = rows.iter().filter(|r| r.error.is_some()).count();
             if !json {
                 println!(
-                    "wrote {}: {} configurations; Pareto front (IoU against wall time): {}",
+                    "wrote {}: {} configurations{}; Pareto front (IoU against wall time): {}",
                     args.output.display(),
                     rows.len(),
+                    if failed > 0 {
+                        format!(" ({failed} failed: see the error column)")
+                    } else {
+                        String::new()
+                    },
                     front.join(", ")
                 );
             }

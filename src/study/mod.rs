@@ -12,7 +12,7 @@
 
 use crate::integrator::IntegratorKind;
 use crate::morph::quality::Quality;
-use crate::morph::{Job, MeshSource, MorphError, MorphSettings, Observer, Preset};
+use crate::morph::{Job, MeshSource, MorphSettings, Observer, Preset};
 use crate::mpm::KernelKind;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -187,14 +187,19 @@ pub struct StudyRow {
     /// Peak resident memory during the run (MB); absent where the platform does not say.
     pub peak_mb: Option<f64>,
     pub evaluations: usize,
-    pub final_loss: f64,
-    pub quality: Quality,
+    /// Absent when the run failed.
+    pub final_loss: Option<f64>,
+    /// Absent when the run failed.
+    pub quality: Option<Quality>,
+    /// Why the run failed (the study records it and goes on).
+    #[serde(default)]
+    pub error: Option<String>,
     /// On the Pareto front of IoU with the target against wall seconds.
     pub pareto: bool,
 }
 
 /// The CSV columns, in order.
-pub const CSV_COLUMNS: [&str; 22] = [
+pub const CSV_COLUMNS: [&str; 23] = [
     "id",
     "preset",
     "resolution",
@@ -217,13 +222,15 @@ pub const CSV_COLUMNS: [&str; 22] = [
     "min_j",
     "max_j",
     "pareto",
+    "error",
 ];
 
 impl StudyRow {
     fn csv(&self) -> String {
         let c = &self.config;
-        let q = &self.quality;
+        let q = self.quality.as_ref();
         let opt = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v}"));
+        let quality = |f: fn(&Quality) -> f64| opt(q.map(f));
         let name = |v: &dyn erased::Named| v.name();
         [
             self.id.clone(),
@@ -240,14 +247,19 @@ impl StudyRow {
             opt(self.cpu_s),
             opt(self.peak_mb),
             self.evaluations.to_string(),
-            format!("{}", self.final_loss),
-            format!("{}", q.fill),
-            format!("{}", q.iou),
-            format!("{}", q.ejected),
-            format!("{}", q.surface_gap),
-            format!("{}", q.min_j),
-            format!("{}", q.max_j),
+            opt(self.final_loss),
+            quality(|q| q.fill),
+            quality(|q| q.iou),
+            quality(|q| q.ejected),
+            quality(|q| q.surface_gap),
+            quality(|q| q.min_j),
+            quality(|q| q.max_j),
             self.pareto.to_string(),
+            // One line a row: commas and line breaks in a message would split it.
+            self.error
+                .as_deref()
+                .unwrap_or("")
+                .replace([',', '\n'], ";"),
         ]
         .join(",")
     }
@@ -255,9 +267,16 @@ impl StudyRow {
 
 /// Marks the rows no other row beats on both IoU (higher) and wall seconds (lower).
 pub fn mark_pareto(rows: &mut [StudyRow]) {
-    let points: Vec<(f64, f64)> = rows.iter().map(|r| (r.wall_s, r.quality.iou)).collect();
+    let points: Vec<(f64, f64)> = rows
+        .iter()
+        .map(|r| (r.wall_s, r.quality.map_or(f64::NEG_INFINITY, |q| q.iou)))
+        .collect();
     for (i, r) in rows.iter_mut().enumerate() {
         let (t, q) = points[i];
+        if r.quality.is_none() {
+            r.pareto = false;
+            continue;
+        }
         r.pareto = !points
             .iter()
             .enumerate()
@@ -292,8 +311,6 @@ pub enum StudyEvent<'a> {
 pub enum StudyError {
     #[error("{0}")]
     Folder(String),
-    #[error("configuration {id}: {source}")]
-    Run { id: String, source: MorphError },
     #[error("writing {path}: {source}")]
     Write {
         path: PathBuf,
@@ -364,7 +381,7 @@ fn write_files(dir: &Path, rows: &[StudyRow]) -> Result<(), StudyError> {
         .map_err(err(path.clone()))?;
     let points: Vec<(f64, f64, bool)> = rows
         .iter()
-        .map(|r| (r.wall_s, r.quality.iou, r.pareto))
+        .filter_map(|r| Some((r.wall_s, r.quality?.iou, r.pareto)))
         .collect();
     let path = dir.join(STUDY_PNG);
     crate::io::images::write_front_plot(&path, &points).map_err(err(path.clone()))?;
@@ -395,10 +412,7 @@ pub fn run(
             continue;
         }
         on_event(StudyEvent::Running { index, of, id: &id });
-        let row = measure(source, target, config).map_err(|source| StudyError::Run {
-            id: id.clone(),
-            source,
-        })?;
+        let row = measure(source, target, config);
         rows.push(row);
         mark_pareto(&mut rows);
         write_files(dir, &rows)?;
@@ -410,8 +424,8 @@ pub fn run(
     Ok(rows)
 }
 
-/// Runs one configuration and measures it.
-pub fn measure(source: &Path, target: &Path, config: &StudyConfig) -> Result<StudyRow, MorphError> {
+/// Runs one configuration and measures it; a run that fails is recorded with its error.
+pub fn measure(source: &Path, target: &Path, config: &StudyConfig) -> StudyRow {
     let job = Job {
         source: MeshSource::File(source.into()),
         target: MeshSource::File(target.into()),
@@ -420,21 +434,31 @@ pub fn measure(source: &Path, target: &Path, config: &StudyConfig) -> Result<Stu
     usage::reset_peak();
     let cpu0 = usage::cpu_seconds();
     let clock = Instant::now();
-    let (prep, result) = job.run(&mut Quiet)?;
+    let outcome = job.run(&mut Quiet);
     let wall_s = clock.elapsed().as_secs_f64();
     let cpu_s = cpu0.zip(usage::cpu_seconds()).map(|(a, b)| b - a);
     let peak_mb = usage::peak_mb();
-    let quality = prep.quality(&result.final_state);
-    Ok(StudyRow {
+    let mut row = StudyRow {
         id: config.id(),
         config: *config,
-        particles: prep.initial.len(),
+        particles: 0,
         wall_s,
         cpu_s,
         peak_mb,
-        evaluations: result.segments.iter().map(|s| s.evaluations).sum(),
-        final_loss: result.final_loss,
-        quality,
+        evaluations: 0,
+        final_loss: None,
+        quality: None,
+        error: None,
         pareto: false,
-    })
+    };
+    match outcome {
+        Ok((prep, result)) => {
+            row.particles = prep.initial.len();
+            row.evaluations = result.segments.iter().map(|s| s.evaluations).sum();
+            row.final_loss = Some(result.final_loss);
+            row.quality = Some(prep.quality(&result.final_state));
+        }
+        Err(e) => row.error = Some(e.to_string()),
+    }
+    row
 }
