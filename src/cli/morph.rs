@@ -36,9 +36,10 @@ OUTPUT (folder -o, written in the locked OUT.partial and put in place when compl
   -o is checked before any work; --overwrite replaces only an earlier morph output; a second
   run on the same -o fails at once. Each completed segment is checkpointed in OUT.partial.
 
-PRESETS (segments x steps, passes, iterations per segment):
+PRESETS (resolution, segments x steps, passes, iterations per segment; measured quality and
+time from docs/accuracy.md, 2 cores):
 {presets}
-  Any of --segments --steps --passes --iterations overrides its preset value.
+  Any of --resolution --segments --steps --passes --iterations overrides its preset value.
 
 EXIT CODES:
   0    success (every written file checked finite)
@@ -74,8 +75,13 @@ pub(super) fn after_long_help() -> String {
         .map(|(p, name)| {
             let s = MorphSettings::preset(*p);
             format!(
-                "  {name:<8}{:>3} x {}, {} pass(es), {}",
-                s.segments, s.steps_per_segment, s.passes, s.optimizer.iterations
+                "  {name:<8}r{}, {:>2} x {}, {} pass(es), {:>2}; {}",
+                s.resolution,
+                s.segments,
+                s.steps_per_segment,
+                s.passes,
+                s.optimizer.iterations,
+                p.measured()
             )
         })
         .collect();
@@ -106,7 +112,7 @@ pub struct MorphArgs {
     /// Effort preset; the options below override its values.
     #[arg(long, value_parser = choice(&Preset::ALL), default_value = name(&Preset::default()))]
     preset: Preset,
-    #[arg(long, help = help("Grid cells across the domain's longest side", Some(limits::RESOLUTION), defaults().resolution))]
+    #[arg(long, help = help("Grid cells across the domain's longest side", Some(limits::RESOLUTION), by_preset(|s| s.resolution)))]
     resolution: Option<usize>,
     #[arg(long, conflicts_with = "resolution", help = help("Particle budget: picks the resolution so the source gets about this many particles, whatever the shapes' proportions", Some(limits::PARTICLES), "off (use --resolution)"))]
     particles: Option<usize>,

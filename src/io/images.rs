@@ -367,14 +367,13 @@ pub fn write_front_plot(path: &Path, points: &[(f64, f64, bool)]) -> std::io::Re
             .fold(f64::NEG_INFINITY, f64::max)
             .ceil()
             .max(lo + 1.0);
-        let qmax = ok.iter().map(|p| p.1).fold(0.0, f64::max).max(1e-9);
+        // The y axis spans the data, in tenths.
+        let qmax = ok.iter().map(|p| p.1).fold(f64::NEG_INFINITY, f64::max);
+        let qmin = ok.iter().map(|p| p.1).fold(f64::INFINITY, f64::min);
         let qtop = (qmax * 10.0).ceil() / 10.0;
-        let px = |t: f64, q: f64| {
-            (
-                left + w * (t.log10() - lo) / (hi - lo),
-                top + h * (1.0 - q / qtop),
-            )
-        };
+        let qbot = ((qmin * 10.0).floor() / 10.0).min(qtop - 0.1);
+        let py = |q: f64| top + h * (1.0 - (q - qbot) / (qtop - qbot));
+        let px = |t: f64, q: f64| (left + w * (t.log10() - lo) / (hi - lo), py(q));
         let mut decade = lo;
         while decade <= hi + 1e-9 {
             let x = left + w * (decade - lo) / (hi - lo);
@@ -391,8 +390,8 @@ pub fn write_front_plot(path: &Path, points: &[(f64, f64, bool)]) -> std::io::Re
             decade += 1.0;
         }
         for k in 0..=5 {
-            let q = qtop * k as f64 / 5.0;
-            let y = top + h * (1.0 - q / qtop);
+            let q = qbot + (qtop - qbot) * k as f64 / 5.0;
+            let y = py(q);
             line(&mut img, (left + 1.0, y), (left + w, y), GRID);
             text(&mut img, left as i64 - 50, y as i64 - 5, &label(q), 2, INK);
         }
