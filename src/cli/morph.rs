@@ -348,7 +348,8 @@ pub fn run(args: &MorphArgs) -> ExitCode {
                 );
                 if let Some(q) = &summary.quality {
                     println!(
-                        "quality: fill {:.3} (1 = a lattice fill of the target), surface gap {:.2} spacings, ejected {:.2}%, J {:.2} to {:.2} ({:.2}% inverted)",
+                        "quality: IoU with the target {:.3}, fill {:.3} (1 = a lattice fill of the target), surface gap {:.2} spacings, ejected {:.2}%, J {:.2} to {:.2} ({:.2}% inverted)",
+                        q.iou,
                         q.fill,
                         q.surface_gap,
                         100.0 * q.ejected,
