@@ -282,7 +282,11 @@ fn command_line_errors() {
         (vec!["--jitter", "nan"], 2, "--jitter"),
         (vec!["--preset", "huge"], 2, "huge"),
         (vec!["--particles", "5"], 2, "--particles"),
-        (vec!["--particles", "5000", "--resolution", "20"], 2, "--resolution"),
+        (
+            vec!["--particles", "5000", "--resolution", "20"],
+            2,
+            "--resolution",
+        ),
     ] {
         let mut args = vec!["assets/sphere.obj", "assets/cube.obj", "-o", o];
         args.extend(extra.iter().copied());
