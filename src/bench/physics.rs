@@ -90,13 +90,12 @@ pub fn ring(
     let rest = x.clone();
     let mode = |p: usize| (PI * (rest[p][0] + 0.5 * LENGTH) / LENGTH).cos();
     let mut s = State::at_rest(x);
-    for p in 0..n {
+    for (p, x0) in rest.iter().enumerate() {
         s.v[p] = Vector3::new(AMPLITUDE * mode(p), 0.0, 0.0);
         if integrator == IntegratorKind::Euler {
             // APIC starts with the mode's velocity gradient.
             let mut g = Matrix3::zeros();
-            g[(0, 0)] =
-                -AMPLITUDE * PI / LENGTH * (PI * (rest[p][0] + 0.5 * LENGTH) / LENGTH).sin();
+            g[(0, 0)] = -AMPLITUDE * PI / LENGTH * (PI * (x0[0] + 0.5 * LENGTH) / LENGTH).sin();
             s.c[p] = g;
         }
     }
