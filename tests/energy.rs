@@ -9,15 +9,11 @@ use morph::mpm::model::Model;
 use morph::mpm::{GridSpec, KernelKind, Simulator, State};
 use morph::ode::{OdeState, OdeSystem};
 use nalgebra::{Matrix3, Vector3};
-use std::f64::consts::PI;
 use std::sync::Arc;
 use std::time::Instant;
 
-const LENGTH: f64 = 1.0;
 const CELLS_ALONG: usize = 16;
-const DENSITY: f64 = 1000.0;
-const YOUNG: f64 = 1.0e5;
-const POISSON: f64 = 0.3;
+const DENSITY: f64 = morph::bench::physics::BAR_DENSITY;
 /// Peak axial speed of the mode (m/s); small against the wave speed (11.6 m/s).
 const AMPLITUDE: f64 = 0.5;
 const DT: f64 = 2.5e-3;
@@ -34,42 +30,21 @@ struct Bar {
     material: Arc<FixedCorotated>,
 }
 
-/// A 1 m bar, 2x2 cells thick, 2x2x2 particles per cell, with the free-free first axial mode's
-/// velocity `v_x = A cos(pi X / L)`.
+/// The 1 m bar of `morph bench-accuracy` (2x2 cells thick, 2x2x2 particles per cell), with
+/// the free-free first axial mode's velocity `v_x = A cos(pi X / L)`.
 fn bar() -> Bar {
-    let dx = LENGTH / CELLS_ALONG as f64;
-    let h = dx / 2.0;
-    let (nl, nt) = (2 * CELLS_ALONG, 4);
-    let mut x = Vec::new();
-    let mut v = Vec::new();
-    let mut grad_v = Vec::new();
-    for i in 0..nl {
-        let s = (i as f64 + 0.5) * h;
-        for j in 0..nt {
-            for k in 0..nt {
-                x.push(Vector3::new(
-                    s - 0.5 * LENGTH,
-                    (j as f64 + 0.5) * h - dx,
-                    (k as f64 + 0.5) * h - dx,
-                ));
-                v.push(Vector3::new(AMPLITUDE * (PI * s / LENGTH).cos(), 0.0, 0.0));
-                let mut g = Matrix3::zeros();
-                g[(0, 0)] = -AMPLITUDE * PI / LENGTH * (PI * s / LENGTH).sin();
-                grad_v.push(g);
-            }
-        }
-    }
+    let b = morph::bench::physics::bar(CELLS_ALONG);
+    let (v, grad_v) =
+        b.x.iter()
+            .map(|x| morph::bench::physics::mode_velocity(x, AMPLITUDE))
+            .unzip();
     Bar {
-        grid: GridSpec {
-            origin: [-0.5 * LENGTH - 6.0 * dx, -6.0 * dx, -6.0 * dx],
-            dx,
-            cells: [CELLS_ALONG + 12, 12, 12],
-        },
-        x,
+        grid: b.grid,
+        x: b.x,
         v,
         grad_v,
-        vol: h * h * h,
-        material: Arc::new(FixedCorotated::from_young_poisson(YOUNG, POISSON)),
+        vol: b.vol,
+        material: b.material,
     }
 }
 

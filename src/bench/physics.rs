@@ -28,6 +28,56 @@ pub fn exact_period() -> f64 {
     2.0 * LENGTH / (YOUNG / DENSITY).sqrt()
 }
 
+/// The bar: its grid (6 cells of margin), particles at rest (2x2x2 per cell, two cells
+/// thick), each particle's rest volume, and the material.
+pub struct Bar {
+    pub grid: GridSpec,
+    pub x: Vec<Vector3<f64>>,
+    pub vol: f64,
+    pub material: Arc<FixedCorotated>,
+}
+
+/// The 1 m bar with `cells_along` cells along its length, centred on the origin.
+pub fn bar(cells_along: usize) -> Bar {
+    let dx = LENGTH / cells_along as f64;
+    let h = dx / 2.0;
+    let (nl, nt) = (2 * cells_along, 4);
+    let mut x = Vec::new();
+    for i in 0..nl {
+        for j in 0..nt {
+            for k in 0..nt {
+                x.push(Vector3::new(
+                    (i as f64 + 0.5) * h - 0.5 * LENGTH,
+                    (j as f64 + 0.5) * h - dx,
+                    (k as f64 + 0.5) * h - dx,
+                ));
+            }
+        }
+    }
+    Bar {
+        grid: GridSpec {
+            origin: [-0.5 * LENGTH - 6.0 * dx, -6.0 * dx, -6.0 * dx],
+            dx,
+            cells: [cells_along + 12, 12, 12],
+        },
+        x,
+        vol: h * h * h,
+        material: Arc::new(FixedCorotated::from_young_poisson(YOUNG, POISSON)),
+    }
+}
+
+/// The free-free first axial mode at rest position `x` with peak speed `amplitude`: the
+/// velocity `v_x = A cos(pi X / L)` and its gradient.
+pub fn mode_velocity(x: &Vector3<f64>, amplitude: f64) -> (Vector3<f64>, Matrix3<f64>) {
+    let s = PI * (x[0] + 0.5 * LENGTH) / LENGTH;
+    let mut g = Matrix3::zeros();
+    g[(0, 0)] = -amplitude * PI / LENGTH * s.sin();
+    (Vector3::new(amplitude * s.cos(), 0.0, 0.0), g)
+}
+
+/// Density of the bar (kg/m³).
+pub const BAR_DENSITY: f64 = DENSITY;
+
 /// One case and what it measured.
 #[derive(Clone, Debug, Serialize)]
 pub struct BarCase {
@@ -52,29 +102,14 @@ pub fn ring(
     cells_along: usize,
     dt_fraction: f64,
 ) -> Result<BarCase, SimError> {
-    let dx = LENGTH / cells_along as f64;
-    let h = dx / 2.0;
-    let (nl, nt) = (2 * cells_along, 4);
-    let mut x = Vec::new();
-    for i in 0..nl {
-        for j in 0..nt {
-            for k in 0..nt {
-                x.push(Vector3::new(
-                    (i as f64 + 0.5) * h - 0.5 * LENGTH,
-                    (j as f64 + 0.5) * h - dx,
-                    (k as f64 + 0.5) * h - dx,
-                ));
-            }
-        }
-    }
+    let Bar {
+        grid,
+        x,
+        vol,
+        material,
+    } = bar(cells_along);
     let n = x.len();
-    let vol = h * h * h;
-    let material = Arc::new(FixedCorotated::from_young_poisson(YOUNG, POISSON));
-    let grid = GridSpec {
-        origin: [-0.5 * LENGTH - 6.0 * dx, -6.0 * dx, -6.0 * dx],
-        dx,
-        cells: [cells_along + 12, 12, 12],
-    };
+    let dx = grid.dx;
     let wave = (material.wave_modulus() / DENSITY).sqrt();
     let dt = dt_fraction * dx / wave;
     let model = Model::new(
@@ -91,12 +126,11 @@ pub fn ring(
     let mode = |p: usize| (PI * (rest[p][0] + 0.5 * LENGTH) / LENGTH).cos();
     let mut s = State::at_rest(x);
     for (p, x0) in rest.iter().enumerate() {
-        s.v[p] = Vector3::new(AMPLITUDE * mode(p), 0.0, 0.0);
+        let (v, grad_v) = mode_velocity(x0, AMPLITUDE);
+        s.v[p] = v;
         if integrator == IntegratorKind::Euler {
             // APIC starts with the mode's velocity gradient.
-            let mut g = Matrix3::zeros();
-            g[(0, 0)] = -AMPLITUDE * PI / LENGTH * (PI * (x0[0] + 0.5 * LENGTH) / LENGTH).sin();
-            s.c[p] = g;
+            s.c[p] = grad_v;
         }
     }
     let m = DENSITY * vol;

@@ -95,6 +95,13 @@ enum Command {
 }
 
 pub fn main() -> ExitCode {
+    // A reader that stops early (`morph bench | head`) ends the process quietly, as for any
+    // Unix tool, instead of a panic on the failed write.
+    #[cfg(unix)]
+    // SAFETY: restoring the default disposition of one signal before any thread starts.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
     let json = std::env::args_os().any(|a| a == "--json");
     let cli = match Cli::try_parse() {
         Ok(cli) => cli,
