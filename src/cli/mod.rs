@@ -72,9 +72,10 @@ enum Command {
     /// non-finite value. Exit 0: equal; 1: different, incompatible grids (shape, origin,
     /// spacing) or a non-finite value; 2: unreadable file or bad option.
     Compare(compare::CompareArgs),
-    /// Active damping of a swinging rope: uncontrolled vs MPPI vs gradient control (RK4).
+    /// Active damping of a swinging rope: uncontrolled vs MPPI vs gradient control (RK4 by
+    /// default, or --integrator euler).
     ///
-    /// A fixed-corotated rope clamped at its top is released at rest, tilted from the
+    /// A rope (fixed-corotated unless --material says otherwise) clamped at its top is released at rest, tilted from the
     /// vertical, under gravity; the controllers push its segments (default), push its tip, or
     /// move the clamp, to remove its kinetic energy. Prints a table and writes
     /// OUT/report.json, OUT/energy.png and OUT/frames/<method>/*.ply. Exit 0: ok; 1: the run
