@@ -80,6 +80,19 @@ pub trait Integrator: Send + Sync {
         tape: &Self::Tape,
         controls: &StepControls,
         grad_last: StateGrad,
+    ) -> Gradients {
+        self.backward_seeded(tape, controls, grad_last, &mut |_, _, _| {})
+    }
+
+    /// [`Integrator::backward`] for a cost on every state along the run:
+    /// `seed_after(k, state, adj)` adds to `adj` the adjoint of the cost on the state after
+    /// global step `k` (before any control of the next step), before that step is reversed.
+    fn backward_seeded(
+        &self,
+        tape: &Self::Tape,
+        controls: &StepControls,
+        grad_last: StateGrad,
+        seed_after: &mut dyn FnMut(usize, &State, &mut StateGrad),
     ) -> Gradients;
 }
 
@@ -127,13 +140,15 @@ impl Integrator for Simulator {
         Simulator::forward(self, state, controls, first_step, n_steps, tape)
     }
 
-    fn backward(
+    fn backward_seeded(
         &self,
         tape: &Self::Tape,
         controls: &StepControls,
         grad_last: StateGrad,
+        seed_after: &mut dyn FnMut(usize, &State, &mut StateGrad),
     ) -> Gradients {
-        Simulator::backward(self, tape, controls, grad_last)
+        self.backward_driven(tape, controls, None, grad_last, seed_after)
+            .0
     }
 }
 

@@ -4,7 +4,26 @@
 //! - log: `L = sum_i 1/2 (ln(m_i + 1) - ln(m*_i + 1))^2` (default; less sensitive to outliers,
 //!   so it ejects fewer particles when source and target overlap little)
 
+use crate::mpm::{GridSpec, KernelKind, SimError, transfer};
+use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
+
+/// The volume cost `sum_p 1/2 (ln J_p)^2`, `J_p = det F_p`, and its gradient
+/// `ln J_p F_p^-T`: zero for a body at its rest volume, symmetric in compression and
+/// expansion, and unbounded as a particle nears inversion. `Err(p)` names the first
+/// particle with `J <= 0` (where it is undefined).
+pub fn volume_cost(f: &[Matrix3<f64>]) -> Result<(f64, Vec<Matrix3<f64>>), usize> {
+    let mut sum = CompensatedSum::default();
+    let mut grad = Vec::with_capacity(f.len());
+    for (p, f) in f.iter().enumerate() {
+        let j = f.determinant();
+        let inv = f.try_inverse().filter(|_| j > 0.0).ok_or(p)?;
+        let ln_j = j.ln();
+        sum.add(0.5 * ln_j * ln_j);
+        grad.push(ln_j * inv.transpose());
+    }
+    Ok((sum.value(), grad))
+}
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "lowercase")]
@@ -57,6 +76,47 @@ impl MassLoss {
             })
             .collect();
         (loss.value(), grad)
+    }
+}
+
+/// The mass loss again on a finer grid (the simulation grid's cells split `refine` times per
+/// axis, quadratic kernel): where the simulation grid cannot see how particles are arranged
+/// within a cell, this one sees the holes and clumps that arrangement leaves.
+#[derive(Clone, Debug)]
+pub struct FineMassLoss {
+    pub grid: GridSpec,
+    pub loss: MassLoss,
+    /// Weight of this loss in the objective.
+    pub weight: f64,
+}
+
+/// The finer grid's kernel.
+pub const FINE_KERNEL: KernelKind = KernelKind::Quadratic;
+
+impl FineMassLoss {
+    /// The grid `grid` with each cell split `refine` times per axis.
+    pub fn refine(grid: &GridSpec, refine: usize) -> GridSpec {
+        GridSpec {
+            origin: grid.origin,
+            dx: grid.dx / refine as f64,
+            cells: grid.cells.map(|c| c * refine),
+        }
+    }
+
+    /// `weight * loss(m(x))` for particles at `x` with masses `masses`, and its gradient
+    /// with respect to `x`.
+    pub fn value_and_grad(
+        &self,
+        x: &[Vector3<f64>],
+        masses: &[f64],
+    ) -> Result<(f64, Vec<Vector3<f64>>), SimError> {
+        let m = transfer::mass_grid(&self.grid, FINE_KERNEL, x, masses)?;
+        let (value, grad_m) = self.loss.value_and_grad(&m);
+        let mut grad = transfer::mass_grid_reverse(&self.grid, FINE_KERNEL, x, masses, &grad_m);
+        for g in &mut grad {
+            *g *= self.weight;
+        }
+        Ok((self.weight * value, grad))
     }
 }
 

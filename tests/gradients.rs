@@ -1,6 +1,7 @@
 //! Finite-difference checks of the whole reverse pass (f64, central differences) through
 //! 12 steps of a deforming body, for both kernels and both losses: dL/dFc at several steps,
-//! dL/dx0, dL/dv0, dL/dF0, dL/dC0, and effect parameters.
+//! dL/dx0, dL/dv0, dL/dF0, dL/dC0, and effect parameters. The control acts by the default
+//! plastic factor unless a test says otherwise; the reference's additive form has its own.
 
 mod common;
 
@@ -8,7 +9,7 @@ use common::*;
 use morph::effects::WallMode;
 use morph::integrator::{Engine, Integrator, IntegratorKind};
 use morph::loss::MassLossKind;
-use morph::mpm::{KernelKind, State, Tape};
+use morph::mpm::{ControlForm, KernelKind, State, Tape};
 use morph::scene::EffectConfig;
 use nalgebra::{Matrix3, Vector3};
 
@@ -77,7 +78,20 @@ fn check_scene_on(
     h: f64,
     setup: impl Fn(&mut State),
 ) {
-    let (engine, init) = ball_engine(&scene, 3.2, integrator);
+    check_scene_form(scene, integrator, ControlForm::default(), kind, steps, h, setup);
+}
+
+/// [`check_scene_on`] with the control acting by `form`.
+fn check_scene_form(
+    scene: morph::scene::SceneConfig,
+    integrator: IntegratorKind,
+    form: ControlForm,
+    kind: MassLossKind,
+    steps: usize,
+    h: f64,
+    setup: impl Fn(&mut State),
+) {
+    let (engine, init) = ball_engine_with(&scene, 3.2, integrator, form);
     morph::with_integrator!(&engine, sim => check_rollout(sim, scene.kernel, init, kind, steps, h, setup));
 }
 
@@ -343,30 +357,45 @@ fn gravity_parameter_gradient_matches_fd() {
     }
 }
 
-/// The morph's segment objective (log mass loss + arrival term `w sum 1/2 m |v|^2`) and the
+/// The morph's segment objective (log mass loss + arrival term `w sum 1/2 m |v|^2` + the
+/// volume cost on every step's state) and the
 /// gradient the optimizers use, against central differences along random directions of all
 /// control layers at once: 12 steps, 3 layers, a moving start state, drag on.
 #[test]
 fn segment_objective_gradient_matches_finite_differences() {
-    use morph::morph::segment::Segment;
     let scene = small_scene(
         KernelKind::Cubic,
         vec![EffectConfig::Drag { coefficient: 0.5 }],
     );
-    let (sim, mut init) = ball(&scene, 3.2);
+    for integrator in IntegratorKind::ALL {
+        let (engine, init) = ball_engine(&scene, 3.2, integrator);
+        morph::with_integrator!(&engine, sim => check_segment(sim, init));
+    }
+}
+
+fn check_segment<I: Integrator>(sim: &I, mut init: State) {
+    use morph::morph::segment::Segment;
     let mut rng = Lcg(2024);
     deform(&mut init, &mut rng);
     let n = init.len();
-    let loss = shifted_target(&sim, &init, Vector3::new(1.1, 0.4, -0.6), MassLossKind::Log);
-    for arrival_weight in [0.0, 0.05] {
+    let loss = shifted_target(
+        sim.model(),
+        &init,
+        Vector3::new(1.1, 0.4, -0.6),
+        MassLossKind::Log,
+    );
+    for (arrival_weight, volume_weight) in [(0.0, 0.0), (0.05, 0.0), (0.0, 30.0), (0.05, 30.0)] {
         let segment = Segment {
-            sim: &sim,
+            sim,
             loss: &loss,
+            fine_loss: None,
             start: &init,
             first_step: 0,
             steps: STEPS,
             stride: STRIDE,
             arrival_weight,
+            volume_weight,
+            resolution: Default::default(),
         };
         let layers: Vec<Vec<Matrix3<f64>>> = (0..segment.num_layers())
             .map(|_| (0..n).map(|_| 0.03 * rng.mat3()).collect())
@@ -394,7 +423,7 @@ fn segment_objective_gradient_matches_finite_differences() {
             let err = rel_err(analytic, numeric);
             assert!(
                 err < TOL,
-                "arrival {arrival_weight}, direction {trial}: {analytic} vs {numeric} ({err:e})"
+                "arrival {arrival_weight}, volume {volume_weight}, direction {trial}: {analytic} vs {numeric} ({err:e})"
             );
         }
     }
@@ -604,4 +633,24 @@ fn rk4_reverse_pass_matches_fd_with_effects() {
         H,
         |_| {},
     );
+}
+
+/// The reference paper's additive control (`Fe = F + Fc`, kept for comparison) through the
+/// same checks, with both integrators.
+#[test]
+fn additive_control_reverse_pass_matches_fd() {
+    for integrator in IntegratorKind::ALL {
+        check_scene_form(
+            small_scene(
+                KernelKind::Cubic,
+                vec![EffectConfig::Drag { coefficient: 0.5 }],
+            ),
+            integrator,
+            ControlForm::Additive,
+            MassLossKind::Log,
+            STEPS,
+            H,
+            |_| {},
+        );
+    }
 }

@@ -6,6 +6,8 @@ use super::{choice, defaults, fail, help, name};
 use clap::Args;
 use morph::geometry::TargetFit;
 use morph::integrator::IntegratorKind;
+use morph::morph::basis::ControlResolution;
+use morph::mpm::ControlForm;
 use morph::loss::MassLossKind;
 use morph::material::MaterialModel;
 use morph::morph::segment::Optimizer;
@@ -136,6 +138,10 @@ pub struct MorphArgs {
     loss: MassLossKind,
     #[arg(long, help = help("Weight of the kinetic energy left at each segment's end, >= 0", None, defaults().arrival_weight))]
     arrival_weight: Option<f64>,
+    #[arg(long, help = help("Weight of the volume cost sum 1/2 (ln J)^2 at each segment's end, >= 0 (keeps the body at its volume)", None, defaults().volume_weight))]
+    volume_weight: Option<f64>,
+    #[arg(long, help = help("Weight of the mass loss on a grid twice as fine as the simulation's, >= 0 (sees holes and clumps within a cell)", None, defaults().fine_weight))]
+    fine_weight: Option<f64>,
     /// How the target is placed.
     #[arg(long, value_parser = choice(&TargetFit::ALL), default_value = name(&defaults().target_fit))]
     target_fit: TargetFit,
@@ -147,6 +153,10 @@ pub struct MorphArgs {
     material: Option<MaterialModel>,
     #[arg(long, value_parser = choice(&IntegratorKind::ALL), help = format!("Time integrator: euler (one transfer round trip a step) or rk4 (four, less numerical damping) [default {}]", name(&defaults().integrator)))]
     integrator: Option<IntegratorKind>,
+    #[arg(long, value_parser = choice(&ControlForm::ALL), help = format!("How a control acts on a particle's deformation: plastic (a volume-preserving change of its rest shape: J stays the volume ratio) or additive (the reference paper's F + Fc, for comparison) [default {}]", name(&defaults().control)))]
+    control: Option<ControlForm>,
+    #[arg(long, value_parser = choice(&ControlResolution::ALL), help = format!("Where the optimizer's free control values live: grid (one per grid node, interpolated to the particles: smooth controls keep the body's particles in order) or particle (one per particle, the reference) [default {}]", name(&defaults().control_resolution)))]
+    control_resolution: Option<ControlResolution>,
     /// Seed for the jitter.
     #[arg(long, default_value_t = defaults().seed)]
     seed: u64,
@@ -188,6 +198,12 @@ impl MorphArgs {
         if let Some(lr) = self.learning_rate {
             s.optimizer.learning_rate = lr;
         }
+        if let Some(w) = self.fine_weight {
+            s.fine_weight = w;
+        }
+        if let Some(w) = self.volume_weight {
+            s.volume_weight = w;
+        }
         if let Some(w) = self.arrival_weight {
             s.arrival_weight = w;
         }
@@ -196,6 +212,12 @@ impl MorphArgs {
         }
         if let Some(m) = self.material {
             s.material.model = m;
+        }
+        if let Some(c) = self.control {
+            s.control = c;
+        }
+        if let Some(r) = self.control_resolution {
+            s.control_resolution = r;
         }
         if let Some(i) = self.integrator {
             s.integrator = i;
@@ -348,15 +370,35 @@ pub fn run(args: &MorphArgs) -> ExitCode {
                 );
                 if let Some(q) = &summary.quality {
                     println!(
-                        "quality: IoU with the target {:.3}, fill {:.3} (1 = a lattice fill of the target), surface gap {:.2} spacings, ejected {:.2}%, J {:.2} to {:.2} ({:.2}% inverted)",
+                        "quality: IoU with the target {:.3}, fill {:.3} (1 = a lattice fill of the target), surface gap {:.2} spacings, ejected {:.2}%, close neighbours {:.1}%, J {:.2} to {:.2} (mean {:.2}, {:.2}% inverted)",
                         q.iou,
                         q.fill,
                         q.surface_gap,
                         100.0 * q.ejected,
+                        100.0 * q.close_share,
                         q.min_j,
                         q.max_j,
+                        q.mean_j,
                         100.0 * q.inverted
                     );
+                }
+                if let Some(f) = &summary.frames_summary {
+                    let volume = f.max_surface_volume_error.map_or(String::new(), |e| {
+                        format!("; surface volume within {:.1}% of the body's", 100.0 * e)
+                    });
+                    println!(
+                        "all frames: J {:.3} to {:.3}, {} frames with inverted particles, close neighbours at most {:.1}%{volume}",
+                        f.min_j,
+                        f.max_j,
+                        f.frames_inverted,
+                        100.0 * f.max_close_share
+                    );
+                    if f.frames_inverted > 0 {
+                        eprintln!(
+                            "morph: warning: particles turned inside out (J <= 0) in {} frames; see the frames' min_j in manifest.json",
+                            f.frames_inverted
+                        );
+                    }
                 }
             }
             ExitCode::SUCCESS

@@ -137,15 +137,20 @@ impl MorphGeometry {
         kernel: crate::mpm::KernelKind,
         density: f64,
     ) -> Result<Vec<f64>, crate::mpm::SimError> {
+        self.target_masses_on(&self.placement.grid, kernel, density)
+    }
+
+    /// [`MorphGeometry::target_masses`] on another grid over the same domain.
+    pub fn target_masses_on(
+        &self,
+        grid: &crate::mpm::GridSpec,
+        kernel: crate::mpm::KernelKind,
+        density: f64,
+    ) -> Result<Vec<f64>, crate::mpm::SimError> {
         let source_mass = density * self.source.volume * self.source.positions.len() as f64;
         let per_particle = source_mass / self.target.positions.len() as f64;
         let masses = vec![per_particle; self.target.positions.len()];
-        crate::mpm::transfer::mass_grid(
-            &self.placement.grid,
-            kernel,
-            &self.target.positions,
-            &masses,
-        )
+        crate::mpm::transfer::mass_grid(grid, kernel, &self.target.positions, &masses)
     }
 }
 

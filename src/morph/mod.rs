@@ -6,6 +6,7 @@
 //! and re-optimize them from the (now different) state the chain reaches. Frames come from
 //! the accepted rollouts of the last pass.
 
+pub mod basis;
 pub mod checkpoint;
 pub mod metrics;
 pub mod output;
@@ -15,7 +16,11 @@ pub mod settings;
 
 use crate::geometry::{Jitter, LoadedMesh, MeshError, MorphGeometry, PlacementOptions};
 use crate::integrator::{Engine, Integrator, RunTape};
-use crate::loss::MassLoss;
+use crate::loss::{FINE_KERNEL, FineMassLoss, MassLoss};
+
+/// The finer loss grid splits each simulation cell this many times per axis: one particle
+/// per fine cell at the default two per cell.
+pub const FINE_REFINE: usize = 2;
 use crate::mpm::model::Model;
 use crate::mpm::{SimError, State};
 use crate::scene::{EffectConfig, SceneConfig};
@@ -101,6 +106,8 @@ pub struct Prepared {
     pub geometry: MorphGeometry,
     pub engine: Engine,
     pub loss: MassLoss,
+    /// The mass loss on the finer grid, when its weight is positive.
+    pub fine_loss: Option<FineMassLoss>,
     pub initial: State,
 }
 
@@ -210,15 +217,29 @@ impl Prepared {
             let (limit, _) = scene.stable_dt();
             scene.dt = scene.dt.min(0.5 * limit);
         }
-        let engine = Engine::new(scene.model(volumes)?, settings.integrator)?;
+        let mut model = scene.model(volumes)?;
+        model.control_form = settings.control;
+        let engine = Engine::new(model, settings.integrator)?;
         let target = geometry.target_masses(settings.kernel, settings.material.density)?;
         let loss = MassLoss::new(settings.loss, target);
+        let fine_loss = if settings.fine_weight > 0.0 {
+            let grid = FineMassLoss::refine(&geometry.placement.grid, FINE_REFINE);
+            let target = geometry.target_masses_on(&grid, FINE_KERNEL, settings.material.density)?;
+            Some(FineMassLoss {
+                grid,
+                loss: MassLoss::new(settings.loss, target),
+                weight: settings.fine_weight,
+            })
+        } else {
+            None
+        };
         let initial = State::at_rest(geometry.source.positions.clone());
         Ok(Prepared {
             settings: settings.clone(),
             geometry,
             engine,
             loss,
+            fine_loss,
             initial,
         })
     }
@@ -495,11 +516,14 @@ fn chain<I: Integrator>(
             let segment = Segment {
                 sim,
                 loss: &prep.loss,
+                fine_loss: prep.fine_loss.as_ref(),
                 start: &progress.state,
                 first_step: k * s.steps_per_segment,
                 steps: s.steps_per_segment,
                 stride: s.control_stride,
                 arrival_weight: s.arrival_weight,
+                volume_weight: s.volume_weight,
+                resolution: s.control_resolution,
             };
             let init = progress.controls[k].clone();
             let mut stop = observer.stop_requested();

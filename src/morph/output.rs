@@ -53,6 +53,65 @@ struct FrameEntry {
     points: String,
     #[serde(skip_serializing_if = "Option::is_none")]
     mesh: Option<String>,
+    #[serde(flatten)]
+    stats: Option<FrameStats>,
+}
+
+/// What each written frame measured: its particles' volume ratios, their order below the
+/// grid, and the volume its rebuilt surface encloses.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FrameStats {
+    pub min_j: f64,
+    pub mean_j: f64,
+    pub max_j: f64,
+    /// Particles with `J <= 0`.
+    pub inverted: usize,
+    /// Share of particles with a neighbour closer than half the initial spacing.
+    pub close_share: f64,
+    /// Volume inside the rebuilt surface (world units), when surfaces are written.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub surface_volume: Option<f64>,
+    /// `surface_volume / body volume - 1`: the body's volume is the source mesh's (the
+    /// target is scaled to it), so a surface that keeps the body's volume has 0.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub surface_volume_error: Option<f64>,
+}
+
+/// The worst of every frame's [`FrameStats`], for the manifest and the summary.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FramesSummary {
+    pub min_j: f64,
+    pub max_j: f64,
+    /// Frames with at least one inverted particle.
+    pub frames_inverted: usize,
+    pub max_close_share: f64,
+    /// Largest `|surface_volume_error|` over the frames (when surfaces are written).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_surface_volume_error: Option<f64>,
+}
+
+impl FramesSummary {
+    fn of(stats: &[FrameStats]) -> Option<FramesSummary> {
+        let first = stats.first()?;
+        let mut s = FramesSummary {
+            min_j: first.min_j,
+            max_j: first.max_j,
+            frames_inverted: 0,
+            max_close_share: 0.0,
+            max_surface_volume_error: None,
+        };
+        for f in stats {
+            s.min_j = s.min_j.min(f.min_j);
+            s.max_j = s.max_j.max(f.max_j);
+            s.frames_inverted += usize::from(f.inverted > 0);
+            s.max_close_share = s.max_close_share.max(f.close_share);
+            if let Some(e) = f.surface_volume_error {
+                let worst = s.max_surface_volume_error.unwrap_or(0.0).max(e.abs());
+                s.max_surface_volume_error = Some(worst);
+            }
+        }
+        Some(s)
+    }
 }
 
 /// Who a run is: what decides its result bit for bit. Two runs with equal identities write
@@ -177,6 +236,9 @@ struct Manifest {
     /// The quality judge's verdict on the final state (`morph::quality`).
     #[serde(default)]
     quality: Option<Quality>,
+    /// The worst of the frames' measurements (each frame's are in `frames`).
+    #[serde(default)]
+    frames_summary: Option<FramesSummary>,
     iterations: Vec<IterationRecord>,
     segments: Vec<SegmentRecord>,
     timings: Timings,
@@ -204,6 +266,9 @@ pub struct Summary {
     /// The quality judge's verdict (absent when `--resume` found an older complete folder
     /// without one).
     pub quality: Option<Quality>,
+    /// The worst of the written frames' measurements: J range, inverted frames, order,
+    /// surface volume.
+    pub frames_summary: Option<FramesSummary>,
     pub seconds: f64,
     /// Where the run continued from (`--resume`), e.g. "pass 2 of 2, 5 of 12 segments done".
     pub resumed_from: Option<String>,
@@ -268,6 +333,7 @@ pub fn morph_to_folder(
                     final_loss: m.final_loss,
                     fill: m.fill,
                     quality: m.quality,
+                    frames_summary: m.frames_summary,
                     seconds: 0.0,
                     resumed_from: None,
                     already_complete: true,
@@ -392,23 +458,48 @@ pub struct PlyObjSink {
     pub to_world: Similarity,
 }
 
-impl FrameSink for PlyObjSink {
-    fn frame(&mut self, frame: &Frame) -> Result<(), MorphError> {
+impl PlyObjSink {
+    /// Writes `frame`; returns the volume its surface encloses (world units) when surfaces
+    /// are written.
+    pub fn write(&mut self, frame: &Frame) -> Result<Option<f64>, MorphError> {
         let name = frame_name(frame.index, self.n_frames);
         let WorldFrame { x, v, j } = &frame.world;
         let points = self.dir.join("frames").join(format!("{name}.ply"));
         write_points_ply(&points, x, v, j).map_err(|e| out_err("frame", &points, e))?;
-        if self.surfaces {
-            let volumes: Vec<f64> = j.iter().map(|j| self.rest_volume * j.max(0.0)).collect();
-            let surface = extract_surface(&frame.state.x, &volumes, self.spacing)
-                .map_err(|e| MorphError::Output(e.to_string()))?;
-            let path = self.dir.join("meshes").join(format!("{name}.obj"));
-            self.to_world
-                .apply_mesh(&surface)
-                .write_obj(&path)
-                .map_err(|e| out_err("surface", &path, e))?;
+        if !self.surfaces {
+            return Ok(None);
         }
-        Ok(())
+        let volumes: Vec<f64> = j.iter().map(|j| self.rest_volume * j.max(0.0)).collect();
+        let surface = extract_surface(&frame.state.x, &volumes, self.spacing)
+            .map_err(|e| MorphError::Output(e.to_string()))?;
+        let path = self.dir.join("meshes").join(format!("{name}.obj"));
+        let world = self.to_world.apply_mesh(&surface);
+        world
+            .write_obj(&path)
+            .map_err(|e| out_err("surface", &path, e))?;
+        Ok(Some(world.signed_volume()))
+    }
+}
+
+impl FrameSink for PlyObjSink {
+    fn frame(&mut self, frame: &Frame) -> Result<(), MorphError> {
+        self.write(frame).map(|_| ())
+    }
+}
+
+/// The particles' side of a frame's [`FrameStats`]; `spacing` is the initial particle
+/// spacing in simulation units.
+fn frame_stats(frame: &Frame, spacing: f64) -> FrameStats {
+    let j = &frame.world.j;
+    let n = j.len().max(1) as f64;
+    FrameStats {
+        min_j: j.iter().copied().fold(f64::INFINITY, f64::min),
+        mean_j: j.iter().sum::<f64>() / n,
+        max_j: j.iter().copied().fold(f64::NEG_INFINITY, f64::max),
+        inverted: j.iter().filter(|j| **j <= 0.0).count(),
+        close_share: super::quality::close_neighbour_share(&frame.state.x, spacing),
+        surface_volume: None,
+        surface_volume_error: None,
     }
 }
 
@@ -416,7 +507,11 @@ impl FrameSink for PlyObjSink {
 /// segments, and passes on events and stop requests.
 struct FolderWriter<'a> {
     dir: &'a Path,
-    sinks: Vec<Box<dyn FrameSink>>,
+    sink: PlyObjSink,
+    /// Each written frame's measurements, in frame order.
+    stats: Vec<FrameStats>,
+    /// The body's volume (world units) the surfaces are measured against.
+    body_volume: f64,
     particles: usize,
     preview_at: Vec<usize>,
     preview: Vec<(usize, Vec<Vector3<f64>>)>,
@@ -429,6 +524,28 @@ impl FolderWriter<'_> {
         self.dir
             .join(checkpoint::FOLDER)
             .join(format!("preview_{index:06}.bin"))
+    }
+
+    fn stats_path(&self) -> PathBuf {
+        self.dir.join(checkpoint::FOLDER).join("frame_stats.json")
+    }
+
+    /// Measurements of the frames written before an interruption, from the checkpoint folder.
+    fn restore_stats(&mut self, frames_done: usize) -> Result<(), MorphError> {
+        let path = self.stats_path();
+        let bad = |e: String| MorphError::Resume(format!("checkpoint '{}': {e}", path.display()));
+        let bytes = std::fs::read(&path).map_err(|e| bad(e.to_string()))?;
+        let mut stats: Vec<FrameStats> =
+            serde_json::from_slice(&bytes).map_err(|e| bad(e.to_string()))?;
+        if stats.len() < frames_done {
+            return Err(bad(format!(
+                "{} frame measurements for {frames_done} frames",
+                stats.len()
+            )));
+        }
+        stats.truncate(frames_done);
+        self.stats = stats;
+        Ok(())
     }
 
     /// Preview frames written before an interruption come back from the checkpoint folder.
@@ -453,10 +570,13 @@ impl Observer for FolderWriter<'_> {
     }
 
     fn frame(&mut self, frame: &Frame) -> Result<(), MorphError> {
-        for sink in &mut self.sinks {
-            sink.frame(frame)?;
-        }
+        let surface_volume = self.sink.write(frame)?;
+        let mut stats = frame_stats(frame, self.sink.spacing);
+        stats.surface_volume = surface_volume;
+        stats.surface_volume_error = surface_volume.map(|v| v / self.body_volume - 1.0);
         let index = frame.index;
+        self.stats.truncate(index);
+        self.stats.push(stats);
         if self.preview_at.contains(&index) {
             let path = self.preview_path(index);
             let x = frame.world.x.clone();
@@ -468,6 +588,11 @@ impl Observer for FolderWriter<'_> {
     }
 
     fn segment_done(&mut self, progress: &RunProgress, segment: usize) -> Result<(), MorphError> {
+        let path = self.stats_path();
+        let json =
+            serde_json::to_vec(&self.stats).map_err(|e| MorphError::Output(e.to_string()))?;
+        crate::io::write_atomically(&path, |w| std::io::Write::write_all(w, &json))
+            .map_err(|e| out_err("checkpoint", &path, e))?;
         checkpoint::save(self.dir, progress, segment)
     }
 
@@ -512,7 +637,9 @@ fn write_run(
     };
     let mut writer = FolderWriter {
         dir,
-        sinks: vec![Box::new(sink)],
+        sink,
+        stats: Vec::new(),
+        body_volume: prep.geometry.source_solid.volume,
         particles: prep.initial.len(),
         preview_at: (0..6).map(|i| i * (n_frames - 1) / 5).collect(),
         preview: Vec::new(),
@@ -523,9 +650,12 @@ fn write_run(
         && p.pass + 1 == settings.passes
     {
         writer.restore_preview(p.frames)?;
+        writer.restore_stats(p.frames)?;
     }
     let result = run(prep, resume, &mut writer)?;
     let preview = std::mem::take(&mut writer.preview);
+    let frame_stats = std::mem::take(&mut writer.stats);
+    let frames_summary = FramesSummary::of(&frame_stats);
     let optimize_s = clock.elapsed().as_secs_f64() - setup_s;
 
     // Final nodal mass grid, on world coordinates.
@@ -567,6 +697,7 @@ fn write_run(
                 time: step as f64 * prep.model().dt,
                 points: format!("frames/{name}.ply"),
                 mesh: settings.surfaces.then(|| format!("meshes/{name}.obj")),
+                stats: frame_stats.get(i).copied(),
             }
         })
         .collect();
@@ -592,6 +723,7 @@ fn write_run(
         final_loss: result.final_loss,
         fill,
         quality,
+        frames_summary,
         iterations: result.iterations,
         segments: result.segments,
         timings: Timings {
@@ -619,6 +751,7 @@ fn write_run(
         final_loss: result.final_loss,
         fill,
         quality,
+        frames_summary,
         seconds: total_s,
         resumed_from,
         already_complete: false,

@@ -12,7 +12,8 @@
 //!   rollout in place (the reference left the rejected trial's states).
 
 use crate::integrator::{Integrator, RunTape};
-use crate::loss::MassLoss;
+use super::basis::{ControlBasis, ControlResolution};
+use crate::loss::{FineMassLoss, MassLoss, volume_cost};
 use crate::mpm::{SimError, State};
 use crate::optim::Adam;
 use nalgebra::Matrix3;
@@ -76,6 +77,8 @@ pub struct SegmentResult<T> {
 pub struct Segment<'a, I: Integrator> {
     pub sim: &'a I,
     pub loss: &'a MassLoss,
+    /// The mass loss on a finer grid, added when given.
+    pub fine_loss: Option<&'a FineMassLoss>,
     pub start: &'a State,
     /// Global index of the segment's first step (for error messages).
     pub first_step: usize,
@@ -84,6 +87,13 @@ pub struct Segment<'a, I: Integrator> {
     /// Weight of the kinetic energy left at the segment's end, `w * sum 1/2 m |v|^2`, added
     /// to the mass loss so the body arrives instead of flying through the target.
     pub arrival_weight: f64,
+    /// Weight of the volume cost, `w` times the mean over the segment's steps of
+    /// `sum_p 1/2 (ln J_p)^2` ([`crate::loss::volume_cost`]) on the state after each step, so
+    /// the optimizer keeps the body at its volume all along, not only at the segment's end.
+    pub volume_weight: f64,
+    /// Where Adam's free control values live (see [`ControlBasis`]); the line search always
+    /// works per particle, as the reference does.
+    pub resolution: ControlResolution,
 }
 
 /// One evaluated control set.
@@ -109,11 +119,15 @@ impl<I: Integrator> Segment<'_, I> {
     }
 
     /// Forward from the start of layer `from` (state `start`) to the end of the segment.
+    /// `prefix` is the volume cost summed over the steps before `from` (see
+    /// [`Segment::volume_sum`]), so that objectives of partial rollouts compare with whole
+    /// ones.
     fn rollout(
         &self,
         start: &State,
         layers: &[Vec<Matrix3<f64>>],
         from: usize,
+        prefix: f64,
     ) -> Result<Rollout<I::Tape>, SimError> {
         let mut state = start.clone();
         let mut tape = I::Tape::default();
@@ -128,8 +142,37 @@ impl<I: Integrator> Segment<'_, I> {
         let model = self.sim.model();
         let mass = model.mass_grid(&state.x)?;
         let (loss, _) = self.loss.value_and_grad(&mass);
-        let loss = loss + self.arrival_weight * state.kinetic_energy(&model.mass);
+        let mut loss = loss + self.arrival_weight * state.kinetic_energy(&model.mass);
+        if let Some(fine) = self.fine_loss {
+            loss += fine.value_and_grad(&state.x, &model.mass)?.0;
+        }
+        if self.volume_weight > 0.0 {
+            let sum = prefix + self.volume_sum(&tape, 0..tape.len(), from * self.stride)?;
+            loss += self.volume_weight * sum / self.steps as f64;
+        }
         Ok(Rollout { loss, tape })
+    }
+
+    /// The volume cost summed over the states after the tape's steps `range`; the tape's
+    /// first step is the segment's local step `first`. An inverted particle is an error.
+    fn volume_sum(
+        &self,
+        tape: &I::Tape,
+        range: std::ops::Range<usize>,
+        first: usize,
+    ) -> Result<f64, SimError> {
+        let mut sum = 0.0;
+        for k in range {
+            let state = tape.state_at(k + 1);
+            sum += volume_cost(&state.f)
+                .map_err(|particle| SimError::Inverted {
+                    step: self.first_step + first + k + 1,
+                    particle,
+                    j: state.f[particle].determinant(),
+                })?
+                .0;
+        }
+        Ok(sum)
     }
 
     /// dL/dFc for the layers from `from` on, through a taped rollout that started there.
@@ -145,11 +188,29 @@ impl<I: Integrator> Segment<'_, I> {
         let (_, grad_m) = self.loss.value_and_grad(&mass);
         let mut seed = State::zeros(last.len());
         seed.x = model.mass_grid_reverse(&last.x, &grad_m);
+        if let Some(fine) = self.fine_loss {
+            for (g, f) in seed.x.iter_mut().zip(fine.value_and_grad(&last.x, &model.mass)?.1) {
+                *g += f;
+            }
+        }
         for (p, g) in seed.v.iter_mut().enumerate() {
             *g = self.arrival_weight * model.mass[p] * last.v[p];
         }
         let schedule = self.schedule(layers, from);
-        let grads = self.sim.backward(&rollout.tape, &schedule, seed);
+        let weight = self.volume_weight / self.steps as f64;
+        let grads = if self.volume_weight > 0.0 {
+            // The forward pass checked every J > 0, so the cost is defined on every state.
+            self.sim
+                .backward_seeded(&rollout.tape, &schedule, seed, &mut |_, state, adj| {
+                    if let Ok((_, grad)) = volume_cost(&state.f) {
+                        for (a, g) in adj.f.iter_mut().zip(grad) {
+                            *a += weight * g;
+                        }
+                    }
+                })
+        } else {
+            self.sim.backward(&rollout.tape, &schedule, seed)
+        };
         Ok(grads.controls.into_iter().flatten().collect())
     }
 
@@ -159,14 +220,14 @@ impl<I: Integrator> Segment<'_, I> {
         &self,
         layers: &[Vec<Matrix3<f64>>],
     ) -> Result<(f64, Layers), SimError> {
-        let r = self.rollout(self.start, layers, 0)?;
+        let r = self.rollout(self.start, layers, 0, 0.0)?;
         let g = self.gradient(&r, layers, 0)?;
         Ok((r.loss, g))
     }
 
     /// The objective alone.
     pub fn objective(&self, layers: &[Vec<Matrix3<f64>>]) -> Result<f64, SimError> {
-        Ok(self.rollout(self.start, layers, 0)?.loss)
+        Ok(self.rollout(self.start, layers, 0, 0.0)?.loss)
     }
 
     /// Optimizes the segment from `initial` controls (one per layer). `on_iteration` gets the
@@ -194,10 +255,33 @@ impl<I: Integrator> Segment<'_, I> {
         const BETA1: f64 = 0.9;
         const BETA2: f64 = 0.999;
         const EPS: f64 = 1e-12;
-        let n = self.start.len();
         let iterations = s.iterations.max(1);
-        let mut adam = Adam::new(layers.len() * n * 9, BETA1, BETA2, EPS);
-        let mut current = self.rollout(self.start, &layers, 0)?;
+        // The free values: one control per grid node (interpolated to the particles, added
+        // to the initial controls) or one per particle.
+        let model = self.sim.model();
+        let basis = (self.resolution == ControlResolution::Grid)
+            .then(|| ControlBasis::new(&self.start.x, &model.grid.origin_vec(), model.grid.dx));
+        let base = layers.clone();
+        let mut params = match &basis {
+            Some(b) => vec![0.0; layers.len() * b.nodes() * 9],
+            None => flatten(&layers),
+        };
+        let to_layers = |params: &[f64], layers: &mut Layers| match &basis {
+            Some(b) => {
+                for (l, chunk) in params.chunks_exact(b.nodes() * 9).enumerate() {
+                    let theta: Vec<Matrix3<f64>> =
+                        chunk.chunks_exact(9).map(Matrix3::from_column_slice).collect();
+                    layers[l] = b.to_particles(&theta, &base[l]);
+                }
+            }
+            None => unflatten(params, layers),
+        };
+        let to_params = |grad: Layers| match &basis {
+            Some(b) => flatten(&grad.iter().map(|g| b.to_nodes(g)).collect::<Vec<_>>()),
+            None => flatten(&grad),
+        };
+        let mut adam = Adam::new(params.len(), BETA1, BETA2, EPS);
+        let mut current = self.rollout(self.start, &layers, 0, 0.0)?;
         let initial_loss = current.loss;
         let mut evaluations = 1;
         let mut best: Option<(Layers, Rollout<I::Tape>)> = None;
@@ -208,7 +292,7 @@ impl<I: Integrator> Segment<'_, I> {
                 return Ok(None);
             }
             let grad = if iteration + 1 < iterations {
-                Some(flatten(&self.gradient(&current, &layers, 0)?))
+                Some(to_params(self.gradient(&current, &layers, 0)?))
             } else {
                 None
             };
@@ -216,21 +300,21 @@ impl<I: Integrator> Segment<'_, I> {
                 best = Some((layers.clone(), current));
             }
             let Some(grad) = grad else { break };
-            let saved = (layers.clone(), adam.clone());
+            let saved = (params.clone(), adam.clone());
             loop {
-                let mut flat = flatten(&layers);
-                adam.step(&mut flat, &grad, lr, |_| 1.0);
-                unflatten(&flat, &mut layers);
+                adam.step(&mut params, &grad, lr, |_| 1.0);
+                to_layers(&params, &mut layers);
                 evaluations += 1;
                 iteration += 1;
-                match self.rollout(self.start, &layers, 0) {
+                match self.rollout(self.start, &layers, 0, 0.0) {
                     Ok(r) => {
                         current = r;
                         break;
                     }
                     Err(e) if blew_up(&e) => {
                         // The step blew the simulation up: undo it, retry with half the step.
-                        (layers, adam) = saved.clone();
+                        (params, adam) = saved.clone();
+                        to_layers(&params, &mut layers);
                         lr *= 0.5;
                         if !on_iteration(iteration, f64::INFINITY) {
                             return Ok(None);
@@ -260,7 +344,7 @@ impl<I: Integrator> Segment<'_, I> {
         on_iteration: &mut dyn FnMut(usize, f64) -> bool,
     ) -> Result<Option<SegmentResult<I::Tape>>, SimError> {
         // The accepted rollout of the whole segment, and the state at each layer's start.
-        let mut accepted = self.rollout(self.start, &layers, 0)?;
+        let mut accepted = self.rollout(self.start, &layers, 0, 0.0)?;
         let initial_loss = accepted.loss;
         if !on_iteration(0, accepted.loss) {
             return Ok(None);
@@ -287,6 +371,11 @@ impl<I: Integrator> Segment<'_, I> {
                     break;
                 }
                 let start = accepted.tape.state_at(from_step).into_owned();
+                let prefix = if self.volume_weight > 0.0 {
+                    self.volume_sum(&accepted.tape, 0..from_step, 0)?
+                } else {
+                    0.0
+                };
                 let mut alpha = s.learning_rate;
                 let mut improved = None;
                 for _ in 0..s.line_search_tries.max(1) {
@@ -295,7 +384,7 @@ impl<I: Integrator> Segment<'_, I> {
                         *fc -= (alpha / norm) * gp;
                     }
                     evaluations += 1;
-                    match self.rollout(&start, &trial, layer) {
+                    match self.rollout(&start, &trial, layer, prefix) {
                         Ok(r) if r.loss < accepted.loss => {
                             improved = Some((trial, r));
                             break;
@@ -354,6 +443,10 @@ fn unflatten(flat: &[f64], layers: &mut [Vec<Matrix3<f64>>]) {
 fn blew_up(e: &SimError) -> bool {
     matches!(
         e,
-        SimError::CflExceeded { .. } | SimError::NonFinite { .. } | SimError::OutsideGrid { .. }
+        SimError::CflExceeded { .. }
+            | SimError::NonFinite { .. }
+            | SimError::OutsideGrid { .. }
+            | SimError::DegenerateControl { .. }
+            | SimError::Inverted { .. }
     )
 }

@@ -1,10 +1,11 @@
 //! Morph settings and presets.
 
+use super::basis::ControlResolution;
 use super::segment::{Optimizer, OptimizerSettings};
 use crate::geometry::TargetFit;
 use crate::integrator::IntegratorKind;
 use crate::loss::MassLossKind;
-use crate::mpm::KernelKind;
+use crate::mpm::{ControlForm, KernelKind};
 use crate::scene::MaterialConfig;
 use serde::{Deserialize, Serialize};
 
@@ -71,11 +72,26 @@ pub struct MorphSettings {
     pub steps_per_segment: usize,
     /// Steps between control layers within a segment.
     pub control_stride: usize,
+    /// How a control layer's `Fc` acts on `F`: a volume-preserving rest-shape factor
+    /// (default) or the reference's `F + Fc` (docs/morph.md).
+    #[serde(default)]
+    pub control: ControlForm,
+    /// Where Adam's free control values live: one per grid node (smooth across the body,
+    /// default) or one per particle (the reference).
+    #[serde(default)]
+    pub control_resolution: ControlResolution,
     pub passes: usize,
     pub optimizer: OptimizerSettings,
     pub loss: MassLossKind,
     /// Weight of the kinetic energy at each segment's end in the objective.
     pub arrival_weight: f64,
+    /// Weight of the volume cost `sum_p 1/2 (ln J_p)^2` at each segment's end.
+    #[serde(default)]
+    pub volume_weight: f64,
+    /// Weight of the mass loss on a grid twice as fine as the simulation's, which sees how
+    /// particles are arranged within a cell (0: off).
+    #[serde(default)]
+    pub fine_weight: f64,
     pub kernel: KernelKind,
     /// The time integrator (Euler, or RK4 at four evaluations a step).
     #[serde(default)]
@@ -113,6 +129,8 @@ impl MorphSettings {
             segments,
             steps_per_segment: 30,
             control_stride: 10,
+            control: ControlForm::default(),
+            control_resolution: ControlResolution::default(),
             passes,
             optimizer: OptimizerSettings {
                 kind: Optimizer::Adam,
@@ -123,6 +141,8 @@ impl MorphSettings {
             },
             loss: MassLossKind::Log,
             arrival_weight: 0.001,
+            volume_weight: 100.0,
+            fine_weight: 1.0,
             kernel: KernelKind::Cubic,
             integrator: IntegratorKind::Euler,
             material: MaterialConfig {
@@ -190,6 +210,18 @@ impl MorphSettings {
             return Err(format!(
                 "--arrival-weight must be >= 0, got {}",
                 self.arrival_weight
+            ));
+        }
+        if !(self.volume_weight.is_finite() && self.volume_weight >= 0.0) {
+            return Err(format!(
+                "--volume-weight must be >= 0, got {}",
+                self.volume_weight
+            ));
+        }
+        if !(self.fine_weight.is_finite() && self.fine_weight >= 0.0) {
+            return Err(format!(
+                "--fine-weight must be >= 0, got {}",
+                self.fine_weight
             ));
         }
         if !(self.drag.is_finite() && self.drag >= 0.0) {

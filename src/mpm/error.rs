@@ -41,6 +41,20 @@ pub enum SimError {
         limit: f64,
     },
 
+    #[error(
+        "step {step}: particle {particle}'s control factor I + Fc has determinant {det:.3e}; a rest-shape control must keep it positive"
+    )]
+    DegenerateControl {
+        step: usize,
+        particle: usize,
+        det: f64,
+    },
+
+    #[error(
+        "step {step}: particle {particle} is turned inside out (J = {j:.3e}); reduce the controls"
+    )]
+    Inverted { step: usize, particle: usize, j: f64 },
+
     #[error("invalid scene: {0}")]
     InvalidScene(String),
 }

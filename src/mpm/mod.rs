@@ -6,6 +6,7 @@
 //! together and records what the reverse pass needs.
 
 pub mod advance;
+pub mod control;
 pub mod error;
 pub mod grid;
 pub mod grid_update;
@@ -16,6 +17,7 @@ pub mod step;
 pub mod stress;
 pub mod transfer;
 
+pub use control::ControlForm;
 pub use error::SimError;
 pub use grid::GridSpec;
 pub use kernel::KernelKind;

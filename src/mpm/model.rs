@@ -3,6 +3,7 @@
 //! validation, one stable time-step bound and one set of state checks.
 
 use super::transfer;
+use super::ControlForm;
 use super::{GridSpec, KernelKind, SimError};
 use crate::effects::Effect;
 use crate::material::ConstitutiveModel;
@@ -27,6 +28,8 @@ pub struct Model {
     /// Boundary controls the scene declares (body forces, prescribed velocities or
     /// positions) and their schedule; none unless [`Model::with_controls`] set them.
     pub controls: ControlPlan,
+    /// How a deformation-gradient control `Fc` acts on `F` (see [`ControlForm`]).
+    pub control_form: ControlForm,
     /// The kinematic control moving each particle (`FREE` for free particles).
     clamp_of: Vec<u32>,
 }
@@ -59,6 +62,7 @@ impl Model {
             volume,
             max_cfl: 1.0,
             controls: ControlPlan::none(1),
+            control_form: ControlForm::default(),
         })
     }
 
@@ -216,7 +220,8 @@ impl Model {
         Ok(())
     }
 
-    /// A deformation-gradient control must have one finite `Fc` per particle.
+    /// A deformation-gradient control must have one finite `Fc` per particle, each one the
+    /// model's [`ControlForm`] can apply.
     pub fn check_control(&self, fc: Option<&[Matrix3<f64>]>, step: usize) -> Result<(), SimError> {
         let Some(fc) = fc else { return Ok(()) };
         let particles = self.num_particles();
@@ -236,7 +241,15 @@ impl Model {
                 field: "control Fc",
             });
         }
-        Ok(())
+        let form = self.control_form;
+        match fc
+            .par_iter()
+            .enumerate()
+            .find_first(|(p, m)| form.check(m, step, *p).is_err())
+        {
+            Some((p, m)) => form.check(m, step, p),
+            None => Ok(()),
+        }
     }
 
     /// Total number of effect parameters, and a zeroed gradient buffer for them.

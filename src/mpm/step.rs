@@ -116,7 +116,8 @@ impl Simulator {
         self.check_finite_and_cfl(state.first_non_finite(), &state.v, step)
     }
 
-    /// Advances `state` by one step with optional controls `fc` (per particle, added to F).
+    /// Advances `state` by one step with optional controls `fc` (per particle, applied to `F`
+    /// by the model's [`crate::mpm::ControlForm`]).
     /// `step` is the global step index (time-dependent effects read it; errors name it).
     pub fn step(
         &self,
@@ -208,9 +209,10 @@ impl Simulator {
         // P1: elastic gradient, stress (batched across particles) and affine momentum.
         ws.fe.resize(n, Matrix3::zeros());
         ws.affine.resize(n, Matrix3::zeros());
+        let form = self.control_form;
         ws.fe.par_iter_mut().enumerate().for_each(|(p, fe)| {
             *fe = match fc {
-                Some(fc) => state.f[p] + fc[p],
+                Some(fc) => form.apply(&state.f[p], &fc[p]),
                 None => state.f[p],
             };
         });
@@ -440,10 +442,11 @@ impl Simulator {
         let strides = self.grid.strides();
         let origin = self.grid.origin_vec();
         let dx = self.grid.dx;
+        let form = self.control_form;
         let fe: Vec<Matrix3<f64>> = (0..n)
             .into_par_iter()
             .map(|p| match fc {
-                Some(fc) => pre.f[p] + fc[p],
+                Some(fc) => form.apply(&pre.f[p], &fc[p]),
                 None => pre.f[p],
             })
             .collect();
@@ -599,8 +602,10 @@ impl Simulator {
                 }
                 *gc = g_c;
                 let total_fe = grad_fe[p] + g_fe;
-                *gf = total_fe;
-                *gfc = total_fe;
+                match fc {
+                    Some(fc) => (*gf, *gfc) = form.apply_reverse(&pre.f[p], &fc[p], &total_fe),
+                    None => *gf = total_fe,
+                }
             });
         let grad_values = match values {
             None => Vec::new(),

@@ -1,6 +1,6 @@
 //! Stage P1: elastic stress and the affine momentum each particle hands to the grid.
 //!
-//! Forward: `Fe = F + Fc`, `A = m C - dt V D^-1 P(Fe) Fe^T` (MLS-MPM fuses the APIC affine
+//! Forward: `Fe` (`F` after the control, [`super::control`]), `A = m C - dt V D^-1 P(Fe) Fe^T` (MLS-MPM fuses the APIC affine
 //! momentum and the stress force into one matrix that P2G spreads as `A (x_i - x_p)`).
 
 use crate::material::ConstitutiveModel;

@@ -15,6 +15,7 @@ use crate::mpm::SimError;
 use crate::mpm::model::Model;
 use crate::mpm::{Gradients, State, StateGrad};
 use nalgebra::Matrix3;
+use rayon::prelude::*;
 use std::borrow::Cow;
 
 /// Stage fractions of the step at which RK4 evaluates `f`.
@@ -177,14 +178,16 @@ impl Integrator for OdeSystem {
             t.pre_control_f.clear();
         }
         for k in 0..n_steps {
-            // The control jumps F at the step's start, as in the Euler step (`Fe = F + Fc`).
+            // The control jumps F at the step's start, as in the Euler step.
             let fc = controls.get(k).and_then(|c| c.as_deref());
             self.check_control(fc, first_step + k)?;
+            let form = self.control_form;
             let pre_f = fc.map(|fc| {
                 let pre = s.f.clone();
-                for (f, c) in s.f.iter_mut().zip(fc) {
-                    *f += c;
-                }
+                s.f.par_iter_mut()
+                    .zip(&pre)
+                    .zip(fc)
+                    .for_each(|((f, pre), c)| *f = form.apply(pre, c));
                 pre
             });
             let stages = self.rk4_step(&mut s, &params, first_step + k, tape.is_some())?;
@@ -200,7 +203,13 @@ impl Integrator for OdeSystem {
         Ok(())
     }
 
-    fn backward(&self, tape: &Rk4Tape, controls: &StepControls, grad_last: StateGrad) -> Gradients {
+    fn backward_seeded(
+        &self,
+        tape: &Rk4Tape,
+        controls: &StepControls,
+        grad_last: StateGrad,
+        seed_after: &mut dyn FnMut(usize, &State, &mut StateGrad),
+    ) -> Gradients {
         let params = self.controls.zero_params();
         let mut grad_params = self.controls.zero_params();
         let mut effect_params = self.zero_effect_params();
@@ -208,6 +217,17 @@ impl Integrator for OdeSystem {
         let first_step = tape.first_step;
         let mut grad_controls = vec![None; tape.steps.len()];
         for k in (0..tape.steps.len()).rev() {
+            let mut seed = StateGrad::zeros(adj.x.len());
+            seed_after(first_step + k, &tape.state_at(k + 1), &mut seed);
+            for (a, g) in adj.x.iter_mut().zip(&seed.x) {
+                *a += g;
+            }
+            for (a, g) in adj.v.iter_mut().zip(&seed.v) {
+                *a += g;
+            }
+            for (a, g) in adj.f.iter_mut().zip(&seed.f) {
+                *a += g;
+            }
             self.rk4_step_reverse(
                 &tape.steps[k],
                 &params,
@@ -216,9 +236,18 @@ impl Integrator for OdeSystem {
                 &mut grad_params,
                 &mut effect_params,
             );
-            // F + Fc passes dL/dF on unchanged to both.
-            if controls.get(k).is_some_and(|c| c.is_some()) {
-                grad_controls[k] = Some(adj.f.clone());
+            // Reverse of the control's jump at the step's start.
+            if let (Some(Some(fc)), Some(Some(pre_f))) = (controls.get(k), tape.pre_control_f.get(k))
+            {
+                let form = self.control_form;
+                let (grad_f, grad_fc): (Vec<_>, Vec<_>) = adj
+                    .f
+                    .par_iter()
+                    .zip(pre_f.par_iter().zip(fc))
+                    .map(|(g, (f, c))| form.apply_reverse(f, c, g))
+                    .unzip();
+                adj.f = grad_f;
+                grad_controls[k] = Some(grad_fc);
             }
         }
         Gradients {

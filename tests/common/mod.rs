@@ -93,8 +93,20 @@ pub fn rollout_loss<I: Integrator>(
 
 /// The ball of [`ball`] with the integrator `kind`.
 pub fn ball_engine(scene: &SceneConfig, radius: f64, kind: IntegratorKind) -> (Engine, State) {
+    ball_engine_with(scene, radius, kind, morph::mpm::ControlForm::default())
+}
+
+/// [`ball_engine`] with the deformation-gradient control acting by `form`.
+pub fn ball_engine_with(
+    scene: &SceneConfig,
+    radius: f64,
+    kind: IntegratorKind,
+    form: morph::mpm::ControlForm,
+) -> (Engine, State) {
     let (x, vol) = ball_particles(&scene.grid, Vector3::new(0.1, -0.2, 0.05), radius, 2);
-    let engine = Engine::new(scene.model(vol).expect("valid scene"), kind).expect("engine");
+    let mut model = scene.model(vol).expect("valid scene");
+    model.control_form = form;
+    let engine = Engine::new(model, kind).expect("engine");
     (engine, State::at_rest(x))
 }
 
