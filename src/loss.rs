@@ -8,21 +8,39 @@ use crate::mpm::{GridSpec, KernelKind, SimError, transfer};
 use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 
-/// The volume cost `sum_p 1/2 (ln J_p)^2`, `J_p = det F_p`, and its gradient
-/// `ln J_p F_p^-T`: zero for a body at its rest volume, symmetric in compression and
-/// expansion, and unbounded as a particle nears inversion. `Err(p)` names the first
-/// particle with `J <= 0` (where it is undefined).
+/// How much more the body's total volume counts in [`volume_cost`] than one particle's: a
+/// body squeezed as a whole changes the volume its rendered surface encloses, while a
+/// particle squeezed among others that stretch does not.
+pub const GLOBAL_VOLUME: f64 = 1.0;
+
+/// The volume cost of particles of equal rest volume,
+/// `sum_p 1/2 (ln J_p)^2 + GLOBAL_VOLUME * N * 1/2 (ln Jbar)^2` with `J_p = det F_p` and
+/// `Jbar` their mean, and its gradient `(ln J_p + GLOBAL_VOLUME ln Jbar J_p / Jbar) F_p^-T`:
+/// zero for a body at its rest volume, symmetric in compression and expansion, and unbounded
+/// as a particle nears inversion. `Err(p)` names the first particle with `J <= 0` (where it
+/// is undefined).
 pub fn volume_cost(f: &[Matrix3<f64>]) -> Result<(f64, Vec<Matrix3<f64>>), usize> {
     let mut sum = CompensatedSum::default();
-    let mut grad = Vec::with_capacity(f.len());
+    let mut j_sum = CompensatedSum::default();
+    let mut parts = Vec::with_capacity(f.len());
     for (p, f) in f.iter().enumerate() {
         let j = f.determinant();
-        let inv = f.try_inverse().filter(|_| j > 0.0).ok_or(p)?;
+        let inv_t = f.try_inverse().filter(|_| j > 0.0).ok_or(p)?.transpose();
         let ln_j = j.ln();
         sum.add(0.5 * ln_j * ln_j);
-        grad.push(ln_j * inv.transpose());
+        j_sum.add(j);
+        parts.push((j, ln_j, inv_t));
     }
-    Ok((sum.value(), grad))
+    let n = f.len().max(1) as f64;
+    let mean = j_sum.value() / n;
+    let ln_mean = if f.is_empty() { 0.0 } else { mean.ln() };
+    let value = sum.value() + GLOBAL_VOLUME * n * 0.5 * ln_mean * ln_mean;
+    let global = GLOBAL_VOLUME * ln_mean / mean;
+    let grad = parts
+        .into_iter()
+        .map(|(j, ln_j, inv_t)| (ln_j + global * j) * inv_t)
+        .collect();
+    Ok((value, grad))
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
@@ -146,6 +164,37 @@ impl CompensatedSum {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn volume_cost_gradient_matches_central_differences() {
+        let f: Vec<Matrix3<f64>> = (0..4)
+            .map(|p| {
+                Matrix3::from_fn(|r, c| {
+                    f64::from(u8::from(r == c)) + 0.1 * ((p * 9 + r * 3 + c) as f64).sin()
+                })
+            })
+            .collect();
+        let (value, grad) = volume_cost(&f).unwrap();
+        assert!(value > 0.0);
+        let h = 1e-6;
+        for p in 0..f.len() {
+            for k in 0..9 {
+                let at = |d: f64| {
+                    let mut g = f.clone();
+                    g[p][k] += d;
+                    volume_cost(&g).unwrap().0
+                };
+                let fd = (at(h) - at(-h)) / (2.0 * h);
+                assert!((fd - grad[p][k]).abs() < 1e-7, "F[{p}][{k}]: {fd} vs {}", grad[p][k]);
+            }
+        }
+        // At rest: zero. Inverted: an error naming the particle.
+        let rest = vec![Matrix3::identity(); 3];
+        assert_eq!(volume_cost(&rest).unwrap().0, 0.0);
+        let mut flipped = rest.clone();
+        flipped[1][(0, 0)] = -1.0;
+        assert_eq!(volume_cost(&flipped).err(), Some(1));
+    }
 
     #[test]
     fn gradients_match_finite_differences() {

@@ -353,3 +353,51 @@ fn json_mode_prints_one_object_per_line() {
     assert_eq!(events.last().unwrap()["event"], "written");
     assert!(!out.join("meshes").exists());
 }
+
+/// The morph-quality issue: on a small case, more optimizer iterations never judge worse, and
+/// in every frame of every run no particle is inverted (J > 0) and the rebuilt surface
+/// encloses the body's volume within 5%.
+#[test]
+fn more_effort_never_judges_worse_and_frames_keep_their_volume() {
+    let mut fills = Vec::new();
+    for iterations in ["2", "4", "8"] {
+        let out = scratch(&format!("effort-{iterations}"));
+        let r = morph(&[
+            "assets/sphere.obj",
+            "assets/two-lobes.obj",
+            "--resolution",
+            "24",
+            "--segments",
+            "3",
+            "--iterations",
+            iterations,
+            "--frame-every",
+            "5",
+            "-o",
+            out.to_str().unwrap(),
+            "--quiet",
+        ]);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        let m = manifest(&out);
+        let fill = m["quality"]["fill"].as_f64().unwrap();
+        for f in m["frames"].as_array().unwrap() {
+            let index = f["index"].as_u64().unwrap();
+            let min_j = f["min_j"].as_f64().unwrap();
+            assert!(min_j > 0.0, "{iterations} iterations, frame {index}: J {min_j}");
+            assert_eq!(f["inverted"].as_u64(), Some(0));
+            let error = f["surface_volume_error"].as_f64().unwrap();
+            assert!(
+                error.abs() <= 0.05,
+                "{iterations} iterations, frame {index}: surface volume off by {error}"
+            );
+        }
+        let summary = &m["frames_summary"];
+        assert_eq!(summary["frames_inverted"].as_u64(), Some(0));
+        assert!(summary["max_close_share"].as_f64().unwrap() <= 0.10);
+        fills.push(fill);
+    }
+    assert!(
+        fills.windows(2).all(|w| w[1] >= w[0]),
+        "fill must not fall with more iterations: {fills:?}"
+    );
+}

@@ -33,7 +33,8 @@ pub enum Preset {
     /// The everyday setting: 12 segments, 12 iterations per segment.
     #[default]
     Default,
-    /// The default chain on a finer grid (resolution 40).
+    /// The default settings on a chain twice as long (24 segments): the body has twice the
+    /// time to take the target's shape and settle.
     Final,
 }
 
@@ -115,12 +116,11 @@ impl MorphSettings {
         let (segments, passes, iterations) = match preset {
             Preset::Draft => (6, 1, 6),
             Preset::Default => (12, 1, 12),
-            Preset::Final => (12, 1, 12),
+            Preset::Final => (24, 1, 12),
         };
         MorphSettings {
             preset,
-            // A finer grid is what bought the last IoU once the chain was tuned.
-            resolution: if preset == Preset::Final { 40 } else { 32 },
+            resolution: 32,
             particles: None,
             particles_per_cell: 2,
             jitter: 0.0,
@@ -141,7 +141,7 @@ impl MorphSettings {
             },
             loss: MassLossKind::Log,
             arrival_weight: 0.001,
-            volume_weight: 100.0,
+            volume_weight: 500.0,
             fine_weight: 1.0,
             kernel: KernelKind::Cubic,
             integrator: IntegratorKind::Euler,
