@@ -185,7 +185,11 @@ mod tests {
                     volume_cost(&g).unwrap().0
                 };
                 let fd = (at(h) - at(-h)) / (2.0 * h);
-                assert!((fd - grad[p][k]).abs() < 1e-7, "F[{p}][{k}]: {fd} vs {}", grad[p][k]);
+                assert!(
+                    (fd - grad[p][k]).abs() < 1e-7,
+                    "F[{p}][{k}]: {fd} vs {}",
+                    grad[p][k]
+                );
             }
         }
         // At rest: zero. Inverted: an error naming the particle.

@@ -78,7 +78,15 @@ fn check_scene_on(
     h: f64,
     setup: impl Fn(&mut State),
 ) {
-    check_scene_form(scene, integrator, ControlForm::default(), kind, steps, h, setup);
+    check_scene_form(
+        scene,
+        integrator,
+        ControlForm::default(),
+        kind,
+        steps,
+        h,
+        setup,
+    );
 }
 
 /// [`check_scene_on`] with the control acting by `form`.

@@ -6,13 +6,13 @@ use super::{choice, defaults, fail, help, name};
 use clap::Args;
 use morph::geometry::TargetFit;
 use morph::integrator::IntegratorKind;
-use morph::morph::basis::ControlResolution;
-use morph::mpm::ControlForm;
 use morph::loss::MassLossKind;
 use morph::material::MaterialModel;
+use morph::morph::basis::ControlResolution;
 use morph::morph::segment::Optimizer;
 use morph::morph::settings::limits;
 use morph::morph::{MorphError, MorphEvent, MorphSettings, Preset};
+use morph::mpm::ControlForm;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
@@ -39,7 +39,7 @@ OUTPUT (folder -o, written in the locked OUT.partial and put in place when compl
   run on the same -o fails at once. Each completed segment is checkpointed in OUT.partial.
 
 PRESETS (resolution, segments x steps, passes, iterations per segment; measured quality and
-time from docs/accuracy.md, 2 cores):
+time from docs/morph.md, 2 cores):
 {presets}
   Any of --resolution --segments --steps --passes --iterations overrides its preset value.
 

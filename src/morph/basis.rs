@@ -84,7 +84,10 @@ impl ControlBasis {
         self.entries
             .iter()
             .zip(base)
-            .map(|(e, b)| e.iter().fold(*b, |acc, &(i, w)| acc + w * theta[i as usize]))
+            .map(|(e, b)| {
+                e.iter()
+                    .fold(*b, |acc, &(i, w)| acc + w * theta[i as usize])
+            })
             .collect()
     }
 
@@ -106,7 +109,11 @@ fn for_each_node(s: &Stencil<3>, mut f: impl FnMut([i64; 3], f64)) {
     for a in 0..3 {
         for b in 0..3 {
             for c in 0..3 {
-                let key = [s.base[0] + a as i64, s.base[1] + b as i64, s.base[2] + c as i64];
+                let key = [
+                    s.base[0] + a as i64,
+                    s.base[1] + b as i64,
+                    s.base[2] + c as i64,
+                ];
                 f(key, s.w[0][a] * s.w[1][b] * s.w[2][c]);
             }
         }
@@ -145,7 +152,10 @@ mod tests {
             .zip(basis.to_nodes(&g))
             .map(|(a, b)| a.dot(&b))
             .sum();
-        assert!((lhs - rhs).abs() < 1e-10 * lhs.abs().max(1.0), "{lhs} vs {rhs}");
+        assert!(
+            (lhs - rhs).abs() < 1e-10 * lhs.abs().max(1.0),
+            "{lhs} vs {rhs}"
+        );
         // A constant field interpolates to itself (the weights sum to one).
         let one = vec![Matrix3::identity(); basis.nodes()];
         for m in basis.to_particles(&one, &zero) {

@@ -224,7 +224,8 @@ impl Prepared {
         let loss = MassLoss::new(settings.loss, target);
         let fine_loss = if settings.fine_weight > 0.0 {
             let grid = FineMassLoss::refine(&geometry.placement.grid, FINE_REFINE);
-            let target = geometry.target_masses_on(&grid, FINE_KERNEL, settings.material.density)?;
+            let target =
+                geometry.target_masses_on(&grid, FINE_KERNEL, settings.material.density)?;
             Some(FineMassLoss {
                 grid,
                 loss: MassLoss::new(settings.loss, target),

@@ -296,7 +296,10 @@ mod tests {
         // Move particle 1 next to particle 0: both now have a close neighbour.
         lattice[1] = lattice[0] + Vector3::new(0.2, 0.0, 0.0);
         let share = close_neighbour_share(&lattice, 0.5);
-        assert!((share - 2.0 / lattice.len() as f64).abs() < 1e-15, "{share}");
+        assert!(
+            (share - 2.0 / lattice.len() as f64).abs() < 1e-15,
+            "{share}"
+        );
     }
 
     #[test]

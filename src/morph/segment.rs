@@ -11,8 +11,8 @@
 //!   re-running an identical forward pass, and a failed line search leaves the last accepted
 //!   rollout in place (the reference left the rejected trial's states).
 
-use crate::integrator::{Integrator, RunTape};
 use super::basis::{ControlBasis, ControlResolution};
+use crate::integrator::{Integrator, RunTape};
 use crate::loss::{FineMassLoss, MassLoss, volume_cost};
 use crate::mpm::{SimError, State};
 use crate::optim::Adam;
@@ -189,7 +189,11 @@ impl<I: Integrator> Segment<'_, I> {
         let mut seed = State::zeros(last.len());
         seed.x = model.mass_grid_reverse(&last.x, &grad_m);
         if let Some(fine) = self.fine_loss {
-            for (g, f) in seed.x.iter_mut().zip(fine.value_and_grad(&last.x, &model.mass)?.1) {
+            for (g, f) in seed
+                .x
+                .iter_mut()
+                .zip(fine.value_and_grad(&last.x, &model.mass)?.1)
+            {
                 *g += f;
             }
         }
@@ -269,8 +273,10 @@ impl<I: Integrator> Segment<'_, I> {
         let to_layers = |params: &[f64], layers: &mut Layers| match &basis {
             Some(b) => {
                 for (l, chunk) in params.chunks_exact(b.nodes() * 9).enumerate() {
-                    let theta: Vec<Matrix3<f64>> =
-                        chunk.chunks_exact(9).map(Matrix3::from_column_slice).collect();
+                    let theta: Vec<Matrix3<f64>> = chunk
+                        .chunks_exact(9)
+                        .map(Matrix3::from_column_slice)
+                        .collect();
                     layers[l] = b.to_particles(&theta, &base[l]);
                 }
             }

@@ -137,7 +137,11 @@ mod tests {
                 e[k] = h;
                 let df = (objective(&(f + e), &fc) - objective(&(f - e), &fc)) / (2.0 * h);
                 let dfc = (objective(&f, &(fc + e)) - objective(&f, &(fc - e))) / (2.0 * h);
-                assert!((df - gf[k]).abs() < 1e-8, "{form:?} F[{k}]: {df} vs {}", gf[k]);
+                assert!(
+                    (df - gf[k]).abs() < 1e-8,
+                    "{form:?} F[{k}]: {df} vs {}",
+                    gf[k]
+                );
                 assert!(
                     (dfc - gfc[k]).abs() < 1e-8,
                     "{form:?} Fc[{k}]: {dfc} vs {}",

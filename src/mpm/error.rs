@@ -53,7 +53,11 @@ pub enum SimError {
     #[error(
         "step {step}: particle {particle} is turned inside out (J = {j:.3e}); reduce the controls"
     )]
-    Inverted { step: usize, particle: usize, j: f64 },
+    Inverted {
+        step: usize,
+        particle: usize,
+        j: f64,
+    },
 
     #[error("invalid scene: {0}")]
     InvalidScene(String),

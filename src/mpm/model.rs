@@ -2,8 +2,8 @@
 //! time step, kernel, material, effects and the particles' masses and rest volumes, with one
 //! validation, one stable time-step bound and one set of state checks.
 
-use super::transfer;
 use super::ControlForm;
+use super::transfer;
 use super::{GridSpec, KernelKind, SimError};
 use crate::effects::Effect;
 use crate::material::ConstitutiveModel;

@@ -237,7 +237,8 @@ impl Integrator for OdeSystem {
                 &mut effect_params,
             );
             // Reverse of the control's jump at the step's start.
-            if let (Some(Some(fc)), Some(Some(pre_f))) = (controls.get(k), tape.pre_control_f.get(k))
+            if let (Some(Some(fc)), Some(Some(pre_f))) =
+                (controls.get(k), tape.pre_control_f.get(k))
             {
                 let form = self.control_form;
                 let (grad_f, grad_fc): (Vec<_>, Vec<_>) = adj
