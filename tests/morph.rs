@@ -404,6 +404,13 @@ fn more_effort_never_judges_worse_and_frames_keep_their_volume() {
                 "{iterations} iterations, frame {index}: surface volume off by {error}"
             );
         }
+        for seg in m["segments"].as_array().unwrap() {
+            let (lo, hi) = (
+                seg["min_j"].as_f64().unwrap(),
+                seg["max_j"].as_f64().unwrap(),
+            );
+            assert!(0.0 < lo && lo <= hi, "segment J range {lo} .. {hi}");
+        }
         let summary = &m["frames_summary"];
         assert_eq!(summary["frames_inverted"].as_u64(), Some(0));
         assert!(summary["max_close_share"].as_f64().unwrap() <= 0.10);

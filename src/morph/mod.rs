@@ -98,6 +98,21 @@ pub struct SegmentRecord {
     pub loss: f64,
     pub evaluations: usize,
     pub seconds: f64,
+    /// The smallest and largest `J = det F` of any particle after any step of the segment's
+    /// accepted rollout (absent in records written before they were kept).
+    #[serde(default = "no_j", deserialize_with = "null_is_nan")]
+    pub min_j: f64,
+    #[serde(default = "no_j", deserialize_with = "null_is_nan")]
+    pub max_j: f64,
+}
+
+/// Not recorded (NaN, written as null).
+fn no_j() -> f64 {
+    f64::NAN
+}
+
+fn null_is_nan<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
+    Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::NAN))
 }
 
 /// Everything set up for a morph: particles, the model and its integrator, loss.
@@ -554,6 +569,14 @@ fn chain<I: Integrator>(
                     kept: false,
                 });
             };
+            let (mut min_j, mut max_j) = (f64::INFINITY, f64::NEG_INFINITY);
+            for step in 1..=result.tape.len() {
+                for f in &result.tape.state_at(step).f {
+                    let j = f.determinant();
+                    min_j = min_j.min(j);
+                    max_j = max_j.max(j);
+                }
+            }
             let record = SegmentRecord {
                 pass,
                 segment: k,
@@ -561,6 +584,8 @@ fn chain<I: Integrator>(
                 loss: result.loss,
                 evaluations: result.evaluations,
                 seconds: seg_clock.elapsed().as_secs_f64(),
+                min_j,
+                max_j,
             };
             observer.event(&MorphEvent::Segment {
                 pass,
