@@ -292,6 +292,10 @@ fn command_line_errors() {
         (vec!["--jitter", "nan"], 2, "--jitter"),
         (vec!["--preset", "huge"], 2, "huge"),
         (vec!["--particles", "5"], 2, "--particles"),
+        (vec!["--volume-weight", "-1"], 2, "--volume-weight"),
+        (vec!["--fine-weight", "nan"], 2, "--fine-weight"),
+        (vec!["--control", "multiplicative"], 2, "multiplicative"),
+        (vec!["--control-resolution", "voxel"], 2, "voxel"),
         (
             vec!["--particles", "5000", "--resolution", "20"],
             2,
