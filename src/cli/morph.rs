@@ -138,7 +138,7 @@ pub struct MorphArgs {
     loss: MassLossKind,
     #[arg(long, help = help("Weight of the kinetic energy left at each segment's end, >= 0", None, defaults().arrival_weight))]
     arrival_weight: Option<f64>,
-    #[arg(long, help = help("Weight of the volume cost sum 1/2 (ln J)^2 at each segment's end, >= 0 (keeps the body at its volume)", None, defaults().volume_weight))]
+    #[arg(long, help = help("Weight of the volume cost (sum 1/2 (ln J)^2 per particle, and the whole body's) averaged over every step, >= 0 (keeps the body at its volume)", None, defaults().volume_weight))]
     volume_weight: Option<f64>,
     #[arg(long, help = help("Weight of the mass loss on a grid twice as fine as the simulation's, >= 0 (sees holes and clumps within a cell)", None, defaults().fine_weight))]
     fine_weight: Option<f64>,

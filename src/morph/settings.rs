@@ -86,7 +86,7 @@ pub struct MorphSettings {
     pub loss: MassLossKind,
     /// Weight of the kinetic energy at each segment's end in the objective.
     pub arrival_weight: f64,
-    /// Weight of the volume cost `sum_p 1/2 (ln J_p)^2` at each segment's end.
+    /// Weight of the volume cost (`loss::volume_cost`) averaged over every step of a segment.
     #[serde(default)]
     pub volume_weight: f64,
     /// Weight of the mass loss on a grid twice as fine as the simulation's, which sees how
