@@ -14,6 +14,10 @@ use std::borrow::Cow;
 /// `Fc` (one per particle) of local step `s`.
 pub type StepControls = [Option<Vec<Matrix3<f64>>>];
 
+/// A cost on every state along a run: `seed(k, state, adj)` adds to `adj` the adjoint of the
+/// cost on the state after global step `k` (see [`Integrator::backward_seeded`]).
+pub type SeedAfter<'a> = dyn FnMut(usize, &State, &mut StateGrad) + 'a;
+
 /// Which integrator advances the model.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -92,7 +96,7 @@ pub trait Integrator: Send + Sync {
         tape: &Self::Tape,
         controls: &StepControls,
         grad_last: StateGrad,
-        seed_after: &mut dyn FnMut(usize, &State, &mut StateGrad),
+        seed_after: &mut SeedAfter,
     ) -> Gradients;
 }
 
@@ -145,7 +149,7 @@ impl Integrator for Simulator {
         tape: &Self::Tape,
         controls: &StepControls,
         grad_last: StateGrad,
-        seed_after: &mut dyn FnMut(usize, &State, &mut StateGrad),
+        seed_after: &mut SeedAfter,
     ) -> Gradients {
         self.backward_driven(tape, controls, None, grad_last, seed_after)
             .0

@@ -121,8 +121,13 @@ impl FineMassLoss {
         }
     }
 
-    /// `weight * loss(m(x))` for particles at `x` with masses `masses`, and its gradient
-    /// with respect to `x`.
+    /// `weight * loss(m(x))` for particles at `x` with masses `masses`.
+    pub fn value(&self, x: &[Vector3<f64>], masses: &[f64]) -> Result<f64, SimError> {
+        let m = transfer::mass_grid(&self.grid, FINE_KERNEL, x, masses)?;
+        Ok(self.weight * self.loss.value_and_grad(&m).0)
+    }
+
+    /// [`FineMassLoss::value`] and its gradient with respect to `x`.
     pub fn value_and_grad(
         &self,
         x: &[Vector3<f64>],

@@ -8,7 +8,7 @@ mod common;
 use common::*;
 use morph::effects::WallMode;
 use morph::integrator::{Engine, Integrator, IntegratorKind};
-use morph::loss::MassLossKind;
+use morph::loss::{FINE_KERNEL, FineMassLoss, MassLoss, MassLossKind};
 use morph::mpm::{ControlForm, KernelKind, State, Tape};
 use morph::scene::EffectConfig;
 use nalgebra::{Matrix3, Vector3};
@@ -392,11 +392,31 @@ fn check_segment<I: Integrator>(sim: &I, mut init: State) {
         Vector3::new(1.1, 0.4, -0.6),
         MassLossKind::Log,
     );
-    for (arrival_weight, volume_weight) in [(0.0, 0.0), (0.05, 0.0), (0.0, 30.0), (0.05, 30.0)] {
+    // The same shifted target on a grid twice as fine, for the fine mass loss.
+    let shifted: Vec<_> = init
+        .x
+        .iter()
+        .map(|x| x + Vector3::new(1.1, 0.4, -0.6))
+        .collect();
+    let fine_grid = FineMassLoss::refine(&sim.model().grid, 2);
+    let fine_target =
+        morph::mpm::transfer::mass_grid(&fine_grid, FINE_KERNEL, &shifted, &sim.model().mass)
+            .unwrap();
+    let fine = FineMassLoss {
+        grid: fine_grid,
+        loss: MassLoss::new(MassLossKind::Log, fine_target),
+        weight: 0.7,
+    };
+    for (arrival_weight, volume_weight, fine_loss) in [
+        (0.0, 0.0, None),
+        (0.05, 0.0, None),
+        (0.0, 30.0, None),
+        (0.05, 30.0, Some(&fine)),
+    ] {
         let segment = Segment {
             sim,
             loss: &loss,
-            fine_loss: None,
+            fine_loss,
             start: &init,
             first_step: 0,
             steps: STEPS,
@@ -431,7 +451,8 @@ fn check_segment<I: Integrator>(sim: &I, mut init: State) {
             let err = rel_err(analytic, numeric);
             assert!(
                 err < TOL,
-                "arrival {arrival_weight}, volume {volume_weight}, direction {trial}: {analytic} vs {numeric} ({err:e})"
+                "arrival {arrival_weight}, volume {volume_weight}, fine {}, direction {trial}: {analytic} vs {numeric} ({err:e})",
+                fine_loss.is_some()
             );
         }
     }

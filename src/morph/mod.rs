@@ -17,10 +17,6 @@ pub mod settings;
 use crate::geometry::{Jitter, LoadedMesh, MeshError, MorphGeometry, PlacementOptions};
 use crate::integrator::{Engine, Integrator, RunTape};
 use crate::loss::{FINE_KERNEL, FineMassLoss, MassLoss};
-
-/// The finer loss grid splits each simulation cell this many times per axis: one particle
-/// per fine cell at the default two per cell.
-pub const FINE_REFINE: usize = 2;
 use crate::mpm::model::Model;
 use crate::mpm::{SimError, State};
 use crate::scene::{EffectConfig, SceneConfig};
@@ -73,6 +69,10 @@ pub enum MorphEvent {
 fn null_is_infinite<'de, D: serde::Deserializer<'de>>(d: D) -> Result<f64, D::Error> {
     Ok(Option::<f64>::deserialize(d)?.unwrap_or(f64::INFINITY))
 }
+
+/// The finer loss grid splits each simulation cell this many times per axis: one particle
+/// per fine cell at the default two per cell.
+pub const FINE_REFINE: usize = 2;
 
 /// One optimizer evaluation, for the manifest and the loss plot.
 #[derive(Clone, Debug, Serialize, Deserialize)]

@@ -88,7 +88,7 @@ pub struct Segment<'a, I: Integrator> {
     /// to the mass loss so the body arrives instead of flying through the target.
     pub arrival_weight: f64,
     /// Weight of the volume cost, `w` times the mean over the segment's steps of
-    /// `sum_p 1/2 (ln J_p)^2` ([`crate::loss::volume_cost`]) on the state after each step, so
+    /// [`crate::loss::volume_cost`] on the state after each step, so
     /// the optimizer keeps the body at its volume all along, not only at the segment's end.
     pub volume_weight: f64,
     /// Where Adam's free control values live (see [`ControlBasis`]); the line search always
@@ -144,7 +144,7 @@ impl<I: Integrator> Segment<'_, I> {
         let (loss, _) = self.loss.value_and_grad(&mass);
         let mut loss = loss + self.arrival_weight * state.kinetic_energy(&model.mass);
         if let Some(fine) = self.fine_loss {
-            loss += fine.value_and_grad(&state.x, &model.mass)?.0;
+            loss += fine.value(&state.x, &model.mass)?;
         }
         if self.volume_weight > 0.0 {
             let sum = prefix + self.volume_sum(&tape, 0..tape.len(), from * self.stride)?;

@@ -10,7 +10,7 @@
 use super::controls::ControlParams;
 use super::rhs::{At, OdeSystem};
 use super::state::OdeState;
-use crate::integrator::{Integrator, RunTape, StepControls};
+use crate::integrator::{Integrator, RunTape, SeedAfter, StepControls};
 use crate::mpm::SimError;
 use crate::mpm::model::Model;
 use crate::mpm::{Gradients, State, StateGrad};
@@ -203,12 +203,30 @@ impl Integrator for OdeSystem {
         Ok(())
     }
 
+    fn backward(&self, tape: &Rk4Tape, controls: &StepControls, grad_last: StateGrad) -> Gradients {
+        self.reverse_run(tape, controls, grad_last, None)
+    }
+
     fn backward_seeded(
         &self,
         tape: &Rk4Tape,
         controls: &StepControls,
         grad_last: StateGrad,
-        seed_after: &mut dyn FnMut(usize, &State, &mut StateGrad),
+        seed_after: &mut SeedAfter,
+    ) -> Gradients {
+        self.reverse_run(tape, controls, grad_last, Some(seed_after))
+    }
+}
+
+impl OdeSystem {
+    /// The reverse pass of a taped run; `seed_after`, when given, seeds a cost on the state
+    /// after every step (without one, no intermediate state is rebuilt from the tape).
+    fn reverse_run(
+        &self,
+        tape: &Rk4Tape,
+        controls: &StepControls,
+        grad_last: StateGrad,
+        mut seed_after: Option<&mut SeedAfter>,
     ) -> Gradients {
         let params = self.controls.zero_params();
         let mut grad_params = self.controls.zero_params();
@@ -217,16 +235,18 @@ impl Integrator for OdeSystem {
         let first_step = tape.first_step;
         let mut grad_controls = vec![None; tape.steps.len()];
         for k in (0..tape.steps.len()).rev() {
-            let mut seed = StateGrad::zeros(adj.x.len());
-            seed_after(first_step + k, &tape.state_at(k + 1), &mut seed);
-            for (a, g) in adj.x.iter_mut().zip(&seed.x) {
-                *a += g;
-            }
-            for (a, g) in adj.v.iter_mut().zip(&seed.v) {
-                *a += g;
-            }
-            for (a, g) in adj.f.iter_mut().zip(&seed.f) {
-                *a += g;
+            if let Some(seed_after) = seed_after.as_deref_mut() {
+                let mut seed = StateGrad::zeros(adj.x.len());
+                seed_after(first_step + k, &tape.state_at(k + 1), &mut seed);
+                for (a, g) in adj.x.iter_mut().zip(&seed.x) {
+                    *a += g;
+                }
+                for (a, g) in adj.v.iter_mut().zip(&seed.v) {
+                    *a += g;
+                }
+                for (a, g) in adj.f.iter_mut().zip(&seed.f) {
+                    *a += g;
+                }
             }
             self.rk4_step_reverse(
                 &tape.steps[k],
