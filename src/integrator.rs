@@ -10,6 +10,8 @@ use nalgebra::Matrix3;
 use serde::{Deserialize, Serialize};
 use std::borrow::Cow;
 
+pub mod recompute;
+
 /// Per-step deformation-gradient controls: `controls[s]`, when present and `Some`, is the
 /// `Fc` (one per particle) of local step `s`.
 pub type StepControls = [Option<Vec<Matrix3<f64>>>];
@@ -57,6 +59,9 @@ pub trait RunTape: Default + Clone + Send + Sync {
 
     /// Appends `tail`, a run that started where this tape's steps end.
     fn append(&mut self, tail: Self);
+
+    /// Heap bytes the tape holds.
+    fn bytes(&self) -> usize;
 }
 
 /// A time integrator over a [`Model`], with a tape and a reverse pass.
@@ -75,7 +80,25 @@ pub trait Integrator: Send + Sync {
         first_step: usize,
         n_steps: usize,
         tape: Option<&mut Self::Tape>,
+    ) -> Result<(), SimError> {
+        self.forward_observed(state, controls, first_step, n_steps, tape, None)
+    }
+
+    /// [`Integrator::forward`] where `on_step(k, state)`, when given, sees the state after
+    /// every global step `k`.
+    fn forward_observed(
+        &self,
+        state: &mut State,
+        controls: &StepControls,
+        first_step: usize,
+        n_steps: usize,
+        tape: Option<&mut Self::Tape>,
+        on_step: Option<&mut dyn FnMut(usize, &State)>,
     ) -> Result<(), SimError>;
+
+    /// Bytes a tape holds per step for `particles` particles (what a memory budget plans
+    /// with; [`RunTape::bytes`] measures a real one).
+    fn tape_bytes_per_step(&self, particles: usize) -> usize;
 
     /// Reverse pass over a taped run: `grad_last` is dL/d(final state); `controls` must be the
     /// ones the forward pass used.
@@ -124,6 +147,10 @@ impl RunTape for crate::mpm::Tape {
         self.steps.extend(tail.steps);
         self.last = tail.last;
     }
+
+    fn bytes(&self) -> usize {
+        self.steps.iter().map(|s| s.bytes()).sum::<usize>() + self.last.bytes()
+    }
 }
 
 impl Integrator for Simulator {
@@ -133,15 +160,24 @@ impl Integrator for Simulator {
         &self.model
     }
 
-    fn forward(
+    fn forward_observed(
         &self,
         state: &mut State,
         controls: &StepControls,
         first_step: usize,
         n_steps: usize,
         tape: Option<&mut Self::Tape>,
+        mut on_step: Option<&mut dyn FnMut(usize, &State)>,
     ) -> Result<(), SimError> {
-        Simulator::forward(self, state, controls, first_step, n_steps, tape)
+        self.forward_driven(state, controls, None, first_step, n_steps, tape, |k, s| {
+            if let Some(f) = on_step.as_deref_mut() {
+                f(k, s)
+            }
+        })
+    }
+
+    fn tape_bytes_per_step(&self, particles: usize) -> usize {
+        crate::mpm::StepTape::bytes_for(particles, self.grid.node_count())
     }
 
     fn backward_seeded(

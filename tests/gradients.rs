@@ -424,12 +424,24 @@ fn check_segment<I: Integrator>(sim: &I, mut init: State) {
             arrival_weight,
             volume_weight,
             resolution: Default::default(),
+            tape_budget: usize::MAX,
         };
         let layers: Vec<Vec<Matrix3<f64>>> = (0..segment.num_layers())
             .map(|_| (0..n).map(|_| 0.03 * rng.mat3()).collect())
             .collect();
         let (value, grad) = segment.objective_and_gradient(&layers).unwrap();
         assert!(value.is_finite() && value > 0.0);
+        // Checkpoints and recomputation (here one step a chunk, the smallest budget) give
+        // bitwise the gradient of the whole tape.
+        let recomputed = Segment {
+            tape_budget: 0,
+            ..segment
+        };
+        assert_eq!(recomputed.chunk_plan().interval, 1);
+        assert_eq!(
+            recomputed.objective_and_gradient(&layers).unwrap(),
+            (value, grad.clone())
+        );
         for trial in 0..2 {
             let dir: Vec<Vec<Matrix3<f64>>> = (0..layers.len())
                 .map(|_| (0..n).map(|_| rng.mat3()).collect())

@@ -9,6 +9,7 @@ use morph::integrator::IntegratorKind;
 use morph::loss::MassLossKind;
 use morph::material::MaterialModel;
 use morph::morph::basis::ControlResolution;
+use morph::morph::memory::MemoryLimit;
 use morph::morph::segment::Optimizer;
 use morph::morph::settings::limits;
 use morph::morph::{MorphError, MorphEvent, MorphSettings, Preset};
@@ -172,6 +173,15 @@ pub struct MorphArgs {
     /// Print nothing but errors.
     #[arg(long, short)]
     quiet: bool,
+    /// Cap on the run's memory, e.g. 150M or 4G: segments then keep checkpoints and recompute
+    /// instead of holding every step (same results, more time). auto: a quarter of the
+    /// machine's memory.
+    #[arg(long, default_value = "auto", value_parser = parse_memory_limit)]
+    memory_limit: MemoryLimit,
+}
+
+fn parse_memory_limit(s: &str) -> Result<MemoryLimit, String> {
+    s.parse()
 }
 
 impl MorphArgs {
@@ -334,6 +344,7 @@ pub fn run(args: &MorphArgs) -> ExitCode {
         overwrite: args.overwrite,
         resume: args.resume,
         stop: Some(&stop),
+        memory_limit: args.memory_limit,
     };
     let result =
         morph::morph::output::morph_to_folder(&settings, source, target, &request, on_event);

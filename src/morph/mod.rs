@@ -8,6 +8,7 @@
 
 pub mod basis;
 pub mod checkpoint;
+pub mod memory;
 pub mod metrics;
 pub mod output;
 pub mod quality;
@@ -15,7 +16,7 @@ pub mod segment;
 pub mod settings;
 
 use crate::geometry::{Jitter, LoadedMesh, MeshError, MorphGeometry, PlacementOptions};
-use crate::integrator::{Engine, Integrator, RunTape};
+use crate::integrator::{Engine, Integrator};
 use crate::loss::{FINE_KERNEL, FineMassLoss, MassLoss};
 use crate::mpm::model::Model;
 use crate::mpm::{SimError, State};
@@ -104,6 +105,12 @@ pub struct SegmentRecord {
     pub min_j: f64,
     #[serde(default = "no_j", deserialize_with = "null_is_nan")]
     pub max_j: f64,
+    /// Norm of the objective's gradient (with respect to the optimizer's free values) at the
+    /// segment's first and last gradient evaluation: gradient health (see docs/morph.md).
+    #[serde(default = "no_j", deserialize_with = "null_is_nan")]
+    pub grad_norm_first: f64,
+    #[serde(default = "no_j", deserialize_with = "null_is_nan")]
+    pub grad_norm_last: f64,
 }
 
 /// Not recorded (NaN, written as null).
@@ -124,6 +131,9 @@ pub struct Prepared {
     /// The mass loss on the finer grid, when its weight is positive.
     pub fine_loss: Option<FineMassLoss>,
     pub initial: State,
+    /// Bytes the tape of one segment rollout may hold (`usize::MAX`: no cap); set by
+    /// [`Prepared::plan_memory`].
+    pub tape_budget: usize,
 }
 
 /// Why a morph failed.
@@ -257,6 +267,7 @@ impl Prepared {
             loss,
             fine_loss,
             initial,
+            tape_budget: usize::MAX,
         })
     }
 
@@ -540,6 +551,7 @@ fn chain<I: Integrator>(
                 arrival_weight: s.arrival_weight,
                 volume_weight: s.volume_weight,
                 resolution: s.control_resolution,
+                tape_budget: prep.tape_budget,
             };
             let init = progress.controls[k].clone();
             let mut stop = observer.stop_requested();
@@ -569,14 +581,7 @@ fn chain<I: Integrator>(
                     kept: false,
                 });
             };
-            let (mut min_j, mut max_j) = (f64::INFINITY, f64::NEG_INFINITY);
-            for step in 1..=result.tape.len() {
-                for f in &result.tape.state_at(step).f {
-                    let j = f.determinant();
-                    min_j = min_j.min(j);
-                    max_j = max_j.max(j);
-                }
-            }
+            let (min_j, max_j) = result.j_range;
             let record = SegmentRecord {
                 pass,
                 segment: k,
@@ -586,6 +591,8 @@ fn chain<I: Integrator>(
                 seconds: seg_clock.elapsed().as_secs_f64(),
                 min_j,
                 max_j,
+                grad_norm_first: result.grad_norms.0,
+                grad_norm_last: result.grad_norms.1,
             };
             observer.event(&MorphEvent::Segment {
                 pass,
@@ -597,19 +604,21 @@ fn chain<I: Integrator>(
             });
             progress.segments.push(record);
             if last_pass {
-                // States after local steps 1..=T: the next step's start state, then `last`.
-                let tape = &result.tape;
-                for local in 1..=s.steps_per_segment {
-                    let global = k * s.steps_per_segment + local;
-                    if global.is_multiple_of(s.frame_every) {
-                        let state = tape.state_at(local);
-                        observer.frame(&Frame::new(prep, progress.frames, global, &state))?;
+                // The accepted controls once more, to write the frames (the optimization keeps
+                // no tape of every step: memory stays within its budget).
+                let mut frame_err = Ok(());
+                let last = segment.replay(&result.layers, &mut |global, state| {
+                    if frame_err.is_ok() && (global + 1).is_multiple_of(s.frame_every) {
+                        frame_err =
+                            observer.frame(&Frame::new(prep, progress.frames, global + 1, state));
                         progress.frames += 1;
                     }
-                }
+                })?;
+                frame_err?;
+                debug_assert!(last == result.last, "a replay reproduces the rollout");
             }
             progress.controls[k] = result.layers;
-            progress.state = result.tape.last().clone();
+            progress.state = result.last;
             progress.segments_done = k + 1;
             progress.elapsed_s = seconds(&clock);
             observer.segment_done(&progress, k)?;
@@ -631,6 +640,45 @@ fn chain<I: Integrator>(
         final_loss,
         seconds,
     })
+}
+
+/// A gradient this many times the first segment's first one has exploded.
+pub const GRADIENT_EXPLODED: f64 = 1e6;
+/// A gradient this many times smaller than the first segment's first one has vanished.
+pub const GRADIENT_VANISHED: f64 = 1e-9;
+
+/// Warnings about the gradients of a run's segments: a non-finite norm, or one that grew
+/// past [`GRADIENT_EXPLODED`] or shrank below [`GRADIENT_VANISHED`] times the first
+/// segment's first one (the scale this morph's objective set).
+pub fn gradient_warnings(segments: &[SegmentRecord]) -> Vec<String> {
+    let Some(reference) = segments
+        .iter()
+        .map(|r| r.grad_norm_first)
+        .find(|g| g.is_finite() && *g > 0.0)
+    else {
+        return Vec::new();
+    };
+    let mut out = Vec::new();
+    for r in segments {
+        for g in [r.grad_norm_first, r.grad_norm_last] {
+            let what = if g.is_nan() {
+                continue; // No gradient taken (one iteration).
+            } else if !g.is_finite() || g > GRADIENT_EXPLODED * reference {
+                "exploded"
+            } else if g < GRADIENT_VANISHED * reference {
+                "vanished"
+            } else {
+                continue;
+            };
+            out.push(format!(
+                "pass {} segment {}: the gradient {what} (norm {g:.3e}, first segment {reference:.3e}); its controls may not have moved as asked",
+                r.pass + 1,
+                r.segment + 1
+            ));
+            break;
+        }
+    }
+    out
 }
 
 impl RunProgress {

@@ -13,6 +13,7 @@
 //! complete. Each completed segment leaves a checkpoint there ([`super::checkpoint`]); an
 //! interrupted run keeps it and `--resume` continues bit for bit.
 
+use super::memory::{MemoryLimit, MemoryPlan};
 use super::metrics::{FillMetrics, fill_metrics};
 use super::quality::Quality;
 use super::{
@@ -245,6 +246,9 @@ struct Manifest {
     frames: Vec<FrameEntry>,
     final_mass: String,
     warnings: Vec<String>,
+    /// How the run's memory was planned (absent in manifests written before it was).
+    #[serde(default)]
+    memory: Option<MemoryPlan>,
 }
 
 #[derive(Clone, Copy, Serialize, Deserialize)]
@@ -274,6 +278,8 @@ pub struct Summary {
     pub resumed_from: Option<String>,
     /// `--resume` found the output already complete for these inputs and settings.
     pub already_complete: bool,
+    /// What the run found worth a warning (gradient health, see [`super::gradient_warnings`]).
+    pub warnings: Vec<String>,
 }
 
 fn out_err(what: &str, path: &Path, e: impl std::fmt::Display) -> MorphError {
@@ -293,6 +299,8 @@ pub struct OutputRequest<'a> {
     /// checkpoint and returns [`MorphError::Interrupted`] with that value (the CLI stores the
     /// signal number here).
     pub stop: Option<&'a AtomicUsize>,
+    /// A cap on the run's memory (see [`super::memory`]).
+    pub memory_limit: MemoryLimit,
 }
 
 /// The name of frame `index` (0-based) when there are `count` frames: zero-padded to the
@@ -337,6 +345,7 @@ pub fn morph_to_folder(
                     seconds: 0.0,
                     resumed_from: None,
                     already_complete: true,
+                    warnings: Vec::new(),
                 });
             }
             _ if !request.overwrite => {
@@ -390,7 +399,8 @@ pub fn morph_to_folder(
         crate::io::write_atomically(&run_path, |w| std::io::Write::write_all(w, &json))
             .map_err(|e| out_err("run identity", &run_path, e))?;
     }
-    let result = Prepared::new(settings, source, target).and_then(|prep| {
+    let result = Prepared::new(settings, source, target).and_then(|mut prep| {
+        let memory = prep.plan_memory(request.memory_limit)?;
         let setup_s = clock.elapsed().as_secs_f64();
         let resume = if resuming {
             checkpoint::load(
@@ -409,6 +419,7 @@ pub fn morph_to_folder(
             &staging.dir,
             resume,
             request.stop,
+            memory,
             setup_s,
             clock,
             &mut on_event,
@@ -609,6 +620,7 @@ fn write_run(
     dir: &Path,
     resume: Option<RunProgress>,
     stop: Option<&AtomicUsize>,
+    memory: MemoryPlan,
     setup_s: f64,
     clock: Instant,
     on_event: &mut dyn FnMut(&MorphEvent),
@@ -656,6 +668,7 @@ fn write_run(
     let preview = std::mem::take(&mut writer.preview);
     let frame_stats = std::mem::take(&mut writer.stats);
     let frames_summary = FramesSummary::of(&frame_stats);
+    let run_warnings = super::gradient_warnings(&result.segments);
     let optimize_s = clock.elapsed().as_secs_f64() - setup_s;
 
     // Final nodal mass grid, on world coordinates.
@@ -733,7 +746,14 @@ fn write_run(
         },
         frames,
         final_mass: "final_mass.mgrid".into(),
-        warnings: prep.geometry.warnings.clone(),
+        warnings: prep
+            .geometry
+            .warnings
+            .iter()
+            .chain(&run_warnings)
+            .cloned()
+            .collect(),
+        memory: Some(memory),
     };
     let manifest_path = dir.join(MANIFEST);
     let json =
@@ -755,5 +775,6 @@ fn write_run(
         seconds: total_s,
         resumed_from,
         already_complete: false,
+        warnings: run_warnings,
     })
 }

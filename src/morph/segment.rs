@@ -12,9 +12,10 @@
 //!   rollout in place (the reference left the rejected trial's states).
 
 use super::basis::{ControlBasis, ControlResolution};
-use crate::integrator::{Integrator, RunTape};
+use crate::integrator::recompute::{self, Checkpointed, ChunkPlan};
+use crate::integrator::{Integrator, RunTape, SeedAfter};
 use crate::loss::{FineMassLoss, MassLoss, volume_cost};
-use crate::mpm::{SimError, State};
+use crate::mpm::{SimError, State, StateGrad};
 use crate::optim::Adam;
 use nalgebra::Matrix3;
 use serde::{Deserialize, Serialize};
@@ -62,13 +63,18 @@ pub struct OptimizerSettings {
 /// Controls of a segment: one `Fc` per particle for each control layer.
 pub type Layers = Vec<Vec<Matrix3<f64>>>;
 
-/// What a segment's optimization returns: the best controls found and their rollout.
-pub struct SegmentResult<T> {
+/// What a segment's optimization returns: the best controls found and where they lead.
+pub struct SegmentResult {
     pub layers: Layers,
     pub loss: f64,
     pub initial_loss: f64,
-    /// The accepted rollout: states at the start of every step, and the last state.
-    pub tape: T,
+    /// The state after the segment's last step under `layers`.
+    pub last: State,
+    /// Smallest and largest `J = det F` over the states after every step under `layers`.
+    pub j_range: (f64, f64),
+    /// Norm of the objective's gradient with respect to the optimizer's free values, at the
+    /// first and at the last evaluation that took one (NaN when none did).
+    pub grad_norms: (f64, f64),
     /// Evaluations (forward passes) spent.
     pub evaluations: usize,
 }
@@ -94,12 +100,51 @@ pub struct Segment<'a, I: Integrator> {
     /// Where Adam's free control values live (see [`ControlBasis`]); the line search always
     /// works per particle, as the reference does.
     pub resolution: ControlResolution,
+    /// Bytes the tapes of one rollout may hold: beyond it, the rollout keeps checkpoints and
+    /// the reverse pass recomputes (see [`crate::integrator::recompute`]); `usize::MAX`
+    /// keeps every step.
+    pub tape_budget: usize,
 }
 
-/// One evaluated control set.
+/// What the objective and the report need from the state after one step.
+#[derive(Clone, Copy, Debug)]
+struct AfterStep {
+    /// The volume cost (0 when it is off).
+    volume: f64,
+    min_j: f64,
+    max_j: f64,
+}
+
+/// One evaluated control set: its objective and its run, recorded for the reverse pass.
 struct Rollout<T> {
     loss: f64,
-    tape: T,
+    run: Checkpointed<T>,
+    /// Per step of the run, from its first.
+    after: Vec<AfterStep>,
+}
+
+impl<T: RunTape> Rollout<T> {
+    /// Replaces the run from segment-local step `from_step` on by `tail`, which starts there.
+    fn splice(&mut self, tail: Rollout<T>, from_step: usize) {
+        self.run.splice(tail.run);
+        self.after.truncate(from_step);
+        self.after.extend(tail.after);
+        self.loss = tail.loss;
+    }
+
+    /// The rollout without its chunks: what is kept of a result that will not be reversed.
+    fn settled(mut self) -> Rollout<T> {
+        self.run.chunks.clear();
+        self
+    }
+
+    fn j_range(&self) -> (f64, f64) {
+        self.after
+            .iter()
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), a| {
+                (lo.min(a.min_j), hi.max(a.max_j))
+            })
+    }
 }
 
 impl<I: Integrator> Segment<'_, I> {
@@ -118,10 +163,21 @@ impl<I: Integrator> Segment<'_, I> {
             .collect()
     }
 
+    /// How a rollout is cut into chunks within [`Segment::tape_budget`].
+    pub fn chunk_plan(&self) -> ChunkPlan {
+        let n = self.start.len();
+        ChunkPlan::within(
+            self.tape_budget,
+            self.steps,
+            self.sim.tape_bytes_per_step(n),
+            State::bytes_for(n),
+            self.num_layers(),
+        )
+    }
+
     /// Forward from the start of layer `from` (state `start`) to the end of the segment.
-    /// `prefix` is the volume cost summed over the steps before `from` (see
-    /// [`Segment::volume_sum`]), so that objectives of partial rollouts compare with whole
-    /// ones.
+    /// `prefix` is the volume cost summed over the steps before `from`, so that objectives
+    /// of partial rollouts compare with whole ones.
     fn rollout(
         &self,
         start: &State,
@@ -129,53 +185,64 @@ impl<I: Integrator> Segment<'_, I> {
         from: usize,
         prefix: f64,
     ) -> Result<Rollout<I::Tape>, SimError> {
-        let mut state = start.clone();
-        let mut tape = I::Tape::default();
         let schedule = self.schedule(layers, from);
-        self.sim.forward(
-            &mut state,
+        let first = self.first_step + from * self.stride;
+        let n_steps = self.steps - from * self.stride;
+        let mut after = Vec::with_capacity(n_steps);
+        let mut inverted = None;
+        let with_volume = self.volume_weight > 0.0;
+        // Chunks start at every control layer too: the line search restarts there.
+        let (seg_first, stride) = (self.first_step, self.stride);
+        let cut = move |k: usize| (k - seg_first).is_multiple_of(stride);
+        let run = recompute::record(
+            self.sim,
+            start.clone(),
             &schedule,
-            self.first_step + from * self.stride,
-            self.steps - from * self.stride,
-            Some(&mut tape),
+            first,
+            n_steps,
+            self.chunk_plan(),
+            &cut,
+            &mut |k, state| {
+                let (min_j, max_j) = j_range(&state.f);
+                let volume = match with_volume.then(|| volume_cost(&state.f)) {
+                    Some(Ok((cost, _))) => cost,
+                    Some(Err(particle)) => {
+                        inverted.get_or_insert(SimError::Inverted {
+                            step: k + 1,
+                            particle,
+                            j: state.f[particle].determinant(),
+                        });
+                        0.0
+                    }
+                    None => 0.0,
+                };
+                after.push(AfterStep {
+                    volume,
+                    min_j,
+                    max_j,
+                });
+            },
         )?;
+        // An inverted particle is an error when the volume cost is on (it is undefined there).
+        if let Some(e) = inverted {
+            return Err(e);
+        }
         let model = self.sim.model();
+        let state = &run.last;
         let mass = model.mass_grid(&state.x)?;
         let (loss, _) = self.loss.value_and_grad(&mass);
         let mut loss = loss + self.arrival_weight * state.kinetic_energy(&model.mass);
         if let Some(fine) = self.fine_loss {
             loss += fine.value(&state.x, &model.mass)?;
         }
-        if self.volume_weight > 0.0 {
-            let sum = prefix + self.volume_sum(&tape, 0..tape.len(), from * self.stride)?;
+        if with_volume {
+            let sum = prefix + after.iter().map(|a| a.volume).sum::<f64>();
             loss += self.volume_weight * sum / self.steps as f64;
         }
-        Ok(Rollout { loss, tape })
+        Ok(Rollout { loss, run, after })
     }
 
-    /// The volume cost summed over the states after the tape's steps `range`; the tape's
-    /// first step is the segment's local step `first`. An inverted particle is an error.
-    fn volume_sum(
-        &self,
-        tape: &I::Tape,
-        range: std::ops::Range<usize>,
-        first: usize,
-    ) -> Result<f64, SimError> {
-        let mut sum = 0.0;
-        for k in range {
-            let state = tape.state_at(k + 1);
-            sum += volume_cost(&state.f)
-                .map_err(|particle| SimError::Inverted {
-                    step: self.first_step + first + k + 1,
-                    particle,
-                    j: state.f[particle].determinant(),
-                })?
-                .0;
-        }
-        Ok(sum)
-    }
-
-    /// dL/dFc for the layers from `from` on, through a taped rollout that started there.
+    /// dL/dFc for the layers from `from` on, through a rollout of the whole segment.
     fn gradient(
         &self,
         rollout: &Rollout<I::Tape>,
@@ -183,7 +250,7 @@ impl<I: Integrator> Segment<'_, I> {
         from: usize,
     ) -> Result<Layers, SimError> {
         let model = self.sim.model();
-        let last = rollout.tape.last();
+        let last = &rollout.run.last;
         let mass = model.mass_grid(&last.x)?;
         let (_, grad_m) = self.loss.value_and_grad(&mass);
         let mut seed = State::zeros(last.len());
@@ -201,20 +268,20 @@ impl<I: Integrator> Segment<'_, I> {
             *g = self.arrival_weight * model.mass[p] * last.v[p];
         }
         let schedule = self.schedule(layers, from);
+        let at = self.first_step + from * self.stride;
         let weight = self.volume_weight / self.steps as f64;
-        let grads = if self.volume_weight > 0.0 {
-            // The forward pass checked every J > 0, so the cost is defined on every state.
-            self.sim
-                .backward_seeded(&rollout.tape, &schedule, seed, &mut |_, state, adj| {
-                    if let Ok((_, grad)) = volume_cost(&state.f) {
-                        for (a, g) in adj.f.iter_mut().zip(grad) {
-                            *a += weight * g;
-                        }
-                    }
-                })
-        } else {
-            self.sim.backward(&rollout.tape, &schedule, seed)
+        // The forward pass checked every J > 0, so the cost is defined on every state.
+        let mut volume_seed = |_: usize, state: &State, adj: &mut StateGrad| {
+            if let Ok((_, grad)) = volume_cost(&state.f) {
+                for (a, g) in adj.f.iter_mut().zip(grad) {
+                    *a += weight * g;
+                }
+            }
         };
+        let seed_after: Option<&mut SeedAfter> =
+            (self.volume_weight > 0.0).then_some(&mut volume_seed);
+        let grads =
+            recompute::reverse(self.sim, &rollout.run, &schedule, at, at, seed, seed_after)?;
         Ok(grads.controls.into_iter().flatten().collect())
     }
 
@@ -234,6 +301,27 @@ impl<I: Integrator> Segment<'_, I> {
         Ok(self.rollout(self.start, layers, 0, 0.0)?.loss)
     }
 
+    /// Runs the segment under `layers` again, without a tape: `on_step(k, state)` sees the
+    /// state after every global step `k` (how the chain writes the frames of a result).
+    /// Returns the last state, bitwise the one the optimization saw.
+    pub fn replay(
+        &self,
+        layers: &[Vec<Matrix3<f64>>],
+        on_step: &mut dyn FnMut(usize, &State),
+    ) -> Result<State, SimError> {
+        let mut state = self.start.clone();
+        let schedule = self.schedule(layers, 0);
+        self.sim.forward_observed(
+            &mut state,
+            &schedule,
+            self.first_step,
+            self.steps,
+            None,
+            Some(on_step),
+        )?;
+        Ok(state)
+    }
+
     /// Optimizes the segment from `initial` controls (one per layer). `on_iteration` gets the
     /// loss of every accepted evaluation and returns whether to go on: `Ok(None)` when it
     /// asked to stop.
@@ -242,7 +330,7 @@ impl<I: Integrator> Segment<'_, I> {
         initial: Layers,
         settings: &OptimizerSettings,
         mut on_iteration: impl FnMut(usize, f64) -> bool,
-    ) -> Result<Option<SegmentResult<I::Tape>>, SimError> {
+    ) -> Result<Option<SegmentResult>, SimError> {
         assert_eq!(initial.len(), self.num_layers());
         match settings.kind {
             Optimizer::Adam => self.adam(initial, settings, &mut on_iteration),
@@ -255,7 +343,7 @@ impl<I: Integrator> Segment<'_, I> {
         mut layers: Layers,
         s: &OptimizerSettings,
         on_iteration: &mut dyn FnMut(usize, f64) -> bool,
-    ) -> Result<Option<SegmentResult<I::Tape>>, SimError> {
+    ) -> Result<Option<SegmentResult>, SimError> {
         const BETA1: f64 = 0.9;
         const BETA2: f64 = 0.999;
         const EPS: f64 = 1e-12;
@@ -290,7 +378,9 @@ impl<I: Integrator> Segment<'_, I> {
         let mut current = self.rollout(self.start, &layers, 0, 0.0)?;
         let initial_loss = current.loss;
         let mut evaluations = 1;
+        // The best so far, without its chunks (only the current rollout is reversed).
         let mut best: Option<(Layers, Rollout<I::Tape>)> = None;
+        let mut norms = GradNorms::default();
         let mut lr = s.learning_rate;
         let mut iteration = 0;
         'outer: loop {
@@ -298,12 +388,14 @@ impl<I: Integrator> Segment<'_, I> {
                 return Ok(None);
             }
             let grad = if iteration + 1 < iterations {
-                Some(to_params(self.gradient(&current, &layers, 0)?))
+                let g = to_params(self.gradient(&current, &layers, 0)?);
+                norms.add(&g);
+                Some(g)
             } else {
                 None
             };
             if best.as_ref().is_none_or(|b| current.loss < b.1.loss) {
-                best = Some((layers.clone(), current));
+                best = Some((layers.clone(), current.settled()));
             }
             let Some(grad) = grad else { break };
             let saved = (params.clone(), adam.clone());
@@ -338,7 +430,9 @@ impl<I: Integrator> Segment<'_, I> {
             layers,
             loss: rollout.loss,
             initial_loss,
-            tape: rollout.tape,
+            j_range: rollout.j_range(),
+            last: rollout.run.into_last(),
+            grad_norms: norms.pair(),
             evaluations,
         }))
     }
@@ -348,8 +442,8 @@ impl<I: Integrator> Segment<'_, I> {
         mut layers: Layers,
         s: &OptimizerSettings,
         on_iteration: &mut dyn FnMut(usize, f64) -> bool,
-    ) -> Result<Option<SegmentResult<I::Tape>>, SimError> {
-        // The accepted rollout of the whole segment, and the state at each layer's start.
+    ) -> Result<Option<SegmentResult>, SimError> {
+        // The accepted rollout of the whole segment, with a chunk starting at every layer.
         let mut accepted = self.rollout(self.start, &layers, 0, 0.0)?;
         let initial_loss = accepted.loss;
         if !on_iteration(0, accepted.loss) {
@@ -357,31 +451,25 @@ impl<I: Integrator> Segment<'_, I> {
         }
         let mut evaluations = 1;
         let mut iteration = 1;
+        let mut norms = GradNorms::default();
         for layer in 0..layers.len() {
             let mut g0_norm = None;
             for _ in 0..s.iterations {
-                // Rollout from this layer's start: the accepted states from that step on.
                 let from_step = layer * self.stride;
-                // Borrow the accepted rollout's tail as a tape of its own (moved, not copied).
-                let partial = Rollout {
-                    loss: accepted.loss,
-                    tape: accepted.tape.split_off(from_step),
-                };
-                let grads = self.gradient(&partial, &layers, layer);
-                accepted.tape.append(partial.tape);
-                let grads = grads?;
+                let grads = self.gradient(&accepted, &layers, layer)?;
                 let g = &grads[0];
                 let norm = g.iter().map(|m| m.norm_squared()).sum::<f64>().sqrt();
+                norms.push(norm);
                 let g0 = *g0_norm.get_or_insert(norm);
                 if norm <= s.gd_tol * g0 || norm == 0.0 || !norm.is_finite() {
                     break;
                 }
-                let start = accepted.tape.state_at(from_step).into_owned();
-                let prefix = if self.volume_weight > 0.0 {
-                    self.volume_sum(&accepted.tape, 0..from_step, 0)?
-                } else {
-                    0.0
-                };
+                let start = accepted
+                    .run
+                    .state_at(self.first_step + from_step)
+                    .expect("a chunk starts at every layer")
+                    .clone();
+                let prefix: f64 = accepted.after[..from_step].iter().map(|a| a.volume).sum();
                 let mut alpha = s.learning_rate;
                 let mut improved = None;
                 for _ in 0..s.line_search_tries.max(1) {
@@ -404,10 +492,8 @@ impl<I: Integrator> Segment<'_, I> {
                     Some((trial, r)) => {
                         layers = trial;
                         // Splice the trial's steps after the unchanged prefix: no re-run.
-                        accepted.tape.split_off(from_step);
-                        accepted.tape.append(r.tape);
-                        accepted.loss = r.loss;
-                        if !on_iteration(iteration, r.loss) {
+                        accepted.splice(r, from_step);
+                        if !on_iteration(iteration, accepted.loss) {
                             return Ok(None);
                         }
                         iteration += 1;
@@ -421,10 +507,46 @@ impl<I: Integrator> Segment<'_, I> {
             layers,
             loss: accepted.loss,
             initial_loss,
-            tape: accepted.tape,
+            j_range: accepted.j_range(),
+            last: accepted.run.into_last(),
+            grad_norms: norms.pair(),
             evaluations,
         }))
     }
+}
+
+/// The first and the last gradient norm of an optimization.
+#[derive(Default)]
+struct GradNorms {
+    first: Option<f64>,
+    last: Option<f64>,
+}
+
+impl GradNorms {
+    fn add(&mut self, grad: &[f64]) {
+        self.push(grad.iter().map(|g| g * g).sum::<f64>().sqrt());
+    }
+
+    fn push(&mut self, norm: f64) {
+        self.first.get_or_insert(norm);
+        self.last = Some(norm);
+    }
+
+    fn pair(&self) -> (f64, f64) {
+        (
+            self.first.unwrap_or(f64::NAN),
+            self.last.unwrap_or(f64::NAN),
+        )
+    }
+}
+
+/// Smallest and largest determinant of `f`.
+fn j_range(f: &[Matrix3<f64>]) -> (f64, f64) {
+    f.iter()
+        .map(|f| f.determinant())
+        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), j| {
+            (lo.min(j), hi.max(j))
+        })
 }
 
 /// All control entries in one flat vector (layer, particle, matrix entry), for [`Adam`].

@@ -46,6 +46,16 @@ impl State {
         self.x.is_empty()
     }
 
+    /// Bytes a state of `n` particles holds.
+    pub const fn bytes_for(n: usize) -> usize {
+        n * (2 * size_of::<Vector3<f64>>() + 2 * size_of::<Matrix3<f64>>())
+    }
+
+    /// Heap bytes this state holds.
+    pub fn bytes(&self) -> usize {
+        State::bytes_for(self.len())
+    }
+
     /// Index and name of the first particle with a non-finite field, if any.
     pub fn first_non_finite(&self) -> Option<(usize, &'static str)> {
         use rayon::prelude::*;

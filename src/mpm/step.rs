@@ -65,6 +65,25 @@ pub struct StepTape {
     step: usize,
 }
 
+impl StepTape {
+    /// Bytes one step's tape holds for `particles` particles on a grid of `nodes` nodes.
+    pub fn bytes_for(particles: usize, nodes: usize) -> usize {
+        State::bytes_for(particles)
+            + particles * (size_of::<u32>() + size_of::<Matrix3<f64>>())
+            + nodes * (size_of::<f64>() + size_of::<Vector3<f64>>())
+    }
+
+    /// Heap bytes this step's tape holds (the block lists, a few per thousand particles,
+    /// left out).
+    pub fn bytes(&self) -> usize {
+        self.pre.bytes()
+            + self.bins.order.len() * size_of::<u32>()
+            + self.affine.len() * size_of::<Matrix3<f64>>()
+            + self.grid_mass.len() * size_of::<f64>()
+            + self.grid_v.len() * size_of::<Vector3<f64>>()
+    }
+}
+
 /// Recorded forward steps of a rollout, and the state after the last one.
 #[derive(Clone, Debug, Default)]
 pub struct Tape {

@@ -161,13 +161,14 @@ impl Integrator for OdeSystem {
         &self.model
     }
 
-    fn forward(
+    fn forward_observed(
         &self,
         state: &mut State,
         controls: &StepControls,
         first_step: usize,
         n_steps: usize,
         mut tape: Option<&mut Rk4Tape>,
+        mut on_step: Option<&mut dyn FnMut(usize, &State)>,
     ) -> Result<(), SimError> {
         let params = self.controls.zero_params();
         let mut s = to_ode(state);
@@ -195,12 +196,20 @@ impl Integrator for OdeSystem {
                 t.steps.push(st);
                 t.pre_control_f.push(pre_f);
             }
+            if let Some(f) = on_step.as_deref_mut() {
+                f(first_step + k, &from_ode(s.clone()));
+            }
         }
         *state = from_ode(s);
         if let Some(t) = tape {
             t.last = state.clone();
         }
         Ok(())
+    }
+
+    fn tape_bytes_per_step(&self, particles: usize) -> usize {
+        // Four stage states (x, v, F) and the F before a control.
+        particles * (4 * OdeState::BYTES_PER_PARTICLE + size_of::<Matrix3<f64>>())
     }
 
     fn backward(&self, tape: &Rk4Tape, controls: &StepControls, grad_last: StateGrad) -> Gradients {
@@ -316,5 +325,11 @@ impl RunTape for Rk4Tape {
         self.steps.extend(tail.steps);
         self.pre_control_f.extend(tail.pre_control_f);
         self.last = tail.last;
+    }
+
+    fn bytes(&self) -> usize {
+        let stages: usize = self.steps.iter().flatten().map(|s| s.bytes()).sum();
+        let pre: usize = self.pre_control_f.iter().flatten().map(|f| f.len()).sum();
+        stages + pre * size_of::<Matrix3<f64>>() + self.last.bytes()
     }
 }

@@ -16,6 +16,17 @@ pub struct OdeState {
     pub f: Vec<Matrix3<f64>>,
 }
 
+impl OdeState {
+    /// Bytes per particle: `x`, `v` and `F`.
+    pub const BYTES_PER_PARTICLE: usize =
+        2 * size_of::<Vector3<f64>>() + size_of::<nalgebra::Matrix3<f64>>();
+
+    /// Heap bytes this state holds.
+    pub fn bytes(&self) -> usize {
+        self.len() * Self::BYTES_PER_PARTICLE
+    }
+}
+
 impl From<&crate::mpm::State> for OdeState {
     /// The ODE form's part of a state (the APIC matrix `c` is not part of it).
     fn from(s: &crate::mpm::State) -> OdeState {

@@ -1,0 +1,264 @@
+//! Forward runs recorded within a memory budget, and their reverse pass.
+//!
+//! A full tape holds every step of a run, so its memory grows with steps x particles. A
+//! [`Checkpointed`] run keeps only the state at the start of each *chunk* of steps (and the
+//! last chunk's tape); the reverse pass walks the chunks backwards, re-running each one's
+//! forward pass with a tape just before reversing it. The forward pass is deterministic, so
+//! the recomputed tape is bitwise the one the first pass would have kept, and so are the
+//! gradients: the budget changes memory and time, never results.
+//!
+//! Peak tape memory: the chunk start states plus two chunk tapes (the kept last one and the
+//! one being recomputed). [`ChunkPlan::within`] picks the longest chunk that fits a budget;
+//! when the whole tape fits, there is one chunk and nothing is recomputed.
+
+use super::{Integrator, RunTape, StepControls};
+use crate::mpm::{Gradients, SimError, State, StateGrad};
+
+/// How a run is cut into chunks.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ChunkPlan {
+    /// Steps per chunk (a chunk also starts wherever the caller asks, e.g. at control layers).
+    pub interval: usize,
+}
+
+impl ChunkPlan {
+    /// One chunk: the whole tape is kept, nothing is recomputed.
+    pub const WHOLE: ChunkPlan = ChunkPlan {
+        interval: usize::MAX,
+    };
+
+    /// The longest chunk whose run of `steps` steps fits `budget` bytes of tape memory, for
+    /// tapes of `step_bytes` a step and states of `state_bytes`; `extra_cuts` chunk starts
+    /// the caller adds (each holds one more state). The whole tape when it fits; chunks of
+    /// one step when nothing fits (the smallest the run can be).
+    pub fn within(
+        budget: usize,
+        steps: usize,
+        step_bytes: usize,
+        state_bytes: usize,
+        extra_cuts: usize,
+    ) -> ChunkPlan {
+        if steps.saturating_mul(step_bytes) <= budget {
+            return ChunkPlan::WHOLE;
+        }
+        let need = |interval: usize| {
+            let starts = steps.div_ceil(interval) + extra_cuts;
+            2 * interval * step_bytes + starts * state_bytes
+        };
+        let interval = (1..steps).rev().find(|&i| need(i) <= budget).unwrap_or(1);
+        ChunkPlan { interval }
+    }
+
+    /// Peak tape bytes of a run under this plan (see [`ChunkPlan::within`]).
+    pub fn peak_bytes(
+        &self,
+        steps: usize,
+        step_bytes: usize,
+        state_bytes: usize,
+        extra_cuts: usize,
+    ) -> usize {
+        if self.interval >= steps {
+            steps * step_bytes
+        } else {
+            let starts = steps.div_ceil(self.interval) + extra_cuts;
+            2 * self.interval * step_bytes + starts * state_bytes
+        }
+    }
+}
+
+/// One chunk of a run: its first global step, the state there, and its tape when kept.
+#[derive(Clone, Debug)]
+pub struct Chunk<T> {
+    pub first_step: usize,
+    pub start: State,
+    pub tape: Option<T>,
+}
+
+/// A forward run recorded as chunks (see the module documentation).
+#[derive(Clone, Debug)]
+pub struct Checkpointed<T> {
+    /// In step order; the first starts where the run started.
+    pub chunks: Vec<Chunk<T>>,
+    /// The state after the last step.
+    pub last: State,
+    /// The global step after the last one.
+    pub end_step: usize,
+}
+
+impl<T: RunTape> Checkpointed<T> {
+    /// The global step the run started at.
+    pub fn first_step(&self) -> usize {
+        self.chunks.first().map_or(self.end_step, |c| c.first_step)
+    }
+
+    /// The state at the start of global step `step`, when a chunk starts there.
+    pub fn state_at(&self, step: usize) -> Option<&State> {
+        if step == self.end_step {
+            return Some(&self.last);
+        }
+        self.chunks
+            .iter()
+            .find(|c| c.first_step == step)
+            .map(|c| &c.start)
+    }
+
+    /// Replaces the steps from global step `tail.first_step()` on (a chunk start of this
+    /// run) by the run `tail`.
+    pub fn splice(&mut self, tail: Checkpointed<T>) {
+        let at = tail.first_step();
+        debug_assert!(self.state_at(at).is_some(), "splice at a chunk start");
+        self.chunks.retain(|c| c.first_step < at);
+        // The chunk before the cut ends at `at` now, whatever it held: its tape (if any)
+        // still describes the same steps, which did not change.
+        self.chunks.extend(tail.chunks);
+        self.last = tail.last;
+        self.end_step = tail.end_step;
+    }
+
+    /// Drops every chunk, keeping the last state (what a result that is not reversed needs).
+    pub fn into_last(self) -> State {
+        self.last
+    }
+}
+
+/// Runs `n_steps` steps from `state` (global steps `first_step..`) with `controls` (indexed
+/// from `first_step`), cutting a chunk every `plan.interval` steps of the run and wherever
+/// `cut(global_step)` says. Keeps the last chunk's tape (every chunk's under
+/// [`ChunkPlan::WHOLE`]). `on_step(k, state)` sees the state after every global step `k`.
+#[allow(clippy::too_many_arguments)]
+pub fn record<I: Integrator>(
+    sim: &I,
+    mut state: State,
+    controls: &StepControls,
+    first_step: usize,
+    n_steps: usize,
+    plan: ChunkPlan,
+    cut: &dyn Fn(usize) -> bool,
+    on_step: &mut dyn FnMut(usize, &State),
+) -> Result<Checkpointed<I::Tape>, SimError> {
+    // Chunk starts (local steps).
+    let mut starts = vec![0];
+    for s in 1..n_steps {
+        if s % plan.interval == 0 || cut(first_step + s) {
+            starts.push(s);
+        }
+    }
+    let mut chunks = Vec::with_capacity(starts.len());
+    for (i, &a) in starts.iter().enumerate() {
+        let b = starts.get(i + 1).copied().unwrap_or(n_steps);
+        let keep = plan == ChunkPlan::WHOLE || i + 1 == starts.len();
+        let mut tape = keep.then(I::Tape::default);
+        let start = state.clone();
+        let ctrl = controls.get(a..).unwrap_or(&[]);
+        sim.forward_observed(
+            &mut state,
+            ctrl,
+            first_step + a,
+            b - a,
+            tape.as_mut(),
+            Some(on_step),
+        )?;
+        chunks.push(Chunk {
+            first_step: first_step + a,
+            start,
+            tape,
+        });
+    }
+    Ok(Checkpointed {
+        chunks,
+        last: state,
+        end_step: first_step + n_steps,
+    })
+}
+
+/// The reverse pass of `run` from its end down to global step `down_to` (a chunk start):
+/// `controls` are the ones the forward pass used, indexed from global step `controls_from`
+/// (at most `down_to`); `seed_after`, when given, seeds a cost on every state (see
+/// [`Integrator::backward_seeded`]). Each chunk without a tape is re-run with one first. Returns the
+/// gradients of the steps from `down_to` on (`initial` is dL/d(state at `down_to`)).
+pub fn reverse<I: Integrator>(
+    sim: &I,
+    run: &Checkpointed<I::Tape>,
+    controls: &StepControls,
+    controls_from: usize,
+    down_to: usize,
+    grad_last: StateGrad,
+    mut seed_after: Option<&mut super::SeedAfter>,
+) -> Result<Gradients, SimError> {
+    debug_assert!(controls_from <= down_to && run.state_at(down_to).is_some());
+    let mut adj = grad_last;
+    let mut blocks = Vec::new();
+    let mut effect_params: Option<Vec<Vec<f64>>> = None;
+    let mut end = run.end_step;
+    for chunk in run.chunks.iter().rev() {
+        if chunk.first_step < down_to {
+            break;
+        }
+        let ctrl = controls
+            .get(chunk.first_step - controls_from..end - controls_from)
+            .unwrap_or(&[]);
+        let recomputed;
+        let tape = match &chunk.tape {
+            Some(t) => t,
+            None => {
+                let mut t = I::Tape::default();
+                let mut s = chunk.start.clone();
+                sim.forward(
+                    &mut s,
+                    ctrl,
+                    chunk.first_step,
+                    end - chunk.first_step,
+                    Some(&mut t),
+                )?;
+                recomputed = t;
+                &recomputed
+            }
+        };
+        let g = match seed_after.as_deref_mut() {
+            Some(seed) => sim.backward_seeded(tape, ctrl, adj, seed),
+            None => sim.backward(tape, ctrl, adj),
+        };
+        adj = g.initial;
+        let mut steps = g.controls;
+        steps.resize(end - chunk.first_step, None);
+        blocks.push(steps);
+        match &mut effect_params {
+            None => effect_params = Some(g.effect_params),
+            Some(acc) => {
+                for (a, e) in acc.iter_mut().zip(&g.effect_params) {
+                    for (a, b) in a.iter_mut().zip(e) {
+                        *a += b;
+                    }
+                }
+            }
+        }
+        end = chunk.first_step;
+    }
+    Ok(Gradients {
+        initial: adj,
+        controls: blocks.into_iter().rev().flatten().collect(),
+        effect_params: effect_params.unwrap_or_default(),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn plan_keeps_the_whole_tape_when_it_fits() {
+        assert_eq!(ChunkPlan::within(300, 30, 10, 5, 0), ChunkPlan::WHOLE);
+        let p = ChunkPlan::within(299, 30, 10, 5, 0);
+        assert!(p.interval < 30);
+        assert!(p.peak_bytes(30, 10, 5, 0) <= 299);
+    }
+
+    #[test]
+    fn plan_picks_the_longest_chunk_in_the_budget() {
+        // 30 steps of 10 bytes, states of 5: interval i needs 20 i + 5 ceil(30 / i).
+        let p = ChunkPlan::within(150, 30, 10, 5, 0);
+        assert_eq!(p.interval, 6); // 120 + 25 = 145; 7 gives 140 + 25 = 165
+        // Nothing fits: one step a chunk.
+        assert_eq!(ChunkPlan::within(1, 30, 10, 5, 0).interval, 1);
+    }
+}
