@@ -20,6 +20,9 @@ pub type StepControls = [Option<Vec<Matrix3<f64>>>];
 /// cost on the state after global step `k` (see [`Integrator::backward_seeded`]).
 pub type SeedAfter<'a> = dyn FnMut(usize, &State, &mut StateGrad) + 'a;
 
+/// What sees the state after every global step `k` of a run: `on_step(k, state)`.
+pub type OnStep<'a> = dyn FnMut(usize, &State) + 'a;
+
 /// Which integrator advances the model.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "kebab-case")]
@@ -93,7 +96,7 @@ pub trait Integrator: Send + Sync {
         first_step: usize,
         n_steps: usize,
         tape: Option<&mut Self::Tape>,
-        on_step: Option<&mut dyn FnMut(usize, &State)>,
+        on_step: Option<&mut OnStep>,
     ) -> Result<(), SimError>;
 
     /// Bytes a tape holds per step for `particles` particles (what a memory budget plans
@@ -167,7 +170,7 @@ impl Integrator for Simulator {
         first_step: usize,
         n_steps: usize,
         tape: Option<&mut Self::Tape>,
-        mut on_step: Option<&mut dyn FnMut(usize, &State)>,
+        mut on_step: Option<&mut OnStep>,
     ) -> Result<(), SimError> {
         self.forward_driven(state, controls, None, first_step, n_steps, tape, |k, s| {
             if let Some(f) = on_step.as_deref_mut() {

@@ -134,7 +134,7 @@ pub fn record<I: Integrator>(
     n_steps: usize,
     plan: ChunkPlan,
     cut: &dyn Fn(usize) -> bool,
-    on_step: &mut dyn FnMut(usize, &State),
+    on_step: &mut super::OnStep,
 ) -> Result<Checkpointed<I::Tape>, SimError> {
     // Chunk starts (local steps).
     let mut starts = vec![0];

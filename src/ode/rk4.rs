@@ -10,7 +10,7 @@
 use super::controls::ControlParams;
 use super::rhs::{At, OdeSystem};
 use super::state::OdeState;
-use crate::integrator::{Integrator, RunTape, SeedAfter, StepControls};
+use crate::integrator::{Integrator, OnStep, RunTape, SeedAfter, StepControls};
 use crate::mpm::SimError;
 use crate::mpm::model::Model;
 use crate::mpm::{Gradients, State, StateGrad};
@@ -168,7 +168,7 @@ impl Integrator for OdeSystem {
         first_step: usize,
         n_steps: usize,
         mut tape: Option<&mut Rk4Tape>,
-        mut on_step: Option<&mut dyn FnMut(usize, &State)>,
+        mut on_step: Option<&mut OnStep>,
     ) -> Result<(), SimError> {
         let params = self.controls.zero_params();
         let mut s = to_ode(state);
