@@ -308,7 +308,7 @@ fn checkpoint_reader() {
         pass: 0,
         segments_done: 1,
         state: State::at_rest(vec![Vector3::new(1.0, 2.0, 3.0); 3]),
-        controls: vec![layers, vec![vec![Matrix3::zeros(); 3]; 2]],
+        controls: vec![layers, Vec::new()],
         iterations: Vec::new(),
         segments: Vec::new(),
         frames: 0,

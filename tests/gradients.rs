@@ -431,13 +431,13 @@ fn check_segment<I: Integrator>(sim: &I, mut init: State) {
             .collect();
         let (value, grad) = segment.objective_and_gradient(&layers).unwrap();
         assert!(value.is_finite() && value > 0.0);
-        // Checkpoints and recomputation (here one step a chunk, the smallest budget) give
-        // bitwise the gradient of the whole tape.
+        // Checkpoints and recomputation (here the smallest budget) give bitwise the gradient
+        // of the whole tape.
         let recomputed = Segment {
             tape_budget: 0,
             ..segment
         };
-        assert_eq!(recomputed.chunk_plan().interval, 1);
+        assert!(recomputed.chunk_plan().interval < STEPS);
         assert_eq!(
             recomputed.objective_and_gradient(&layers).unwrap(),
             (value, grad.clone())

@@ -152,6 +152,17 @@ pub struct MorphArgs {
     jitter: Option<f64>,
     #[arg(long, value_parser = choice(&MaterialModel::ALL), help = format!("Constitutive model of the body [default {}]", name(&defaults().material.model)))]
     material: Option<MaterialModel>,
+    #[arg(long, help = format!("Young's modulus of the body in Pa, > 0 (stiffer: more substeps) [default {:.0}]", default_young_poisson().0))]
+    youngs_modulus: Option<f64>,
+    #[arg(long, help = format!("Poisson's ratio of the body, 0 to 0.49 [default {:.2}]", default_young_poisson().1))]
+    poisson_ratio: Option<f64>,
+    #[arg(long, help = help("Density of the body in kg per cubic simulation unit, > 0", None, defaults().material.density))]
+    density: Option<f64>,
+    /// Simulation time step in seconds, one per step; refused above the material's stability
+    /// bound (the error gives it) [default: steps of 1/120 s, each split into the substeps
+    /// the material and grid need].
+    #[arg(long)]
+    dt: Option<f64>,
     #[arg(long, value_parser = choice(&IntegratorKind::ALL), help = format!("Time integrator: euler (one transfer round trip a step) or rk4 (four, less numerical damping) [default {}]", name(&defaults().integrator)))]
     integrator: Option<IntegratorKind>,
     #[arg(long, value_parser = choice(&ControlForm::ALL), help = format!("How a control acts on a particle's deformation: plastic (a volume-preserving change of its rest shape: J stays the volume ratio) or additive (the reference paper's F + Fc, for comparison) [default {}]", name(&defaults().control)))]
@@ -184,8 +195,14 @@ fn parse_memory_limit(s: &str) -> Result<MemoryLimit, String> {
     s.parse()
 }
 
+/// The default material as Young's modulus and Poisson's ratio.
+fn default_young_poisson() -> (f64, f64) {
+    let m = defaults().material;
+    morph::material::young_poisson_from_lame(m.mu, m.lambda)
+}
+
 impl MorphArgs {
-    fn settings(&self) -> MorphSettings {
+    fn settings(&self) -> Result<MorphSettings, String> {
         let mut s = MorphSettings::preset(self.preset);
         let set = |dst: &mut usize, v: Option<usize>| {
             if let Some(v) = v {
@@ -232,11 +249,31 @@ impl MorphArgs {
         if let Some(i) = self.integrator {
             s.integrator = i;
         }
+        if self.youngs_modulus.is_some() || self.poisson_ratio.is_some() {
+            let (e0, nu0) = default_young_poisson();
+            let e = self.youngs_modulus.unwrap_or(e0);
+            let nu = self.poisson_ratio.unwrap_or(nu0);
+            if !(e.is_finite() && e > 0.0) {
+                return Err(format!(
+                    "--youngs-modulus must be a positive number, got {e}"
+                ));
+            }
+            if !(0.0..=0.49).contains(&nu) {
+                return Err(format!(
+                    "--poisson-ratio must be between 0 and 0.49, got {nu}"
+                ));
+            }
+            (s.material.mu, s.material.lambda) = morph::material::lame_from_young_poisson(e, nu);
+        }
+        if let Some(d) = self.density {
+            s.material.density = d;
+        }
+        s.dt = self.dt;
         s.seed = self.seed;
         s.loss = self.loss;
         s.target_fit = self.target_fit;
         s.surfaces = !self.no_surfaces;
-        s
+        Ok(s)
     }
 }
 
@@ -273,10 +310,10 @@ pub fn run(args: &MorphArgs) -> ExitCode {
             "give a SOURCE and a TARGET mesh (see morph --help)",
         );
     };
-    let settings = args.settings();
-    if let Err(e) = settings.validate() {
-        return fail(args.json, 2, &e);
-    }
+    let settings = match args.settings().and_then(|s| s.validate().map(|_| s)) {
+        Ok(s) => s,
+        Err(e) => return fail(args.json, 2, &e),
+    };
     let stop = match stop_on_signals() {
         Ok(s) => s,
         Err(e) => return fail(args.json, 1, &format!("cannot watch for signals: {e}")),

@@ -16,6 +16,7 @@ pub use placement::{Placement, PlacementOptions, Similarity, Solid, TargetFit};
 pub use surface::{SurfaceError, extract_surface};
 pub use voxelize::{Jitter, Lattice, Particles, Voxelization, particles_in, voxelize};
 
+use nalgebra::Vector3;
 use std::path::Path;
 
 /// Source particles and target particles of a morph, in sim coordinates.
@@ -68,6 +69,23 @@ impl MorphGeometry {
         let target_solid = Solid::measure(&tgt.mesh, target_path)?;
         let placement = Placement::new(&source_solid, &target_solid, options)?;
         placement.check_output_range(source_path, per_cell)?;
+        if options.target_fit == TargetFit::AsGiven {
+            // A body's own forces cannot move its centre of mass: a target far from the
+            // source cannot be reached, whatever the optimizer does.
+            let d = (Vector3::from(target_solid.centroid) - Vector3::from(source_solid.centroid))
+                .norm();
+            let size = source_solid.bounds().extent().norm();
+            if d > FAR_APART * size {
+                let cells = d * placement.world_to_sim.scale / placement.grid.dx;
+                return Err(MeshError::Invalid {
+                    path: target_path.into(),
+                    reason: format!(
+                        "with --target-fit as-given its centre of mass is {d:.4} units ({cells:.1} grid cells) from the source's, more than {:.0}% of the source's size: the body's own forces cannot move its centre of mass, so the morph cannot reach it; place the target over the source or use --target-fit match-volume",
+                        100.0 * FAR_APART
+                    ),
+                });
+            }
+        }
         let source_sim = placement.world_to_sim.apply_mesh(&src.mesh);
         let target_sim = placement.target_to_sim().apply_mesh(&tgt.mesh);
         let source = particles_in(&source_sim, &placement.grid, per_cell, jitter);
@@ -96,6 +114,10 @@ impl MorphGeometry {
         })
     }
 }
+
+/// With [`TargetFit::AsGiven`], the largest distance between the centres of mass of source
+/// and target, as a fraction of the source's bounding-box diagonal.
+pub const FAR_APART: f64 = 0.1;
 
 /// Options are checked before any mesh is read.
 fn check_options(

@@ -128,7 +128,7 @@ impl Solid {
         self.unit_volume.log10() + 3.0 * self.length.log10()
     }
 
-    fn bounds(&self) -> Aabb {
+    pub fn bounds(&self) -> Aabb {
         Aabb {
             min: self.bounds_min.into(),
             max: self.bounds_max.into(),

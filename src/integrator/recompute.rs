@@ -1,15 +1,15 @@
 //! Forward runs recorded within a memory budget, and their reverse pass.
 //!
 //! A full tape holds every step of a run, so its memory grows with steps x particles. A
-//! [`Checkpointed`] run keeps only the state at the start of each *chunk* of steps (and the
-//! last chunk's tape); the reverse pass walks the chunks backwards, re-running each one's
-//! forward pass with a tape just before reversing it. The forward pass is deterministic, so
+//! [`Checkpointed`] run keeps only the state at the start of each *chunk* of steps; the
+//! reverse pass walks the chunks backwards, re-running each one's forward pass with a tape
+//! just before reversing it (so a run costs one more forward pass). The forward pass is deterministic, so
 //! the recomputed tape is bitwise the one the first pass would have kept, and so are the
 //! gradients: the budget changes memory and time, never results.
 //!
-//! Peak tape memory: the chunk start states plus two chunk tapes (the kept last one and the
-//! one being recomputed). [`ChunkPlan::within`] picks the longest chunk that fits a budget;
-//! when the whole tape fits, there is one chunk and nothing is recomputed.
+//! Peak tape memory: the chunk start states plus one chunk's tape. [`ChunkPlan::within`]
+//! picks the longest chunk that fits a budget; when the whole tape fits, it is kept and
+//! nothing is recomputed.
 
 use super::{Integrator, RunTape, StepControls};
 use crate::mpm::{Gradients, SimError, State, StateGrad};
@@ -28,24 +28,25 @@ impl ChunkPlan {
     };
 
     /// The longest chunk whose run of `steps` steps fits `budget` bytes of tape memory, for
-    /// tapes of `step_bytes` a step and states of `state_bytes`; `extra_cuts` chunk starts
-    /// the caller adds (each holds one more state). The whole tape when it fits; chunks of
-    /// one step when nothing fits (the smallest the run can be).
+    /// tapes of `step_bytes` a step and states of `state_bytes`, when a chunk also starts
+    /// every `cut_every` steps (the caller's restart points). The whole tape when it fits;
+    /// the chunk length with the smallest peak when nothing fits.
     pub fn within(
         budget: usize,
         steps: usize,
         step_bytes: usize,
         state_bytes: usize,
-        extra_cuts: usize,
+        cut_every: usize,
     ) -> ChunkPlan {
         if steps.saturating_mul(step_bytes) <= budget {
             return ChunkPlan::WHOLE;
         }
-        let need = |interval: usize| {
-            let starts = steps.div_ceil(interval) + extra_cuts;
-            2 * interval * step_bytes + starts * state_bytes
-        };
-        let interval = (1..steps).rev().find(|&i| need(i) <= budget).unwrap_or(1);
+        let need =
+            |interval| ChunkPlan { interval }.peak_bytes(steps, step_bytes, state_bytes, cut_every);
+        let interval = (1..steps)
+            .rev()
+            .find(|&i| need(i) <= budget)
+            .unwrap_or_else(|| (1..steps).min_by_key(|&i| need(i)).unwrap_or(1));
         ChunkPlan { interval }
     }
 
@@ -55,14 +56,16 @@ impl ChunkPlan {
         steps: usize,
         step_bytes: usize,
         state_bytes: usize,
-        extra_cuts: usize,
+        cut_every: usize,
     ) -> usize {
         if self.interval >= steps {
-            steps * step_bytes
-        } else {
-            let starts = steps.div_ceil(self.interval) + extra_cuts;
-            2 * self.interval * step_bytes + starts * state_bytes
+            return steps * step_bytes;
         }
+        let starts = (0..steps)
+            .filter(|s| s % self.interval == 0 || s % cut_every.max(1) == 0)
+            .count();
+        // The longest chunk between two starts is at most `interval` steps.
+        self.interval * step_bytes + starts * state_bytes
     }
 }
 
@@ -123,8 +126,8 @@ impl<T: RunTape> Checkpointed<T> {
 
 /// Runs `n_steps` steps from `state` (global steps `first_step..`) with `controls` (indexed
 /// from `first_step`), cutting a chunk every `plan.interval` steps of the run and wherever
-/// `cut(global_step)` says. Keeps the last chunk's tape (every chunk's under
-/// [`ChunkPlan::WHOLE`]). `on_step(k, state)` sees the state after every global step `k`.
+/// `cut(global_step)` says. Keeps every chunk's tape under [`ChunkPlan::WHOLE`], none
+/// otherwise. `on_step(k, state)` sees the state after every global step `k`.
 #[allow(clippy::too_many_arguments)]
 pub fn record<I: Integrator>(
     sim: &I,
@@ -146,7 +149,7 @@ pub fn record<I: Integrator>(
     let mut chunks = Vec::with_capacity(starts.len());
     for (i, &a) in starts.iter().enumerate() {
         let b = starts.get(i + 1).copied().unwrap_or(n_steps);
-        let keep = plan == ChunkPlan::WHOLE || i + 1 == starts.len();
+        let keep = plan == ChunkPlan::WHOLE;
         let mut tape = keep.then(I::Tape::default);
         let start = state.clone();
         let ctrl = controls.get(a..).unwrap_or(&[]);
@@ -247,18 +250,24 @@ mod tests {
 
     #[test]
     fn plan_keeps_the_whole_tape_when_it_fits() {
-        assert_eq!(ChunkPlan::within(300, 30, 10, 5, 0), ChunkPlan::WHOLE);
-        let p = ChunkPlan::within(299, 30, 10, 5, 0);
+        assert_eq!(ChunkPlan::within(300, 30, 10, 5, 30), ChunkPlan::WHOLE);
+        let p = ChunkPlan::within(299, 30, 10, 5, 30);
         assert!(p.interval < 30);
-        assert!(p.peak_bytes(30, 10, 5, 0) <= 299);
+        assert!(p.peak_bytes(30, 10, 5, 30) <= 299);
     }
 
     #[test]
     fn plan_picks_the_longest_chunk_in_the_budget() {
-        // 30 steps of 10 bytes, states of 5: interval i needs 20 i + 5 ceil(30 / i).
-        let p = ChunkPlan::within(150, 30, 10, 5, 0);
-        assert_eq!(p.interval, 6); // 120 + 25 = 145; 7 gives 140 + 25 = 165
-        // Nothing fits: one step a chunk.
-        assert_eq!(ChunkPlan::within(1, 30, 10, 5, 0).interval, 1);
+        // 30 steps of 10 bytes, states of 5: interval i needs 10 i + 5 ceil(30 / i).
+        let p = ChunkPlan::within(150, 30, 10, 5, 30);
+        assert_eq!(p.interval, 13); // 130 + 15 = 145; 14 gives 140 + 15
+        // Restart points every 10 steps add starts at 10 and 20.
+        assert_eq!(
+            ChunkPlan { interval: 12 }.peak_bytes(30, 10, 5, 10),
+            120 + 5 * 5
+        );
+        // Nothing fits: the smallest peak, 10 i + 5 ceil(30 / i), is 80 at i = 3, 4 and 5;
+        // the shortest chunk comes first.
+        assert_eq!(ChunkPlan::within(1, 30, 10, 5, 30).interval, 3);
     }
 }

@@ -61,6 +61,25 @@ pub fn lame_from_young_poisson(e: f64, nu: f64) -> (f64, f64) {
     )
 }
 
+#[cfg(test)]
+mod young_poisson_tests {
+    #[test]
+    fn lame_round_trip() {
+        let (mu, lambda) = super::lame_from_young_poisson(1.0e5, 0.3);
+        let (e, nu) = super::young_poisson_from_lame(mu, lambda);
+        assert!((e - 1.0e5).abs() < 1e-6 && (nu - 0.3).abs() < 1e-12);
+    }
+}
+
+/// Young's modulus and Poisson's ratio `(E, nu)` from Lamé parameters (the inverse of
+/// [`lame_from_young_poisson`]).
+pub fn young_poisson_from_lame(mu: f64, lambda: f64) -> (f64, f64) {
+    (
+        mu * (3.0 * lambda + 2.0 * mu) / (lambda + mu),
+        lambda / (2.0 * (lambda + mu)),
+    )
+}
+
 /// A hyperelastic constitutive model `Psi(F)`.
 ///
 /// Because the stress is the gradient of an energy, `dP/dF` is a symmetric linear map on 3x3

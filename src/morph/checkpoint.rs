@@ -215,7 +215,8 @@ pub fn load(
     let mut controls = Vec::with_capacity(segments);
     for entry in &file.controls {
         let layers_k: Layers = match entry {
-            None => vec![vec![Matrix3::zeros(); particles]; layers],
+            // Never optimized: zero (see `RunProgress::controls`).
+            None => Vec::new(),
             Some(name) => {
                 let path = folder.join(name);
                 let data =

@@ -89,16 +89,16 @@ impl Prepared {
     /// limit below what the morph needs with one-step chunks is an error that says how much
     /// it needs.
     pub fn plan_memory(&mut self, limit: MemoryLimit) -> Result<MemoryPlan, MorphError> {
-        let s = &self.settings;
         let n = self.initial.len();
         let state = State::bytes_for(n);
         let step = crate::with_integrator!(&self.engine, sim => sim.tape_bytes_per_step(n));
-        let layers = s.steps_per_segment.div_ceil(s.control_stride);
+        let steps = self.sim_steps_per_segment();
         let fixed = resident_bytes().unwrap_or(0) + self.working_bytes();
         let limit_bytes = limit.bytes();
         let tape_budget = limit_bytes.saturating_sub(fixed) as usize;
-        let plan = ChunkPlan::within(tape_budget, s.steps_per_segment, step, state, layers);
-        let peak = plan.peak_bytes(s.steps_per_segment, step, state, layers);
+        let stride = self.sim_control_stride();
+        let plan = ChunkPlan::within(tape_budget, steps, step, state, stride);
+        let peak = plan.peak_bytes(steps, step, state, stride);
         if peak > tape_budget {
             let need = fixed as usize + peak;
             return Err(MorphError::Settings(format!(
@@ -119,18 +119,19 @@ impl Prepared {
     }
 
     /// Estimated bytes the run needs besides the tapes and what is allocated already: the
-    /// controls of every segment and the optimizer's copies of one segment's, Adam's moments,
-    /// and the states a segment holds at once (start, last, best, adjoints, seeds).
+    /// controls of the passes before the last (kept for the next) and the optimizer's copies
+    /// of one segment's, Adam's moments and saved values, and the states a segment holds at
+    /// once (start, the one advancing, last, best, adjoints, the reverse step's scratch).
     fn working_bytes(&self) -> u64 {
         let s = &self.settings;
         let n = self.initial.len();
         let layers = s.steps_per_segment.div_ceil(s.control_stride);
         let layer = n * size_of::<Matrix3<f64>>();
-        let controls = (s.segments + 8) * layers * layer;
-        let nodes = self.model().grid.node_count();
-        let free = layers * 9 * nodes.max(n);
-        let adam = 4 * free * size_of::<f64>();
-        (controls + adam + 10 * State::bytes_for(n)) as u64
+        let kept = if s.passes > 1 { s.segments } else { 0 };
+        let controls = (kept + 6) * layers * layer;
+        let free = layers * 9 * n;
+        let adam = 5 * free * size_of::<f64>();
+        (controls + adam + 6 * State::bytes_for(n)) as u64
     }
 }
 

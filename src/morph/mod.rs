@@ -131,6 +131,8 @@ pub struct Prepared {
     /// The mass loss on the finer grid, when its weight is positive.
     pub fine_loss: Option<FineMassLoss>,
     pub initial: State,
+    /// Simulation steps per morph step (see [`MorphSettings::dt`]).
+    pub substeps: usize,
     /// Bytes the tape of one segment rollout may hold (`usize::MAX`: no cap); set by
     /// [`Prepared::plan_memory`].
     pub tape_budget: usize,
@@ -221,7 +223,7 @@ impl Prepared {
         let grid = geometry.placement.grid.clone();
         let mut scene = SceneConfig {
             grid,
-            dt: settings.dt.unwrap_or(1.0 / 120.0),
+            dt: settings.dt.unwrap_or(MORPH_STEP),
             kernel: settings.kernel,
             material: settings.material.clone(),
             effects: Vec::new(),
@@ -237,11 +239,16 @@ impl Prepared {
             thickness: 3,
         });
         let volumes = vec![geometry.source.volume; geometry.source.positions.len()];
-        if settings.dt.is_none() {
-            // Half the elastic stability limit at most.
-            let (limit, _) = scene.stable_dt();
-            scene.dt = scene.dt.min(0.5 * limit);
-        }
+        // Without a set dt, a morph step of 1/120 s is split into the fewest equal substeps
+        // that keep each within half the elastic stability bound: a stiffer material or a
+        // finer grid costs more substeps, never a shorter shot. A set dt above the bound is
+        // refused by the model's check, with the bound.
+        let (limit, _) = scene.stable_dt();
+        let substeps = match settings.dt {
+            Some(_) => 1,
+            None => substeps_for(MORPH_STEP, 0.5 * limit).map_err(MorphError::Settings)?,
+        };
+        scene.dt /= substeps as f64;
         let mut model = scene.model(volumes)?;
         model.control_form = settings.control;
         let engine = Engine::new(model, settings.integrator)?;
@@ -267,6 +274,7 @@ impl Prepared {
             loss,
             fine_loss,
             initial,
+            substeps,
             tape_budget: usize::MAX,
         })
     }
@@ -286,6 +294,21 @@ impl Prepared {
             v: state.v.iter().map(|v| s * v).collect(),
             j: state.f.iter().map(|f| f.determinant()).collect(),
         }
+    }
+
+    /// Simulation steps per segment (the settings' morph steps times the substeps).
+    pub fn sim_steps_per_segment(&self) -> usize {
+        self.settings.steps_per_segment * self.substeps
+    }
+
+    /// Simulation steps between control layers.
+    pub fn sim_control_stride(&self) -> usize {
+        self.settings.control_stride * self.substeps
+    }
+
+    /// Simulation steps between exported frames.
+    pub fn sim_frame_every(&self) -> usize {
+        self.settings.frame_every * self.substeps
     }
 
     /// Frames the chain exports: the initial state and every `frame_every`-th step.
@@ -421,7 +444,9 @@ pub struct RunProgress {
     pub segments_done: usize,
     /// The full particle state at the end of the last completed segment.
     pub state: State,
-    /// Controls per segment, per layer, per particle.
+    /// Controls per segment, per layer, per particle. Empty for a segment never optimized
+    /// (its controls are zero) and, to keep memory flat, for a completed segment of the last
+    /// pass once its checkpoint holds them (nothing reads them again).
     pub controls: Vec<Layers>,
     pub iterations: Vec<IterationRecord>,
     pub segments: Vec<SegmentRecord>,
@@ -453,8 +478,6 @@ pub trait Observer {
 /// Result of a whole morph.
 pub struct MorphResult {
     pub final_state: State,
-    /// Controls per segment, per layer, per particle (of the last pass).
-    pub controls: Vec<Layers>,
     pub iterations: Vec<IterationRecord>,
     pub segments: Vec<SegmentRecord>,
     pub initial_loss: f64,
@@ -487,7 +510,6 @@ pub fn run(
     });
     let initial_loss = prep.loss_of(&prep.initial)?;
     let n = prep.initial.len();
-    let layers_per_segment = s.steps_per_segment.div_ceil(s.control_stride);
     let mut progress = match resume {
         Some(p) => {
             p.check(s, n)?;
@@ -497,7 +519,7 @@ pub fn run(
             pass: 0,
             segments_done: 0,
             state: prep.initial.clone(),
-            controls: vec![vec![vec![Matrix3::zeros(); n]; layers_per_segment]; s.segments],
+            controls: vec![Vec::new(); s.segments],
             iterations: Vec::new(),
             segments: Vec::new(),
             frames: 0,
@@ -545,15 +567,20 @@ fn chain<I: Integrator>(
                 loss: &prep.loss,
                 fine_loss: prep.fine_loss.as_ref(),
                 start: &progress.state,
-                first_step: k * s.steps_per_segment,
-                steps: s.steps_per_segment,
-                stride: s.control_stride,
+                first_step: k * prep.sim_steps_per_segment(),
+                steps: prep.sim_steps_per_segment(),
+                stride: prep.sim_control_stride(),
                 arrival_weight: s.arrival_weight,
                 volume_weight: s.volume_weight,
                 resolution: s.control_resolution,
                 tape_budget: prep.tape_budget,
             };
-            let init = progress.controls[k].clone();
+            let init = match &progress.controls[k] {
+                l if l.is_empty() => {
+                    vec![vec![Matrix3::zeros(); prep.initial.len()]; segment.num_layers()]
+                }
+                l => l.clone(),
+            };
             let mut stop = observer.stop_requested();
             let iterations = &mut progress.iterations;
             let result = segment.optimize(init, &s.optimizer, |iteration, loss| {
@@ -608,7 +635,7 @@ fn chain<I: Integrator>(
                 // no tape of every step: memory stays within its budget).
                 let mut frame_err = Ok(());
                 let last = segment.replay(&result.layers, &mut |global, state| {
-                    if frame_err.is_ok() && (global + 1).is_multiple_of(s.frame_every) {
+                    if frame_err.is_ok() && (global + 1).is_multiple_of(prep.sim_frame_every()) {
                         frame_err =
                             observer.frame(&Frame::new(prep, progress.frames, global + 1, state));
                         progress.frames += 1;
@@ -622,6 +649,9 @@ fn chain<I: Integrator>(
             progress.segments_done = k + 1;
             progress.elapsed_s = seconds(&clock);
             observer.segment_done(&progress, k)?;
+            if last_pass {
+                progress.controls[k] = Vec::new();
+            }
         }
     }
     let final_loss = prep.loss_of(&progress.state)?;
@@ -633,13 +663,30 @@ fn chain<I: Integrator>(
     });
     Ok(MorphResult {
         final_state: progress.state,
-        controls: progress.controls,
         iterations: progress.iterations,
         segments: progress.segments,
         initial_loss,
         final_loss,
         seconds,
     })
+}
+
+/// The morph's step when no dt is set: the reference's 1/120 s (simulated in substeps
+/// where the material or the grid needs a shorter one).
+pub const MORPH_STEP: f64 = 1.0 / 120.0;
+
+/// Substeps past which a morph is refused (the material is too stiff for its grid).
+pub const MAX_SUBSTEPS: usize = 10_000;
+
+/// The fewest equal substeps of `step` that are each at most `bound` seconds.
+pub fn substeps_for(step: f64, bound: f64) -> Result<usize, String> {
+    let n = (step / bound).ceil();
+    if !(n.is_finite() && n <= MAX_SUBSTEPS as f64) {
+        return Err(format!(
+            "the material needs a time step of {bound:.3e} s on this grid, {n:.0} substeps per 1/120 s step (at most {MAX_SUBSTEPS}); lower its stiffness or the resolution"
+        ));
+    }
+    Ok(n.max(1.0) as usize)
 }
 
 /// A gradient this many times the first segment's first one has exploded.
@@ -690,10 +737,9 @@ impl RunProgress {
             && self.segments_done <= s.segments
             && self.state.len() == particles
             && self.controls.len() == s.segments
-            && self
-                .controls
-                .iter()
-                .all(|l| l.len() == layers && l.iter().all(|p| p.len() == particles));
+            && self.controls.iter().all(|l| {
+                l.is_empty() || (l.len() == layers && l.iter().all(|p| p.len() == particles))
+            });
         if fits {
             Ok(())
         } else {

@@ -703,7 +703,7 @@ fn write_run(
     let frames: Vec<FrameEntry> = (0..n_frames)
         .map(|i| {
             let name = frame_name(i, n_frames);
-            let step = i * settings.frame_every;
+            let step = i * prep.sim_frame_every();
             FrameEntry {
                 index: i + 1,
                 step,

@@ -171,7 +171,7 @@ impl<I: Integrator> Segment<'_, I> {
             self.steps,
             self.sim.tape_bytes_per_step(n),
             State::bytes_for(n),
-            self.num_layers(),
+            self.stride,
         )
     }
 
@@ -394,8 +394,10 @@ impl<I: Integrator> Segment<'_, I> {
             } else {
                 None
             };
-            if best.as_ref().is_none_or(|b| current.loss < b.1.loss) {
-                best = Some((layers.clone(), current.settled()));
+            // Reversed: its chunks go before the next rollout records its own.
+            let done = current.settled();
+            if best.as_ref().is_none_or(|b| done.loss < b.1.loss) {
+                best = Some((layers.clone(), done));
             }
             let Some(grad) = grad else { break };
             let saved = (params.clone(), adam.clone());

@@ -100,8 +100,10 @@ pub struct MorphSettings {
     pub material: MaterialConfig,
     /// Velocity damping per second (reference 0.5).
     pub drag: f64,
-    /// Time step in seconds; `None`: the reference 1/120, lowered if the grid is finer than
-    /// the reference so that it stays at most half the elastic stability limit.
+    /// Simulation time step in seconds, one per morph step; refused when above the elastic
+    /// stability bound. `None` (the default): morph steps of 1/120 s (the reference's), each
+    /// simulated in the fewest equal substeps that stay within half the bound, so a stiffer
+    /// material or a finer grid costs time, never a shorter shot.
     pub dt: Option<f64>,
     /// Export every n-th step as a frame.
     pub frame_every: usize,
