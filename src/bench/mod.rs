@@ -4,6 +4,7 @@
 //! velocity and receives control deformation gradients every 10 steps.
 
 pub mod geometry;
+pub mod hard_cases;
 pub mod physics;
 
 use crate::integrator::{Engine, Integrator, IntegratorKind};

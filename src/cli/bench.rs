@@ -84,3 +84,17 @@ pub fn run_geometry(a: &BenchGeometryArgs) -> ExitCode {
         a.repeats,
     ))
 }
+
+#[derive(Args, Debug)]
+pub struct BenchHardCasesArgs {
+    /// Folder of the shared test meshes (the bunny).
+    #[arg(long, default_value = "../shared/meshes")]
+    meshes: PathBuf,
+    /// Also the long cases (minutes each).
+    #[arg(long)]
+    long: bool,
+}
+
+pub fn run_hard_cases(a: &BenchHardCasesArgs) -> ExitCode {
+    super::report(morph::bench::hard_cases::run(&a.meshes, a.long))
+}

@@ -51,6 +51,14 @@ enum Command {
     /// the particle volume in the mesh's own units. Then times surface extraction of
     /// particle balls of about 17k and 100k particles.
     BenchGeometry(bench::BenchGeometryArgs),
+    /// Run the hard cases (docs/engine.md, "Hard cases"); one JSON line per case.
+    ///
+    /// Stiff materials, thin features, far-apart shapes, extreme units, topology changes,
+    /// huge steps, long chains and horizons: each must stay finite, inside the grid, with
+    /// 0 < J <= 3 and a bounded speed on every frame, or be refused with a one-line error.
+    /// Then the gradient norm of one segment against its length (30 to 1000 steps). With
+    /// --long, also a 300,000-particle morph within 4 GB. Exit 1 when a case fails.
+    BenchHardCases(bench::BenchHardCasesArgs),
     /// Physical accuracy against a known answer: a free elastic bar's first axial period.
     ///
     /// The bar (1 m, E 1e5 Pa, nu 0.3, rho 1000, two cells thick) rings for two periods from
@@ -136,6 +144,7 @@ fn dispatch(cli: &Cli) -> ExitCode {
         None => morph::run(&cli.morph),
         Some(Command::Bench(args)) => bench::run(args),
         Some(Command::BenchGeometry(args)) => bench::run_geometry(args),
+        Some(Command::BenchHardCases(args)) => bench::run_hard_cases(args),
         Some(Command::BenchAccuracy) => report(::morph::bench::physics::run()),
         Some(Command::Inspect(args)) => inspect::run(args),
         Some(Command::Compare(args)) => compare::run(args),

@@ -449,6 +449,11 @@ pub fn run(args: &MorphArgs) -> ExitCode {
                     }
                 }
             }
+            if !args.quiet {
+                for w in &summary.warnings {
+                    eprintln!("morph: warning: {w}");
+                }
+            }
             ExitCode::SUCCESS
         }
         Err(MorphError::Interrupted { signal, kept }) => {

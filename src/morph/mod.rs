@@ -243,8 +243,15 @@ impl Prepared {
         // that keep each within half the elastic stability bound: a stiffer material or a
         // finer grid costs more substeps, never a shorter shot. A set dt above the bound is
         // refused by the model's check, with the bound.
-        let (limit, _) = scene.stable_dt();
+        let (limit, wave_speed) = scene.stable_dt();
         let substeps = match settings.dt {
+            Some(dt) if dt > limit => {
+                return Err(MorphError::Settings(format!(
+                    "--dt {dt} is above the stable bound {limit:.4e} s of this material on this grid (elastic wave speed {wave_speed:.4} over a cell of {:.4}); use --dt {:.4e} or less, or leave it out to substep automatically",
+                    scene.grid.dx,
+                    0.5 * limit
+                )));
+            }
             Some(_) => 1,
             None => substeps_for(MORPH_STEP, 0.5 * limit).map_err(MorphError::Settings)?,
         };
@@ -696,8 +703,9 @@ pub const GRADIENT_VANISHED: f64 = 1e-9;
 
 /// Warnings about the gradients of a run's segments: a non-finite norm, or one that grew
 /// past [`GRADIENT_EXPLODED`] or shrank below [`GRADIENT_VANISHED`] times the first
-/// segment's first one (the scale this morph's objective set).
-pub fn gradient_warnings(segments: &[SegmentRecord]) -> Vec<String> {
+/// segment's first one (the scale this morph's objective set); and segments where no step
+/// improved the objective.
+pub fn run_warnings(segments: &[SegmentRecord]) -> Vec<String> {
     let Some(reference) = segments
         .iter()
         .map(|r| r.grad_norm_first)
@@ -724,6 +732,17 @@ pub fn gradient_warnings(segments: &[SegmentRecord]) -> Vec<String> {
             ));
             break;
         }
+    }
+    let stalled: Vec<String> = segments
+        .iter()
+        .filter(|r| r.evaluations > 1 && r.loss >= r.initial_loss && r.initial_loss > 0.0)
+        .map(|r| format!("{}", r.segment + 1))
+        .collect();
+    if !stalled.is_empty() {
+        out.push(format!(
+            "no optimizer step improved segment(s) {} (its steps were too large, or a stiff material rang at every control layer: try a smaller --learning-rate)",
+            stalled.join(", ")
+        ));
     }
     out
 }

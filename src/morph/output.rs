@@ -278,7 +278,7 @@ pub struct Summary {
     pub resumed_from: Option<String>,
     /// `--resume` found the output already complete for these inputs and settings.
     pub already_complete: bool,
-    /// What the run found worth a warning (gradient health, see [`super::gradient_warnings`]).
+    /// What the run found worth a warning (gradient health, see [`super::run_warnings`]).
     pub warnings: Vec<String>,
 }
 
@@ -668,7 +668,7 @@ fn write_run(
     let preview = std::mem::take(&mut writer.preview);
     let frame_stats = std::mem::take(&mut writer.stats);
     let frames_summary = FramesSummary::of(&frame_stats);
-    let run_warnings = super::gradient_warnings(&result.segments);
+    let run_warnings = super::run_warnings(&result.segments);
     let optimize_s = clock.elapsed().as_secs_f64() - setup_s;
 
     // Final nodal mass grid, on world coordinates.
