@@ -296,6 +296,16 @@ fn command_line_errors() {
         (vec!["--fine-weight", "nan"], 2, "--fine-weight"),
         (vec!["--control", "multiplicative"], 2, "multiplicative"),
         (vec!["--control-resolution", "voxel"], 2, "voxel"),
+        (vec!["--memory-limit", "12Q"], 2, "--memory-limit"),
+        (
+            vec!["--memory-limit", "1M"],
+            2,
+            "--memory-limit 1 MB is below the",
+        ),
+        (vec!["--youngs-modulus", "-5"], 2, "--youngs-modulus"),
+        (vec!["--poisson-ratio", "0.5"], 2, "--poisson-ratio"),
+        (vec!["--density", "0"], 2, "--density"),
+        (vec!["--dt", "0.05"], 2, "above the stable bound"),
         (
             vec!["--particles", "5000", "--resolution", "20"],
             2,
@@ -308,6 +318,9 @@ fn command_line_errors() {
         let err = String::from_utf8_lossy(&r.stderr);
         assert_eq!(r.status.code(), Some(code), "{args:?}: {err}");
         assert!(err.contains(needle), "{args:?}: {err}");
+        assert_eq!(err.lines().count(), 1, "{args:?}: {err}");
+        // Nothing half-written.
+        assert!(!out.exists() && !morph::io::outdir::partial_dir(&out).exists());
     }
     let r = morph(&["assets/sphere.obj", "no/such.obj", "-o", o]);
     assert_eq!(r.status.code(), Some(1));

@@ -46,9 +46,9 @@ impl Preset {
     /// wall time, for sphere -> spot on 2 cores (docs/morph.md, "Effort pays").
     pub fn measured(self) -> &'static str {
         match self {
-            Preset::Draft => "sphere -> spot: IoU 0.86, fill 0.95, 16 s",
-            Preset::Default => "sphere -> spot: IoU 0.88, fill 0.97, 62 s",
-            Preset::Final => "sphere -> spot: IoU 0.88, fill 0.97, 2.1 min",
+            Preset::Draft => "sphere -> spot: IoU 0.87, fill 0.96, 12 s",
+            Preset::Default => "sphere -> spot: IoU 0.88, fill 0.97, 52 s",
+            Preset::Final => "sphere -> spot: IoU 0.89, fill 0.98, 1.7 min",
         }
     }
 }
@@ -143,7 +143,7 @@ impl MorphSettings {
             },
             loss: MassLossKind::Log,
             arrival_weight: 0.001,
-            volume_weight: 500.0,
+            volume_weight: 400.0,
             fine_weight: 1.0,
             kernel: KernelKind::Cubic,
             integrator: IntegratorKind::Euler,
