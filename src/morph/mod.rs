@@ -704,7 +704,7 @@ pub const GRADIENT_VANISHED: f64 = 1e-9;
 /// Warnings about the gradients of a run's segments: a non-finite norm, or one that grew
 /// past [`GRADIENT_EXPLODED`] or shrank below [`GRADIENT_VANISHED`] times the first
 /// segment's first one (the scale this morph's objective set); and segments where no step
-/// improved the objective.
+/// improved the objective while the morph was far from done.
 pub fn run_warnings(segments: &[SegmentRecord]) -> Vec<String> {
     let Some(reference) = segments
         .iter()
@@ -733,9 +733,12 @@ pub fn run_warnings(segments: &[SegmentRecord]) -> Vec<String> {
             break;
         }
     }
+    // A segment no step improved while the morph is far from done (its loss above half the
+    // run's first): a body that has arrived has little left to gain, and is not warned about.
+    let first = segments.first().map_or(0.0, |r| r.initial_loss);
     let stalled: Vec<String> = segments
         .iter()
-        .filter(|r| r.evaluations > 1 && r.loss >= r.initial_loss && r.initial_loss > 0.0)
+        .filter(|r| r.evaluations > 1 && r.loss >= r.initial_loss && r.initial_loss > 0.5 * first)
         .map(|r| format!("{}", r.segment + 1))
         .collect();
     if !stalled.is_empty() {
@@ -767,5 +770,52 @@ impl RunProgress {
                     .into(),
             ))
         }
+    }
+}
+
+#[cfg(test)]
+mod warning_tests {
+    use super::*;
+
+    fn record(segment: usize, first: f64, last: f64, initial: f64, loss: f64) -> SegmentRecord {
+        SegmentRecord {
+            pass: 0,
+            segment,
+            initial_loss: initial,
+            loss,
+            evaluations: 4,
+            seconds: 0.0,
+            min_j: 1.0,
+            max_j: 1.0,
+            grad_norm_first: first,
+            grad_norm_last: last,
+        }
+    }
+
+    #[test]
+    fn exploding_vanishing_and_stalled_segments_are_warned_about() {
+        let healthy = [
+            record(0, 100.0, 80.0, 10.0, 5.0),
+            record(1, 90.0, 70.0, 5.0, 3.0),
+        ];
+        assert!(run_warnings(&healthy).is_empty());
+        let w = run_warnings(&[
+            record(0, 100.0, 80.0, 10.0, 5.0),
+            record(1, 2e8, 1.0, 5.0, 3.0),
+            record(2, 1e-8, 1e-8, 3.0, 2.0),
+            record(3, f64::INFINITY, 1.0, 2.0, 1.0),
+            record(4, f64::NAN, f64::NAN, 1.0, 1.0),
+        ]);
+        assert_eq!(w.len(), 3, "{w:?}");
+        assert!(w[0].contains("segment 2: the gradient exploded"), "{w:?}");
+        assert!(w[1].contains("segment 3: the gradient vanished"), "{w:?}");
+        assert!(w[2].contains("segment 4: the gradient exploded"), "{w:?}");
+        // No step improved the first segment: warned; the same late in a converged chain: not.
+        let w = run_warnings(&[
+            record(0, 100.0, 90.0, 10.0, 10.0),
+            record(1, 1.0, 1.0, 1.0, 1.0),
+        ]);
+        assert_eq!(w.len(), 1, "{w:?}");
+        assert!(w[0].contains("segment(s) 1 "), "{w:?}");
     }
 }
