@@ -101,3 +101,53 @@ fn in_memory_meshes_world_frames_and_cancel() {
     }
     assert_eq!(w.evaluations, 2, "stopped at the evaluation it asked");
 }
+
+/// A memory budget changes memory and time, never results: the smallest tape budget (every
+/// segment recorded in chunks and recomputed in reverse) gives bitwise the morph of the whole
+/// tape, frames included, with both optimizers.
+#[test]
+fn a_memory_budget_never_changes_the_morph() {
+    use morph::morph::segment::Optimizer;
+    let mesh = |name: &str, m| prepare_mesh(Path::new(name), m, Vec::new()).unwrap();
+    let src = mesh("sphere", assets::uv_sphere(1.0, 16, 32, |_, _| 1.0));
+    let tgt = mesh("lobes", assets::two_lobes(24, 32));
+    for kind in Optimizer::ALL {
+        let mut s = MorphSettings::preset(Preset::Draft);
+        s.resolution = 16;
+        s.segments = 2;
+        s.optimizer.kind = kind;
+        s.optimizer.iterations = 3;
+        s.optimizer.learning_rate = kind.default_learning_rate();
+        let run = |budget: usize| {
+            let mut prep = morph::morph::Prepared::from_meshes(
+                &s,
+                (&src, Path::new("sphere")),
+                (&tgt, Path::new("lobes")),
+            )
+            .unwrap();
+            prep.tape_budget = budget;
+            let mut frames = FrameStates::default();
+            let result = morph::morph::run(&prep, None, &mut frames).unwrap();
+            let chunked =
+                prep.segment_chunk_plan() != morph::integrator::recompute::ChunkPlan::WHOLE;
+            (result.final_state, frames.0, chunked)
+        };
+        let (whole, whole_frames, chunked) = run(usize::MAX);
+        assert!(!chunked);
+        let (small, small_frames, chunked) = run(0);
+        assert!(chunked, "{kind:?}: the smallest budget records chunks");
+        assert!(whole == small, "{kind:?}: final states differ");
+        assert!(whole_frames == small_frames, "{kind:?}: frames differ");
+    }
+}
+
+/// Every frame's positions and deformation gradients.
+#[derive(Default)]
+struct FrameStates(Vec<(Vec<nalgebra::Vector3<f64>>, Vec<nalgebra::Matrix3<f64>>)>);
+
+impl Observer for FrameStates {
+    fn frame(&mut self, frame: &Frame) -> Result<(), MorphError> {
+        self.0.push((frame.state.x.clone(), frame.state.f.clone()));
+        Ok(())
+    }
+}

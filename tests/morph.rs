@@ -96,6 +96,12 @@ fn small_morph_end_to_end_and_thread_independent() {
     assert!(!morph::io::outdir::partial_dir(a).exists());
     let frames = m["frames"].as_array().unwrap();
     assert_eq!(frames.len(), 2 * 30 / 10 + 1);
+    // A frame every 10 steps of 1/120 s: 12 frames a second, each at its simulated time.
+    let fps = m["fps"].as_f64().unwrap();
+    assert!((fps - 12.0).abs() < 1e-9, "{fps}");
+    for (i, f) in frames.iter().enumerate() {
+        assert!((f["time"].as_f64().unwrap() - i as f64 / fps).abs() < 1e-9);
+    }
     let cells = m["grid_cells"].as_array().unwrap();
     assert_eq!(cells.iter().map(|c| c.as_u64().unwrap()).max(), Some(16));
     let to_world = &m["sim_to_world"];

@@ -103,7 +103,7 @@ impl Prepared {
         let tape_budget =
             (limit_bytes.saturating_sub(fixed) as f64 / (1.0 + ALLOCATOR_SLACK)) as usize;
         let stride = self.sim_control_stride();
-        let plan = ChunkPlan::within(tape_budget, steps, step, state, stride);
+        let plan = self.chunk_plan_within(tape_budget);
         let peak = plan.peak_bytes(steps, step, state, stride);
         if peak > tape_budget {
             let need = fixed as f64 + peak as f64 * (1.0 + ALLOCATOR_SLACK);
@@ -122,6 +122,24 @@ impl Prepared {
             tape_peak: peak as u64,
             step_tape_bytes: step as u64,
         })
+    }
+
+    /// How each segment's rollout is cut into chunks under [`Prepared::tape_budget`] (what
+    /// [`crate::morph::segment::Segment::chunk_plan`] decides for this morph's segments).
+    pub fn segment_chunk_plan(&self) -> ChunkPlan {
+        self.chunk_plan_within(self.tape_budget)
+    }
+
+    fn chunk_plan_within(&self, budget: usize) -> ChunkPlan {
+        let n = self.initial.len();
+        let step = crate::with_integrator!(&self.engine, sim => sim.tape_bytes_per_step(n));
+        ChunkPlan::within(
+            budget,
+            self.sim_steps_per_segment(),
+            step,
+            State::bytes_for(n),
+            self.sim_control_stride(),
+        )
     }
 
     /// Estimated bytes the run needs besides the tapes and what is allocated already: the

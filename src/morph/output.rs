@@ -224,7 +224,12 @@ struct Manifest {
     settings: MorphSettings,
     grid_cells: [usize; 3],
     dx_sim: f64,
+    /// The simulation time step (a morph step over its substeps).
     dt: f64,
+    /// Frames per second of the written sequence: frames are `1 / fps` apart in simulated
+    /// time (absent in manifests written before it was recorded).
+    #[serde(default)]
+    fps: Option<f64>,
     /// Sim -> world (source mesh coordinates): world = scale * sim + translation.
     sim_to_world: Similarity,
     /// Target mesh -> world: world = scale * mesh + translation.
@@ -725,6 +730,7 @@ fn write_run(
         grid_cells: g.cells,
         dx_sim: g.dx,
         dt: prep.model().dt,
+        fps: Some(1.0 / (prep.sim_frame_every() as f64 * prep.model().dt)),
         sim_to_world: to_world,
         target: TargetPlacement {
             scale: t.scale,
