@@ -141,13 +141,13 @@ fn a_memory_budget_never_changes_the_morph() {
     }
 }
 
-/// Every frame's positions and deformation gradients.
+/// Every frame's simulation state.
 #[derive(Default)]
-struct FrameStates(Vec<(Vec<nalgebra::Vector3<f64>>, Vec<nalgebra::Matrix3<f64>>)>);
+struct FrameStates(Vec<morph::mpm::State>);
 
 impl Observer for FrameStates {
     fn frame(&mut self, frame: &Frame) -> Result<(), MorphError> {
-        self.0.push((frame.state.x.clone(), frame.state.f.clone()));
+        self.0.push(frame.state.clone());
         Ok(())
     }
 }
