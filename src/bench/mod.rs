@@ -210,9 +210,9 @@ pub fn run(
     pool.install(|| effect_costs(steps, repeats))
 }
 
-/// A scene pays only for what it declares: forward ms per step of the cubic reference ball
-/// (on the largest thread count asked) with no effects, with each effect alone, and with
-/// everything.
+/// A scene pays only for what it declares: ms per step of the cubic reference ball, forward
+/// and forward+reverse (on the largest thread count asked), with no effects, with each
+/// effect alone, and with everything.
 fn effect_costs(steps: usize, repeats: usize) -> anyhow::Result<()> {
     use crate::effects::WallMode;
     let drag = EffectConfig::Drag { coefficient: 0.5 };
@@ -238,20 +238,27 @@ fn effect_costs(steps: usize, repeats: usize) -> anyhow::Result<()> {
             effects,
             controls,
         )?;
-        let mut best = f64::INFINITY;
+        let (mut forward, mut both) = (f64::INFINITY, f64::INFINITY);
+        // One untimed run first: the first case would otherwise pay the allocator's warm-up.
+        std::hint::black_box(w.run_forward_reverse(steps)?);
         for _ in 0..repeats.max(1) {
             let t0 = Instant::now();
             std::hint::black_box(w.run_forward(steps)?);
-            best = best.min(t0.elapsed().as_secs_f64());
+            forward = forward.min(t0.elapsed().as_secs_f64());
+            let t0 = Instant::now();
+            std::hint::black_box(w.run_forward_reverse(steps)?);
+            both = both.min(t0.elapsed().as_secs_f64());
         }
-        let ms = best / steps as f64 * 1e3;
-        let base = *baseline.get_or_insert(ms);
+        let ms = forward / steps as f64 * 1e3;
+        let ms_both = both / steps as f64 * 1e3;
+        let (base, base_both) = *baseline.get_or_insert((ms, ms_both));
         println!(
             "{}",
             json!({
                 "bench": "effects", "effects": name, "kernel": "cubic",
                 "threads": rayon::current_num_threads(), "steps": steps,
                 "ms_per_step": ms, "vs_none": ms / base,
+                "ms_per_step_forward_reverse": ms_both, "vs_none_forward_reverse": ms_both / base_both,
             })
         );
     }
