@@ -317,12 +317,12 @@ fn checkpoint_reader() {
     checkpoint::save(&dir, &progress, 0).unwrap();
     let progress_path = dir.join(checkpoint::FOLDER).join("progress.json");
     let seed = std::fs::read(&progress_path).unwrap();
-    let loaded = checkpoint::load(&dir, 3, 2, 2).unwrap().unwrap();
+    let loaded = checkpoint::load(&dir, 3, &[2, 2]).unwrap().unwrap();
     assert_eq!(loaded.state, progress.state);
     assert_eq!(loaded.controls, progress.controls);
     fuzz("checkpoint", vec![seed], |bytes| {
         std::fs::write(&progress_path, bytes).unwrap();
-        checkpoint::load(&dir, 3, 2, 2)
+        checkpoint::load(&dir, 3, &[2, 2])
             .map(|_| ())
             .map_err(|e| e.to_string())
     });

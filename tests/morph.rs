@@ -312,6 +312,15 @@ fn command_line_errors() {
         (vec!["--poisson-ratio", "0.5"], 2, "--poisson-ratio"),
         (vec!["--density", "0"], 2, "--density"),
         (vec!["--dt", "0.05"], 2, "above the stable bound"),
+        (vec!["--fps", "0"], 2, "--fps"),
+        (
+            vec!["--fps", "24", "--frame-every", "3"],
+            2,
+            "--frame-every",
+        ),
+        (vec!["--fps", "24", "--dt", "0.001"], 2, "--dt"),
+        (vec!["--frames", "1"], 2, "--frames"),
+        (vec!["--frames", "10", "--segments", "3"], 2, "--segments"),
         (
             vec!["--particles", "5000", "--resolution", "20"],
             2,
@@ -443,4 +452,44 @@ fn more_effort_never_judges_worse_and_frames_keep_their_volume() {
         fills.windows(2).all(|w| w[1] >= w[0]),
         "fill must not fall with more iterations: {fills:?}"
     );
+}
+
+/// `--fps 24 --frames 48`: exactly 48 frames 1/24 s apart, the rest shape first; the chain is
+/// cut into segments of --steps steps with a shorter last one; 25 fps takes steps of 1/125 s.
+#[test]
+fn fps_and_frames_set_the_sequence() {
+    for (fps, frames, dt) in [(24.0, 48usize, 1.0 / 120.0), (25.0, 10, 1.0 / 125.0)] {
+        let out = scratch(&format!("fps-{fps}"));
+        let r = morph(&[
+            "assets/sphere.obj",
+            "assets/two-lobes.obj",
+            "-o",
+            out.to_str().unwrap(),
+            "--preset",
+            "draft",
+            "--resolution",
+            "16",
+            "--iterations",
+            "2",
+            "--no-surfaces",
+            "--quiet",
+            "--fps",
+            &fps.to_string(),
+            "--frames",
+            &frames.to_string(),
+        ]);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        let m = manifest(&out);
+        assert_eq!(m["fps"].as_f64(), Some(fps));
+        assert!((m["dt"].as_f64().unwrap() - dt).abs() < 1e-15);
+        let list = m["frames"].as_array().unwrap();
+        assert_eq!(list.len(), frames);
+        for (i, f) in list.iter().enumerate() {
+            let t = f["time"].as_f64().unwrap();
+            assert!((t - i as f64 / fps).abs() < 1e-9, "frame {i} at {t}");
+        }
+        // 5 steps a frame: 235 steps for 48 frames = 7 segments of 30 and one of 25.
+        let segments = m["segments"].as_array().unwrap().len();
+        assert_eq!(segments, (5 * (frames - 1)).div_ceil(30));
+    }
 }

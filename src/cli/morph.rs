@@ -174,6 +174,15 @@ pub struct MorphArgs {
     seed: u64,
     #[arg(long, help = help("Export every n-th simulation step as a frame", Some(limits::FRAME_EVERY), defaults().frame_every))]
     frame_every: Option<usize>,
+    /// Frames per second of the sequence: frames exactly 1/FPS s apart, each the fewest equal
+    /// steps of at most 1/120 s (24: 5 steps of 1/120 s; 25: 5 of 1/125 s) [default: a
+    /// frame every --frame-every steps of 1/120 s, 40 fps].
+    #[arg(long, conflicts_with_all = ["frame_every", "dt"])]
+    fps: Option<f64>,
+    /// Frames in the sequence, the rest shape first: the chain is cut into segments of
+    /// --steps steps to fit (the last one shorter) [default: --segments segments].
+    #[arg(long, conflicts_with = "segments")]
+    frames: Option<usize>,
     /// Skip the per-frame surface meshes (points only).
     #[arg(long)]
     no_surfaces: bool,
@@ -269,6 +278,8 @@ impl MorphArgs {
             s.material.density = d;
         }
         s.dt = self.dt;
+        s.fps = self.fps;
+        s.frames = self.frames;
         s.seed = self.seed;
         s.loss = self.loss;
         s.target_fit = self.target_fit;

@@ -174,14 +174,14 @@ pub fn exists(dir: &Path) -> bool {
     dir.join(FOLDER).join(PROGRESS).is_file()
 }
 
-/// Reads the checkpoint of a run of `particles` particles and `segments` segments with
-/// `layers` control layers each; `Ok(None)` when there is none yet.
+/// Reads the checkpoint of a run of `particles` particles whose segment `k` has `layers[k]`
+/// control layers; `Ok(None)` when there is none yet.
 pub fn load(
     dir: &Path,
     particles: usize,
-    segments: usize,
-    layers: usize,
+    layers: &[usize],
 ) -> Result<Option<RunProgress>, MorphError> {
+    let segments = layers.len();
     let folder: PathBuf = dir.join(FOLDER);
     let progress_path = folder.join(PROGRESS);
     if !progress_path.is_file() {
@@ -213,7 +213,7 @@ pub fn load(
         particles,
     );
     let mut controls = Vec::with_capacity(segments);
-    for entry in &file.controls {
+    for (entry, &layers) in file.controls.iter().zip(layers) {
         let layers_k: Layers = match entry {
             // Never optimized: zero (see `RunProgress::controls`).
             None => Vec::new(),

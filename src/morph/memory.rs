@@ -97,7 +97,7 @@ impl Prepared {
         let n = self.initial.len();
         let state = State::bytes_for(n);
         let step = crate::with_integrator!(&self.engine, sim => sim.tape_bytes_per_step(n));
-        let steps = self.sim_steps_per_segment();
+        let steps = self.max_sim_segment_steps();
         let fixed = resident_bytes().unwrap_or(0) + self.working_bytes();
         let limit_bytes = limit.bytes();
         let tape_budget =
@@ -135,7 +135,7 @@ impl Prepared {
         let step = crate::with_integrator!(&self.engine, sim => sim.tape_bytes_per_step(n));
         ChunkPlan::within(
             budget,
-            self.sim_steps_per_segment(),
+            self.max_sim_segment_steps(),
             step,
             State::bytes_for(n),
             self.sim_control_stride(),
@@ -149,7 +149,7 @@ impl Prepared {
     fn working_bytes(&self) -> u64 {
         let s = &self.settings;
         let n = self.initial.len();
-        let layers = s.steps_per_segment.div_ceil(s.control_stride);
+        let layers = self.segment_layers().into_iter().max().unwrap_or(0);
         let layer = n * size_of::<Matrix3<f64>>();
         let kept = if s.passes > 1 { s.segments } else { 0 };
         let controls = (kept + 6) * layers * layer;

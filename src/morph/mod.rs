@@ -133,6 +133,8 @@ pub struct Prepared {
     pub initial: State,
     /// Simulation steps per morph step (see [`MorphSettings::dt`]).
     pub substeps: usize,
+    /// Morph steps of each segment (see [`MorphSettings::shot`]).
+    pub segment_steps: Vec<usize>,
     /// Bytes the tape of one segment rollout may hold (`usize::MAX`: no cap); set by
     /// [`Prepared::plan_memory`].
     pub tape_budget: usize,
@@ -219,11 +221,15 @@ impl Prepared {
                 if r2 == r { first } else { geometry_at(r2)? }
             }
         };
+        // The shot's timing decides the segments and the frame spacing (`--fps`, `--frames`).
+        let shot = settings.shot();
+        settings.segments = shot.segment_steps.len();
+        settings.frame_every = shot.frame_every;
         let settings = &settings;
         let grid = geometry.placement.grid.clone();
         let mut scene = SceneConfig {
             grid,
-            dt: settings.dt.unwrap_or(MORPH_STEP),
+            dt: settings.dt.unwrap_or(shot.step),
             kernel: settings.kernel,
             material: settings.material.clone(),
             effects: Vec::new(),
@@ -253,7 +259,7 @@ impl Prepared {
                 )));
             }
             Some(_) => 1,
-            None => substeps_for(MORPH_STEP, 0.5 * limit).map_err(MorphError::Settings)?,
+            None => substeps_for(shot.step, 0.5 * limit).map_err(MorphError::Settings)?,
         };
         scene.dt /= substeps as f64;
         let mut model = scene.model(volumes)?;
@@ -282,6 +288,7 @@ impl Prepared {
             fine_loss,
             initial,
             substeps,
+            segment_steps: shot.segment_steps,
             tape_budget: usize::MAX,
         })
     }
@@ -303,9 +310,28 @@ impl Prepared {
         }
     }
 
-    /// Simulation steps per segment (the settings' morph steps times the substeps).
-    pub fn sim_steps_per_segment(&self) -> usize {
-        self.settings.steps_per_segment * self.substeps
+    /// Simulation steps of segment `k` (its morph steps times the substeps).
+    pub fn sim_segment_steps(&self, k: usize) -> usize {
+        self.segment_steps[k] * self.substeps
+    }
+
+    /// The global simulation step segment `k` starts at.
+    pub fn sim_segment_first(&self, k: usize) -> usize {
+        self.segment_steps[..k].iter().sum::<usize>() * self.substeps
+    }
+
+    /// The longest segment's simulation steps.
+    pub fn max_sim_segment_steps(&self) -> usize {
+        self.segment_steps.iter().max().copied().unwrap_or(0) * self.substeps
+    }
+
+    /// Control layers of each segment.
+    pub fn segment_layers(&self) -> Vec<usize> {
+        let stride = self.settings.control_stride;
+        self.segment_steps
+            .iter()
+            .map(|s| s.div_ceil(stride))
+            .collect()
     }
 
     /// Simulation steps between control layers.
@@ -320,7 +346,7 @@ impl Prepared {
 
     /// Frames the chain exports: the initial state and every `frame_every`-th step.
     pub fn frame_count(&self) -> usize {
-        self.settings.total_steps() / self.settings.frame_every + 1
+        self.segment_steps.iter().sum::<usize>() / self.settings.frame_every + 1
     }
 
     /// The quality judge's verdict on `state` (see [`quality`]).
@@ -516,10 +542,9 @@ pub fn run(
         warnings: prep.geometry.warnings.clone(),
     });
     let initial_loss = prep.loss_of(&prep.initial)?;
-    let n = prep.initial.len();
     let mut progress = match resume {
         Some(p) => {
-            p.check(s, n)?;
+            p.check(prep)?;
             p
         }
         None => RunProgress {
@@ -574,8 +599,8 @@ fn chain<I: Integrator>(
                 loss: &prep.loss,
                 fine_loss: prep.fine_loss.as_ref(),
                 start: &progress.state,
-                first_step: k * prep.sim_steps_per_segment(),
-                steps: prep.sim_steps_per_segment(),
+                first_step: prep.sim_segment_first(k),
+                steps: prep.sim_segment_steps(k),
                 stride: prep.sim_control_stride(),
                 arrival_weight: s.arrival_weight,
                 volume_weight: s.volume_weight,
@@ -753,13 +778,14 @@ pub fn run_warnings(segments: &[SegmentRecord]) -> Vec<String> {
 impl RunProgress {
     /// A checkpoint must fit the run it continues (the identity hash already says the inputs
     /// and settings are the same; this guards against a damaged checkpoint).
-    fn check(&self, s: &MorphSettings, particles: usize) -> Result<(), MorphError> {
-        let layers = s.steps_per_segment.div_ceil(s.control_stride);
+    fn check(&self, prep: &Prepared) -> Result<(), MorphError> {
+        let (s, particles) = (&prep.settings, prep.initial.len());
+        let layers = prep.segment_layers();
         let fits = self.pass < s.passes
             && self.segments_done <= s.segments
             && self.state.len() == particles
             && self.controls.len() == s.segments
-            && self.controls.iter().all(|l| {
+            && self.controls.iter().zip(&layers).all(|(l, &layers)| {
                 l.is_empty() || (l.len() == layers && l.iter().all(|p| p.len() == particles))
             });
         if fits {

@@ -408,12 +408,7 @@ pub fn morph_to_folder(
         let memory = prep.plan_memory(request.memory_limit)?;
         let setup_s = clock.elapsed().as_secs_f64();
         let resume = if resuming {
-            checkpoint::load(
-                &staging.dir,
-                prep.initial.len(),
-                settings.segments,
-                settings.steps_per_segment.div_ceil(settings.control_stride),
-            )?
+            checkpoint::load(&staging.dir, prep.initial.len(), &prep.segment_layers())?
         } else {
             None
         };
@@ -643,7 +638,7 @@ fn write_run(
     let n_frames = prep.frame_count();
     let resumed_from = resume
         .as_ref()
-        .map(|p| checkpoint::describe(p, settings.passes, settings.segments));
+        .map(|p| checkpoint::describe(p, settings.passes, prep.settings.segments));
     let sink = PlyObjSink {
         dir: dir.to_path_buf(),
         n_frames,

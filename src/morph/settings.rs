@@ -22,6 +22,10 @@ pub mod limits {
     pub const PASSES: RangeInclusive<usize> = 1..=100;
     pub const ITERATIONS: RangeInclusive<usize> = 1..=100_000;
     pub const FRAME_EVERY: RangeInclusive<usize> = 1..=1_000_000;
+    /// `--frames`: the rest shape and at least one more.
+    pub const FRAMES: RangeInclusive<usize> = 2..=1_000_000;
+    /// `--fps` at most.
+    pub const MAX_FPS: f64 = 1000.0;
 }
 
 /// Named bundles of chain length and effort. See `docs/morph.md`.
@@ -105,8 +109,18 @@ pub struct MorphSettings {
     /// simulated in the fewest equal substeps that stay within half the bound, so a stiffer
     /// material or a finer grid costs time, never a shorter shot.
     pub dt: Option<f64>,
-    /// Export every n-th step as a frame.
+    /// Export every n-th step as a frame (without `fps`).
     pub frame_every: usize,
+    /// Frames per second of the sequence: frames are exactly `1 / fps` apart, each `k` morph
+    /// steps of `1 / (fps k)` s, the fewest steps no longer than the reference's 1/120 s.
+    /// `None`: a frame every `frame_every` steps of 1/120 s.
+    #[serde(default)]
+    pub fps: Option<f64>,
+    /// Frames in the sequence, the rest shape first: the chain is cut into segments of
+    /// `steps_per_segment` steps (the last one shorter when they do not divide the shot).
+    /// `None`: `segments` segments.
+    #[serde(default)]
+    pub frames: Option<usize>,
     /// Write a closed surface per frame.
     pub surfaces: bool,
 }
@@ -156,6 +170,8 @@ impl MorphSettings {
             drag: 0.5,
             dt: None,
             frame_every: 3,
+            fps: None,
+            frames: None,
             surfaces: true,
         }
     }
@@ -237,12 +253,69 @@ impl MorphSettings {
         }
         if let Some(dt) = self.dt {
             positive("dt", dt)?;
+            if self.fps.is_some() {
+                return Err("--dt and --fps cannot be combined: --fps chooses the step".into());
+            }
+        }
+        if let Some(fps) = self.fps
+            && !(fps.is_finite() && fps > 0.0 && fps <= limits::MAX_FPS)
+        {
+            return Err(format!(
+                "--fps must be above 0 and at most {}, got {fps}",
+                limits::MAX_FPS
+            ));
+        }
+        if let Some(n) = self.frames {
+            range("frames", n, limits::FRAMES)?;
+            let segments = self.shot().segment_steps.len();
+            if !limits::SEGMENTS.contains(&segments) {
+                return Err(format!(
+                    "--frames {n} makes {segments} segments of {} steps, more than {}; raise --steps",
+                    self.steps_per_segment,
+                    limits::SEGMENTS.end()
+                ));
+            }
         }
         Ok(())
     }
 
-    /// Total simulation steps of the chain.
-    pub fn total_steps(&self) -> usize {
-        self.segments * self.steps_per_segment
+    /// The shot's timing: the morph step, the steps between frames and each segment's steps.
+    pub fn shot(&self) -> Shot {
+        let (step, frame_every) = match self.fps {
+            Some(fps) => {
+                // The fewest steps per frame that keep each no longer than the reference's.
+                let k = ((1.0 / fps) / super::MORPH_STEP * (1.0 - 1e-12))
+                    .ceil()
+                    .max(1.0);
+                (1.0 / (fps * k), k as usize)
+            }
+            None => (super::MORPH_STEP, self.frame_every),
+        };
+        let segment_steps = match self.frames {
+            Some(n) => {
+                let total = n.saturating_sub(1) * frame_every;
+                let per = self.steps_per_segment.max(1);
+                (0..total.div_ceil(per))
+                    .map(|i| (total - i * per).min(per))
+                    .collect()
+            }
+            None => vec![self.steps_per_segment; self.segments],
+        };
+        Shot {
+            step,
+            frame_every,
+            segment_steps,
+        }
     }
+}
+
+/// The timing of a morph's sequence (see [`MorphSettings::shot`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Shot {
+    /// Seconds per morph step (each simulated in substeps where the material needs them).
+    pub step: f64,
+    /// Morph steps between frames.
+    pub frame_every: usize,
+    /// Morph steps of each segment, in order.
+    pub segment_steps: Vec<usize>,
 }
