@@ -245,10 +245,10 @@ impl Prepared {
             thickness: 3,
         });
         let volumes = vec![geometry.source.volume; geometry.source.positions.len()];
-        // Without a set dt, a morph step of 1/120 s is split into the fewest equal substeps
-        // that keep each within half the elastic stability bound: a stiffer material or a
-        // finer grid costs more substeps, never a shorter shot. A set dt above the bound is
-        // refused by the model's check, with the bound.
+        // Without a set dt, a morph step (1/120 s, or what --fps makes) is split into the
+        // fewest equal substeps that keep each within half the elastic stability bound: a
+        // stiffer material or a finer grid costs more substeps, never a shorter shot. A set
+        // dt above the bound is refused, with the bound.
         let (limit, wave_speed) = scene.stable_dt();
         let substeps = match settings.dt {
             Some(dt) if dt > limit => {

@@ -105,9 +105,10 @@ pub struct MorphSettings {
     /// Velocity damping per second (reference 0.5).
     pub drag: f64,
     /// Simulation time step in seconds, one per morph step; refused when above the elastic
-    /// stability bound. `None` (the default): morph steps of 1/120 s (the reference's), each
-    /// simulated in the fewest equal substeps that stay within half the bound, so a stiffer
-    /// material or a finer grid costs time, never a shorter shot.
+    /// stability bound. `None` (the default): morph steps of 1/120 s (the reference's; with
+    /// `fps`, see [`MorphSettings::shot`]), each simulated in the fewest equal substeps that
+    /// stay within half the bound, so a stiffer material or a finer grid costs time, never a
+    /// shorter shot.
     pub dt: Option<f64>,
     /// Export every n-th step as a frame (without `fps`).
     pub frame_every: usize,
