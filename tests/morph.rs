@@ -102,6 +102,15 @@ fn small_morph_end_to_end_and_thread_independent() {
     for (i, f) in frames.iter().enumerate() {
         assert!((f["time"].as_f64().unwrap() - i as f64 / fps).abs() < 1e-9);
     }
+    // The body starts at rest, moves, and the summary holds the fastest frame.
+    let speeds: Vec<f64> = frames
+        .iter()
+        .map(|f| f["rms_speed"].as_f64().unwrap())
+        .collect();
+    assert_eq!(speeds[0], 0.0);
+    let fastest = speeds.iter().copied().fold(0.0, f64::max);
+    assert!(fastest > 0.0);
+    assert_eq!(m["frames_summary"]["max_rms_speed"].as_f64(), Some(fastest));
     let cells = m["grid_cells"].as_array().unwrap();
     assert_eq!(cells.iter().map(|c| c.as_u64().unwrap()).max(), Some(16));
     let to_world = &m["sim_to_world"];

@@ -69,6 +69,10 @@ pub struct FrameStats {
     pub inverted: usize,
     /// Share of particles with a neighbour closer than half the initial spacing.
     pub close_share: f64,
+    /// Root-mean-square particle speed, world units per second: how fast the body moves
+    /// (0 in records written before it was measured).
+    #[serde(default)]
+    pub rms_speed: f64,
     /// Volume inside the rebuilt surface (world units), when surfaces are written.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub surface_volume: Option<f64>,
@@ -86,6 +90,9 @@ pub struct FramesSummary {
     /// Frames with at least one inverted particle.
     pub frames_inverted: usize,
     pub max_close_share: f64,
+    /// The largest of the frames' `rms_speed`.
+    #[serde(default)]
+    pub max_rms_speed: f64,
     /// Largest `|surface_volume_error|` over the frames (when surfaces are written).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub max_surface_volume_error: Option<f64>,
@@ -99,6 +106,7 @@ impl FramesSummary {
             max_j: first.max_j,
             frames_inverted: 0,
             max_close_share: 0.0,
+            max_rms_speed: 0.0,
             max_surface_volume_error: None,
         };
         for f in stats {
@@ -106,6 +114,7 @@ impl FramesSummary {
             s.max_j = s.max_j.max(f.max_j);
             s.frames_inverted += usize::from(f.inverted > 0);
             s.max_close_share = s.max_close_share.max(f.close_share);
+            s.max_rms_speed = s.max_rms_speed.max(f.rms_speed);
             if let Some(e) = f.surface_volume_error {
                 let worst = s.max_surface_volume_error.unwrap_or(0.0).max(e.abs());
                 s.max_surface_volume_error = Some(worst);
@@ -509,6 +518,7 @@ fn frame_stats(frame: &Frame, spacing: f64) -> FrameStats {
         max_j: j.iter().copied().fold(f64::NEG_INFINITY, f64::max),
         inverted: j.iter().filter(|j| **j <= 0.0).count(),
         close_share: super::quality::close_neighbour_share(&frame.state.x, spacing),
+        rms_speed: (frame.world.v.iter().map(|v| v.norm_squared()).sum::<f64>() / n).sqrt(),
         surface_volume: None,
         surface_volume_error: None,
     }
