@@ -329,6 +329,12 @@ fn command_line_errors() {
         ),
         (vec!["--fps", "24", "--dt", "0.001"], 2, "--dt"),
         (vec!["--frames", "1"], 2, "--frames"),
+        (vec!["--arrive", "1"], 2, "--arrive"),
+        (
+            vec!["--arrive", "5000"],
+            2,
+            "--arrive must be between 2 and 121",
+        ),
         (vec!["--frames", "10", "--segments", "3"], 2, "--segments"),
         (
             vec!["--particles", "5000", "--resolution", "20"],
@@ -501,4 +507,45 @@ fn fps_and_frames_set_the_sequence() {
         let segments = m["segments"].as_array().unwrap().len();
         assert_eq!(segments, (5 * (frames - 1)).div_ceil(30));
     }
+}
+
+/// `--arrive F`: the target is reached (the judge's fill within 10% of the final frame's) at
+/// frame F and not long before it (halfway there, the fill is well below), and the manifest
+/// says so; without it the judge's record over time is there too.
+#[test]
+fn arrive_reaches_the_target_at_its_frame() {
+    let out = scratch("arrive");
+    let r = morph(&[
+        "assets/sphere.obj",
+        "assets/two-lobes.obj",
+        "-o",
+        out.to_str().unwrap(),
+        "--preset",
+        "draft",
+        "--resolution",
+        "16",
+        "--no-surfaces",
+        "--quiet",
+        "--arrive",
+        "41",
+    ]);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let m = manifest(&out);
+    let a = &m["arrival"];
+    assert_eq!(a["frame"].as_u64(), Some(41));
+    assert!((a["time"].as_f64().unwrap() - 40.0 * 3.0 / 120.0).abs() < 1e-12);
+    let fill = |q: &serde_json::Value| q["fill"].as_f64().unwrap();
+    let (at, half, last) = (
+        fill(&a["quality"]),
+        fill(&a["halfway_quality"]),
+        fill(&m["quality"]),
+    );
+    assert!(at >= 0.9 * last, "arrival {at} vs final {last}");
+    assert!(half < 0.9 * at, "halfway {half} vs arrival {at}");
+    let over_time = m["quality_over_time"].as_array().unwrap();
+    let frames: Vec<u64> = over_time
+        .iter()
+        .map(|j| j["frame"].as_u64().unwrap())
+        .collect();
+    assert_eq!(frames, [16, 21, 31, 41, 46, 61]);
 }

@@ -183,6 +183,11 @@ pub struct MorphArgs {
     /// --steps steps to fit (the last one shorter) [default: --segments segments].
     #[arg(long, conflicts_with = "segments")]
     frames: Option<usize>,
+    /// The frame (1 = the rest shape) by which the target shape is reached, along a
+    /// smoothstep in time; after it the shape holds and settles [default: every segment aims
+    /// at the target].
+    #[arg(long)]
+    arrive: Option<usize>,
     /// Skip the per-frame surface meshes (points only).
     #[arg(long)]
     no_surfaces: bool,
@@ -280,6 +285,7 @@ impl MorphArgs {
         s.dt = self.dt;
         s.fps = self.fps;
         s.frames = self.frames;
+        s.arrive = self.arrive;
         s.seed = self.seed;
         s.loss = self.loss;
         s.target_fit = self.target_fit;

@@ -135,6 +135,9 @@ pub struct Prepared {
     pub substeps: usize,
     /// Morph steps of each segment (see [`MorphSettings::shot`]).
     pub segment_steps: Vec<usize>,
+    /// The source's nodal masses on the simulation grid and on the fine loss's grid, which
+    /// `--arrive` blends toward the target's (`None` without it).
+    pub arrival_source: Option<(Vec<f64>, Option<Vec<f64>>)>,
     /// Bytes the tape of one segment rollout may hold (`usize::MAX`: no cap); set by
     /// [`Prepared::plan_memory`].
     pub tape_budget: usize,
@@ -280,6 +283,22 @@ impl Prepared {
             None
         };
         let initial = State::at_rest(geometry.source.positions.clone());
+        let arrival_source = match settings.arrive {
+            None => None,
+            Some(_) => {
+                let model = engine.model();
+                let fine = match &fine_loss {
+                    Some(f) => Some(crate::mpm::transfer::mass_grid(
+                        &f.grid,
+                        FINE_KERNEL,
+                        &initial.x,
+                        &model.mass,
+                    )?),
+                    None => None,
+                };
+                Some((model.mass_grid(&initial.x)?, fine))
+            }
+        };
         Ok(Prepared {
             settings: settings.clone(),
             geometry,
@@ -289,6 +308,7 @@ impl Prepared {
             initial,
             substeps,
             segment_steps: shot.segment_steps,
+            arrival_source,
             tape_budget: usize::MAX,
         })
     }
@@ -342,6 +362,54 @@ impl Prepared {
     /// Simulation steps between exported frames.
     pub fn sim_frame_every(&self) -> usize {
         self.settings.frame_every * self.substeps
+    }
+
+    /// How far segment `k`'s targets are blended from the source toward the target (1: the
+    /// target itself): a smoothstep `3u^2 - 2u^3` of the segment's end time over the
+    /// `--arrive` frame's time.
+    pub fn arrival_blend(&self, k: usize) -> f64 {
+        let Some(frame) = self.settings.arrive else {
+            return 1.0;
+        };
+        let end: usize = self.segment_steps[..=k].iter().sum();
+        let arrive = (frame - 1) * self.settings.frame_every;
+        let u = (end as f64 / arrive.max(1) as f64).min(1.0);
+        u * u * (3.0 - 2.0 * u)
+    }
+
+    /// The losses segment `k` optimizes: the target's, or with `--arrive` the blend of
+    /// [`Prepared::arrival_blend`] between the source's and the target's nodal masses.
+    pub fn segment_losses(
+        &self,
+        k: usize,
+    ) -> (
+        std::borrow::Cow<'_, MassLoss>,
+        Option<std::borrow::Cow<'_, FineMassLoss>>,
+    ) {
+        use std::borrow::Cow;
+        let w = self.arrival_blend(k);
+        let Some((source, fine_source)) = self.arrival_source.as_ref().filter(|_| w < 1.0) else {
+            return (
+                Cow::Borrowed(&self.loss),
+                self.fine_loss.as_ref().map(Cow::Borrowed),
+            );
+        };
+        let blend = |src: &[f64], tgt: &[f64]| -> Vec<f64> {
+            src.iter()
+                .zip(tgt)
+                .map(|(s, t)| (1.0 - w) * s + w * t)
+                .collect()
+        };
+        let loss = MassLoss::new(self.loss.kind, blend(source, &self.loss.target));
+        let fine = self.fine_loss.as_ref().map(|f| {
+            let src = fine_source.as_deref().expect("made with the fine loss");
+            Cow::Owned(FineMassLoss {
+                grid: f.grid.clone(),
+                loss: MassLoss::new(f.loss.kind, blend(src, &f.loss.target)),
+                weight: f.weight,
+            })
+        });
+        (Cow::Owned(loss), fine)
     }
 
     /// Frames the chain exports: the initial state and every `frame_every`-th step.
@@ -594,10 +662,11 @@ fn chain<I: Integrator>(
         }
         for k in from..s.segments {
             let seg_clock = Instant::now();
+            let (loss, fine_loss) = prep.segment_losses(k);
             let segment = Segment {
                 sim,
-                loss: &prep.loss,
-                fine_loss: prep.fine_loss.as_ref(),
+                loss: &loss,
+                fine_loss: fine_loss.as_deref(),
                 start: &progress.state,
                 first_step: prep.sim_segment_first(k),
                 steps: prep.sim_segment_steps(k),

@@ -263,6 +263,25 @@ struct Manifest {
     /// How the run's memory was planned (absent in manifests written before it was).
     #[serde(default)]
     memory: Option<MemoryPlan>,
+    /// With `--arrive`: the quality judge on the arrival frame and on the frame halfway to it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    arrival: Option<ArrivalReport>,
+    /// The judge on frames a quarter of the sequence apart (and the `--arrive` ones): how
+    /// the shape approaches the target over time (frames written before a `--resume` are
+    /// missing).
+    #[serde(default)]
+    quality_over_time: Vec<JudgedFrame>,
+}
+
+/// How a run with `--arrive` met its arrival (frames are numbered from 1, the rest shape).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct ArrivalReport {
+    pub frame: usize,
+    pub time: f64,
+    /// The judge on the arrival frame (absent when a resumed run had already written it).
+    pub quality: Option<Quality>,
+    pub halfway_frame: usize,
+    pub halfway_quality: Option<Quality>,
 }
 
 #[derive(Clone, Copy, Serialize, Deserialize)]
@@ -507,6 +526,33 @@ impl FrameSink for PlyObjSink {
     }
 }
 
+/// The frame halfway (in time) between the rest shape and frame `arrive`.
+fn halfway(arrive: usize) -> usize {
+    1 + (arrive - 1) / 2
+}
+
+/// The frames the judge sees as the run goes (numbered from 1): a quarter of the sequence
+/// apart, and with `--arrive` the arrival frame and the one halfway to it.
+fn judged_frames(prep: &Prepared) -> Vec<usize> {
+    let n = prep.frame_count();
+    let mut f: Vec<usize> = (1..=4).map(|q| 1 + q * (n - 1) / 4).collect();
+    if let Some(a) = prep.settings.arrive {
+        f.extend([a, halfway(a)]);
+    }
+    f.sort_unstable();
+    f.dedup();
+    f
+}
+
+/// The judge's verdict on one frame of the sequence.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize)]
+pub struct JudgedFrame {
+    pub frame: usize,
+    pub time: f64,
+    pub fill: f64,
+    pub iou: f64,
+}
+
 /// The particles' side of a frame's [`FrameStats`]; `spacing` is the initial particle
 /// spacing in simulation units.
 fn frame_stats(frame: &Frame, spacing: f64) -> FrameStats {
@@ -536,6 +582,8 @@ struct FolderWriter<'a> {
     particles: usize,
     preview_at: Vec<usize>,
     preview: Vec<(usize, Vec<Vector3<f64>>)>,
+    /// With `--arrive`: the judge's verdict on the frames it asks about, by frame number.
+    judged: Vec<(usize, Quality)>,
     stop: Option<&'a AtomicUsize>,
     on_event: &'a mut dyn FnMut(&MorphEvent),
 }
@@ -598,6 +646,11 @@ impl Observer for FolderWriter<'_> {
         let index = frame.index;
         self.stats.truncate(index);
         self.stats.push(stats);
+        if judged_frames(frame.prep).contains(&(index + 1)) {
+            self.judged.retain(|(f, _)| *f != index + 1);
+            self.judged
+                .push((index + 1, frame.prep.quality(frame.state)));
+        }
         if self.preview_at.contains(&index) {
             let path = self.preview_path(index);
             let x = frame.world.x.clone();
@@ -665,6 +718,7 @@ fn write_run(
         particles: prep.initial.len(),
         preview_at: (0..6).map(|i| i * (n_frames - 1) / 5).collect(),
         preview: Vec::new(),
+        judged: Vec::new(),
         stop,
         on_event,
     };
@@ -679,6 +733,28 @@ fn write_run(
     let frame_stats = std::mem::take(&mut writer.stats);
     let frames_summary = FramesSummary::of(&frame_stats);
     let run_warnings = super::run_warnings(&result.segments);
+    let mut judged = std::mem::take(&mut writer.judged);
+    judged.sort_by_key(|(f, _)| *f);
+    let frame_time = |f: usize| ((f - 1) * prep.sim_frame_every()) as f64 * prep.model().dt;
+    let quality_over_time = judged
+        .iter()
+        .map(|(f, q)| JudgedFrame {
+            frame: *f,
+            time: frame_time(*f),
+            fill: q.fill,
+            iou: q.iou,
+        })
+        .collect();
+    let arrival = settings.arrive.map(|frame| {
+        let at = |f: usize| judged.iter().find(|(i, _)| *i == f).map(|(_, q)| *q);
+        ArrivalReport {
+            frame,
+            time: frame_time(frame),
+            quality: at(frame),
+            halfway_frame: halfway(frame),
+            halfway_quality: at(halfway(frame)),
+        }
+    });
     let optimize_s = clock.elapsed().as_secs_f64() - setup_s;
 
     // Final nodal mass grid, on world coordinates.
@@ -765,6 +841,8 @@ fn write_run(
             .cloned()
             .collect(),
         memory: Some(memory),
+        arrival,
+        quality_over_time,
     };
     let manifest_path = dir.join(MANIFEST);
     let json =

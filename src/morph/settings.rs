@@ -122,6 +122,12 @@ pub struct MorphSettings {
     /// `None`: `segments` segments.
     #[serde(default)]
     pub frames: Option<usize>,
+    /// The frame (1 = the rest shape) by which the target is reached: each segment's targets
+    /// are the source's nodal masses blended toward the target's along a smoothstep in time,
+    /// whole at this frame; after it the shape holds and settles. `None`: every segment aims
+    /// at the target itself.
+    #[serde(default)]
+    pub arrive: Option<usize>,
     /// Write a closed surface per frame.
     pub surfaces: bool,
 }
@@ -173,6 +179,7 @@ impl MorphSettings {
             frame_every: 3,
             fps: None,
             frames: None,
+            arrive: None,
             surfaces: true,
         }
     }
@@ -266,6 +273,10 @@ impl MorphSettings {
                 limits::MAX_FPS
             ));
         }
+        if let Some(a) = self.arrive {
+            let frames = self.shot().frame_count();
+            range("arrive", a, 2..=frames.max(2))?;
+        }
         if let Some(n) = self.frames {
             range("frames", n, limits::FRAMES)?;
             let segments = self.shot().segment_steps.len();
@@ -319,4 +330,11 @@ pub struct Shot {
     pub frame_every: usize,
     /// Morph steps of each segment, in order.
     pub segment_steps: Vec<usize>,
+}
+
+impl Shot {
+    /// Frames written: the rest shape, then one every `frame_every` steps.
+    pub fn frame_count(&self) -> usize {
+        self.segment_steps.iter().sum::<usize>() / self.frame_every.max(1) + 1
+    }
 }
