@@ -333,7 +333,7 @@ fn command_line_errors() {
         (
             vec!["--arrive", "5000"],
             2,
-            "--arrive must be between 2 and 121",
+            "--arrive must be between 2 and 73",
         ),
         (vec!["--frames", "10", "--segments", "3"], 2, "--segments"),
         (
@@ -527,13 +527,14 @@ fn arrive_reaches_the_target_at_its_frame() {
         "--no-surfaces",
         "--quiet",
         "--arrive",
-        "41",
+        "25",
     ]);
     assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
     let m = manifest(&out);
     let a = &m["arrival"];
-    assert_eq!(a["frame"].as_u64(), Some(41));
-    assert!((a["time"].as_f64().unwrap() - 40.0 * 3.0 / 120.0).abs() < 1e-12);
+    // 180 steps of 1/120 s at 24 fps: 37 frames; frame 25 is at 1 s.
+    assert_eq!(a["frame"].as_u64(), Some(25));
+    assert!((a["time"].as_f64().unwrap() - 1.0).abs() < 1e-12);
     let fill = |q: &serde_json::Value| q["fill"].as_f64().unwrap();
     let (at, half, last) = (
         fill(&a["quality"]),
@@ -547,5 +548,5 @@ fn arrive_reaches_the_target_at_its_frame() {
         .iter()
         .map(|j| j["frame"].as_u64().unwrap())
         .collect();
-    assert_eq!(frames, [16, 21, 31, 41, 46, 61]);
+    assert_eq!(frames, [10, 13, 19, 25, 28, 37]);
 }

@@ -790,6 +790,8 @@ fn resume_with_a_shorter_last_segment_is_bitwise_identical() {
         "20",
         "--frames",
         "41",
+        "--frame-every",
+        "3",
         "--steps",
         "28",
         "--passes",

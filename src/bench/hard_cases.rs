@@ -361,6 +361,7 @@ pub fn cases(meshes: &Path) -> Result<Vec<Case>, MorphError> {
             {
                 let mut s = stiff(100.0);
                 s.dt = Some(0.01);
+                s.fps = None;
                 s
             },
             Expect::Refused("above the stable bound"),
@@ -459,6 +460,7 @@ pub fn cases(meshes: &Path) -> Result<Vec<Case>, MorphError> {
                 s.steps_per_segment = 300;
                 s.control_stride = 30;
                 s.frame_every = 10;
+                s.fps = None;
             }),
             Expect::Stable,
         ),
@@ -495,6 +497,7 @@ pub fn horizon_study(steps: &[usize]) -> Result<Vec<(usize, f64, f64)>, MorphErr
         s.steps_per_segment = n;
         s.control_stride = 10.min(n);
         s.frame_every = n;
+        s.fps = None;
         s.optimizer.iterations = 2;
         let c = Case {
             name: "horizon",

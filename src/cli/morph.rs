@@ -172,11 +172,11 @@ pub struct MorphArgs {
     /// Seed for the jitter.
     #[arg(long, default_value_t = defaults().seed)]
     seed: u64,
-    #[arg(long, help = help("Export every n-th simulation step as a frame", Some(limits::FRAME_EVERY), defaults().frame_every))]
+    #[arg(long, help = help("Export every n-th step as a frame, instead of --fps", Some(limits::FRAME_EVERY), defaults().frame_every))]
     frame_every: Option<usize>,
     /// Frames per second of the sequence: frames exactly 1/FPS s apart, each the fewest equal
-    /// steps of at most 1/120 s (24: 5 steps of 1/120 s; 25: 5 of 1/125 s) [default: a
-    /// frame every --frame-every steps of 1/120 s, 40 fps].
+    /// steps of at most 1/120 s (24: 5 steps of 1/120 s; 25: 5 of 1/125 s) [default 24;
+    /// --frame-every or --dt replace it].
     #[arg(long, conflicts_with_all = ["frame_every", "dt"])]
     fps: Option<f64>,
     /// Frames in the sequence, the rest shape first: the chain is cut into segments of
@@ -231,7 +231,11 @@ impl MorphArgs {
         set(&mut s.passes, self.passes);
         set(&mut s.optimizer.iterations, self.iterations);
         set(&mut s.particles_per_cell, self.particles_per_cell);
-        set(&mut s.frame_every, self.frame_every);
+        if let Some(n) = self.frame_every {
+            // A frame every n steps replaces the frame rate.
+            s.frame_every = n;
+            s.fps = None;
+        }
         if let Some(o) = self.optimizer {
             s.optimizer.kind = o;
             s.optimizer.learning_rate = o.default_learning_rate();
@@ -282,8 +286,14 @@ impl MorphArgs {
         if let Some(d) = self.density {
             s.material.density = d;
         }
-        s.dt = self.dt;
-        s.fps = self.fps;
+        if self.dt.is_some() {
+            // A set dt is the step: frames come every --frame-every of them.
+            s.dt = self.dt;
+            s.fps = None;
+        }
+        if self.fps.is_some() {
+            s.fps = self.fps;
+        }
         s.frames = self.frames;
         s.arrive = self.arrive;
         s.seed = self.seed;

@@ -28,6 +28,9 @@ pub mod limits {
     pub const MAX_FPS: f64 = 1000.0;
 }
 
+/// The frame rate a sequence plays at unless told otherwise: film's.
+pub const DEFAULT_FPS: f64 = 24.0;
+
 /// Named bundles of chain length and effort. See `docs/morph.md`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "lowercase")]
@@ -110,11 +113,12 @@ pub struct MorphSettings {
     /// stay within half the bound, so a stiffer material or a finer grid costs time, never a
     /// shorter shot.
     pub dt: Option<f64>,
-    /// Export every n-th step as a frame (without `fps`).
+    /// Export every n-th step as a frame (when `fps` is `None`).
     pub frame_every: usize,
-    /// Frames per second of the sequence: frames are exactly `1 / fps` apart, each `k` morph
-    /// steps of `1 / (fps k)` s, the fewest steps no longer than the reference's 1/120 s.
-    /// `None`: a frame every `frame_every` steps of 1/120 s.
+    /// Frames per second of the sequence (default [`DEFAULT_FPS`], film's 24): frames are
+    /// exactly `1 / fps` apart, each `k` morph steps of `1 / (fps k)` s, the fewest steps no
+    /// longer than the reference's 1/120 s. `None`: a frame every `frame_every` steps of
+    /// 1/120 s (or of `dt`).
     #[serde(default)]
     pub fps: Option<f64>,
     /// Frames in the sequence, the rest shape first: the chain is cut into segments of
@@ -177,7 +181,7 @@ impl MorphSettings {
             drag: 0.5,
             dt: None,
             frame_every: 3,
-            fps: None,
+            fps: Some(DEFAULT_FPS),
             frames: None,
             arrive: None,
             surfaces: true,
