@@ -695,3 +695,28 @@ fn additive_control_reverse_pass_matches_fd() {
         );
     }
 }
+
+/// The memory plan's bytes per step (`Integrator::tape_bytes_per_step`) are what a real
+/// tape holds (`RunTape::bytes`), for both integrators, with a control on every step.
+#[test]
+fn planned_tape_bytes_match_a_real_tape() {
+    use morph::integrator::RunTape;
+    let scene = small_scene(KernelKind::Cubic, Vec::new());
+    for integrator in IntegratorKind::ALL {
+        let (engine, init) = ball_engine(&scene, 3.2, integrator);
+        morph::with_integrator!(&engine, sim => {
+            let n = init.len();
+            let ctrl: Vec<Option<Vec<Matrix3<f64>>>> =
+                (0..4).map(|_| Some(vec![Matrix3::zeros(); n])).collect();
+            let mut tape = Default::default();
+            let mut s = init.clone();
+            sim.forward(&mut s, &ctrl, 0, 4, Some(&mut tape)).unwrap();
+            let measured = (tape.bytes() - tape.last().bytes()) as f64 / 4.0;
+            let planned = sim.tape_bytes_per_step(n) as f64;
+            assert!(
+                (planned / measured - 1.0).abs() < 0.02,
+                "{integrator:?}: planned {planned} vs measured {measured} bytes a step"
+            );
+        });
+    }
+}
