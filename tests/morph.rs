@@ -329,12 +329,13 @@ fn command_line_errors() {
         ),
         (vec!["--fps", "24", "--dt", "0.001"], 2, "--dt"),
         (vec!["--frames", "1"], 2, "--frames"),
-        (vec!["--arrive", "1"], 2, "--arrive"),
+        (vec!["--arrive", "0"], 2, "--at: keyframe 1 at frame 0"),
         (
             vec!["--arrive", "5000"],
             2,
-            "--arrive must be between 2 and 73",
+            "at most the last frame, 73",
         ),
+        (vec!["--at", "20,40"], 2, "--at gives 2 frame(s) for 1 target(s)"),
         (vec!["--frames", "10", "--segments", "3"], 2, "--segments"),
         (
             vec!["--particles", "5000", "--resolution", "20"],
@@ -531,7 +532,7 @@ fn arrive_reaches_the_target_at_its_frame() {
     ]);
     assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
     let m = manifest(&out);
-    let a = &m["arrival"];
+    let a = &m["keyframes"][0];
     // 180 steps of 1/120 s at 24 fps: 37 frames; frame 25 is at 1 s.
     assert_eq!(a["frame"].as_u64(), Some(25));
     assert!((a["time"].as_f64().unwrap() - 1.0).abs() < 1e-12);

@@ -10,6 +10,7 @@ use morph::loss::MassLossKind;
 use morph::material::MaterialModel;
 use morph::morph::basis::ControlResolution;
 use morph::morph::memory::MemoryLimit;
+use morph::morph::scene_file::SceneFile;
 use morph::morph::segment::Optimizer;
 use morph::morph::settings::limits;
 use morph::morph::{MorphError, MorphEvent, MorphSettings, Preset};
@@ -94,12 +95,14 @@ pub(super) fn after_long_help() -> String {
 /// The main job: `morph SOURCE TARGET [options]`.
 #[derive(Args, Debug)]
 pub struct MorphArgs {
-    /// Mesh to start from (OBJ or PLY).
-    #[arg(required = true)]
-    source: Option<PathBuf>,
-    /// Mesh to become (OBJ or PLY).
-    #[arg(required = true)]
-    target: Option<PathBuf>,
+    /// Mesh to start from, then the mesh(es) to become in order (OBJ or PLY): `morph A B`,
+    /// or `morph A B C --at 48,96` to pass through B on the way to C.
+    #[arg(value_name = "SOURCE TARGET...")]
+    meshes: Vec<PathBuf>,
+    /// A scene file (TOML, or JSON): the meshes and any settings, by the settings' names
+    /// (docs/scenes.md); options given here override it.
+    #[arg(long)]
+    scene: Option<PathBuf>,
     /// Output folder (a new folder, an empty one, or an earlier morph output with --overwrite).
     #[arg(short, long, default_value = "morph-out")]
     output: PathBuf,
@@ -112,9 +115,8 @@ pub struct MorphArgs {
     /// --overwrite, a run of other inputs or settings is started over instead of refused.
     #[arg(long)]
     resume: bool,
-    /// Effort preset; the options below override its values.
-    #[arg(long, value_parser = choice(&Preset::ALL), default_value = name(&Preset::default()))]
-    preset: Preset,
+    #[arg(long, value_parser = choice(&Preset::ALL), help = format!("Effort preset; the options below override its values [default {}]", name(&Preset::default())))]
+    preset: Option<Preset>,
     #[arg(long, help = help("Grid cells across the domain's longest side", Some(limits::RESOLUTION), by_preset(|s| s.resolution)))]
     resolution: Option<usize>,
     #[arg(long, conflicts_with = "resolution", help = help("Particle budget: picks the resolution so the source gets about this many particles, whatever the shapes' proportions", Some(limits::PARTICLES), "off (use --resolution)"))]
@@ -134,18 +136,16 @@ pub struct MorphArgs {
     optimizer: Option<Optimizer>,
     #[arg(long, help = help("Step size (Adam: per control entry; line search: initial normalized step), > 0", None, format!("{} (line search {})", Optimizer::Adam.default_learning_rate(), Optimizer::LineSearch.default_learning_rate())))]
     learning_rate: Option<f64>,
-    /// Mass loss on the grid.
-    #[arg(long, value_parser = choice(&MassLossKind::ALL), default_value = name(&defaults().loss))]
-    loss: MassLossKind,
+    #[arg(long, value_parser = choice(&MassLossKind::ALL), help = format!("Mass loss on the grid [default {}]", name(&defaults().loss)))]
+    loss: Option<MassLossKind>,
     #[arg(long, help = help("Weight of the kinetic energy left at each segment's end, >= 0", None, defaults().arrival_weight))]
     arrival_weight: Option<f64>,
     #[arg(long, help = help("Weight of the volume cost (sum 1/2 (ln J)^2 per particle, and the whole body's) averaged over every step, >= 0 (keeps the body at its volume)", None, defaults().volume_weight))]
     volume_weight: Option<f64>,
     #[arg(long, help = help("Weight of the mass loss on a grid twice as fine as the simulation's, >= 0 (sees holes and clumps within a cell)", None, defaults().fine_weight))]
     fine_weight: Option<f64>,
-    /// How the target is placed.
-    #[arg(long, value_parser = choice(&TargetFit::ALL), default_value = name(&defaults().target_fit))]
-    target_fit: TargetFit,
+    #[arg(long, value_parser = choice(&TargetFit::ALL), help = format!("How each target is placed (on-ground needs a scene's ground) [default {}]", name(&defaults().target_fit)))]
+    target_fit: Option<TargetFit>,
     #[arg(long, help = help("Particles per cell along each axis (k^3 per cell)", Some(limits::PARTICLES_PER_CELL), defaults().particles_per_cell))]
     particles_per_cell: Option<usize>,
     #[arg(long, help = help("Random particle offsets, in particle spacings, 0 to 1", None, defaults().jitter))]
@@ -169,9 +169,8 @@ pub struct MorphArgs {
     control: Option<ControlForm>,
     #[arg(long, value_parser = choice(&ControlResolution::ALL), help = format!("Where the optimizer's free control values live: grid (one per grid node, interpolated to the particles: smooth controls keep the body's particles in order) or particle (one per particle, the reference) [default {}]", name(&defaults().control_resolution)))]
     control_resolution: Option<ControlResolution>,
-    /// Seed for the jitter.
-    #[arg(long, default_value_t = defaults().seed)]
-    seed: u64,
+    #[arg(long, help = format!("Seed for the jitter [default {}]", defaults().seed))]
+    seed: Option<u64>,
     #[arg(long, help = help("Export every n-th step as a frame, instead of --fps", Some(limits::FRAME_EVERY), defaults().frame_every))]
     frame_every: Option<usize>,
     /// Frames per second of the sequence: frames exactly 1/FPS s apart, each the fewest equal
@@ -183,11 +182,12 @@ pub struct MorphArgs {
     /// --steps steps to fit (the last one shorter) [default: --segments segments].
     #[arg(long, conflicts_with = "segments")]
     frames: Option<usize>,
-    /// The frame (1 = the rest shape) by which the target shape is reached, along a
-    /// smoothstep in time; after it the shape holds and settles [default: every segment aims
-    /// at the target].
-    #[arg(long)]
-    arrive: Option<usize>,
+    /// The frame (1 = the rest shape) by which each target is reached, comma-separated in
+    /// target order (--arrive for one target). The shape eases there along a smoothstep in
+    /// time, then holds and settles; 1 aims at the target from the start [default: the last
+    /// target at 80% of the frames, earlier ones evenly before it].
+    #[arg(long, visible_alias = "arrive", value_delimiter = ',', num_args = 1..)]
+    at: Vec<usize>,
     /// Skip the per-frame surface meshes (points only).
     #[arg(long)]
     no_surfaces: bool,
@@ -216,8 +216,45 @@ fn default_young_poisson() -> (f64, f64) {
 }
 
 impl MorphArgs {
-    fn settings(&self) -> Result<MorphSettings, String> {
-        let mut s = MorphSettings::preset(self.preset);
+    /// The settings, the source and the targets: the scene file's (when given), with the
+    /// command line's options and meshes over them.
+    fn job(&self) -> Result<(MorphSettings, PathBuf, Vec<PathBuf>), String> {
+        let (settings, mut source, mut targets) = match &self.scene {
+            Some(path) => {
+                let scene = SceneFile::read(path, self.preset)?;
+                (scene.settings, scene.source, scene.targets)
+            }
+            None => (
+                MorphSettings::preset(self.preset.unwrap_or_default()),
+                None,
+                Vec::new(),
+            ),
+        };
+        match self.meshes.as_slice() {
+            [] => {}
+            [_] => return Err("give a SOURCE and at least one TARGET mesh (see morph --help)".into()),
+            [first, rest @ ..] => {
+                source = Some(first.clone());
+                targets = rest.to_vec();
+            }
+        }
+        let Some(source) = source else {
+            return Err(
+                "give a SOURCE and a TARGET mesh, or a --scene file that names them (see morph --help)"
+                    .into(),
+            );
+        };
+        if targets.is_empty() {
+            return Err(match &self.scene {
+                Some(p) => format!("scene file '{}' names no targets; give `targets = [\"mesh.obj\"]`", p.display()),
+                None => "give a TARGET mesh after the SOURCE (see morph --help)".into(),
+            });
+        }
+        Ok((self.settings(settings)?, source, targets))
+    }
+
+    fn settings(&self, base: MorphSettings) -> Result<MorphSettings, String> {
+        let mut s = base;
         let set = |dst: &mut usize, v: Option<usize>| {
             if let Some(v) = v {
                 *dst = v;
@@ -294,12 +331,28 @@ impl MorphArgs {
         if self.fps.is_some() {
             s.fps = self.fps;
         }
-        s.frames = self.frames;
-        s.arrive = self.arrive;
-        s.seed = self.seed;
-        s.loss = self.loss;
-        s.target_fit = self.target_fit;
-        s.surfaces = !self.no_surfaces;
+        if self.frames.is_some() {
+            s.frames = self.frames;
+        }
+        if self.segments.is_some() {
+            // --segments replaces a scene's frame count, as --frames replaces its segments.
+            s.frames = None;
+        }
+        if !self.at.is_empty() {
+            s.at = self.at.clone();
+        }
+        if let Some(seed) = self.seed {
+            s.seed = seed;
+        }
+        if let Some(loss) = self.loss {
+            s.loss = loss;
+        }
+        if let Some(fit) = self.target_fit {
+            s.target_fit = fit;
+        }
+        if self.no_surfaces {
+            s.surfaces = false;
+        }
         Ok(s)
     }
 }
@@ -330,15 +383,8 @@ fn signal_name(signal: usize) -> &'static str {
 pub fn run(args: &MorphArgs) -> ExitCode {
     use indicatif::{ProgressBar, ProgressStyle};
     use std::io::IsTerminal;
-    let (Some(source), Some(target)) = (&args.source, &args.target) else {
-        return fail(
-            args.json,
-            2,
-            "give a SOURCE and a TARGET mesh (see morph --help)",
-        );
-    };
-    let settings = match args.settings().and_then(|s| s.validate().map(|_| s)) {
-        Ok(s) => s,
+    let (settings, source, targets) = match args.job().and_then(|j| j.0.validate().map(|_| j)) {
+        Ok(j) => j,
         Err(e) => return fail(args.json, 2, &e),
     };
     let stop = match stop_on_signals() {
@@ -411,7 +457,7 @@ pub fn run(args: &MorphArgs) -> ExitCode {
         memory_limit: args.memory_limit,
     };
     let result =
-        morph::morph::output::morph_to_folder(&settings, source, target, &request, on_event);
+        morph::morph::output::morph_to_folder(&settings, &source, &targets, &request, on_event);
     bar.finish_and_clear();
     match result {
         Ok(summary) => {

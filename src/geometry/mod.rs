@@ -31,6 +31,17 @@ pub struct MorphGeometry {
     pub target_sim: TriMesh,
     /// Non-fatal findings (open meshes, flipped faces, a missing .mtl), one line each.
     pub warnings: Vec<String>,
+    /// The keyframe targets before the last (`morph A B C`: B), placed like the target.
+    pub keyframes: Vec<KeyframeTarget>,
+}
+
+/// A keyframe target before the last one, in sim coordinates.
+#[derive(Clone, Debug)]
+pub struct KeyframeTarget {
+    pub particles: Particles,
+    pub solid: Solid,
+    /// Its surface placed in sim coordinates (the quality judge reads it).
+    pub sim: TriMesh,
 }
 
 impl MorphGeometry {
@@ -58,16 +69,37 @@ impl MorphGeometry {
     /// [`MorphGeometry::prepare`] on meshes already loaded (see [`prepare_mesh`] for meshes
     /// made in memory); each comes with the name its messages use.
     pub fn from_loaded(
+        source: (&LoadedMesh, &Path),
+        target: (&LoadedMesh, &Path),
+        options: &PlacementOptions,
+        per_cell: usize,
+        jitter: Option<Jitter>,
+    ) -> Result<MorphGeometry, MeshError> {
+        Self::with_keyframes(source, &[target], options, per_cell, jitter)
+    }
+
+    /// [`MorphGeometry::from_loaded`] for a morph through several targets in turn
+    /// (keyframes); the last is the final target.
+    pub fn with_keyframes(
         (src, source_path): (&LoadedMesh, &Path),
-        (tgt, target_path): (&LoadedMesh, &Path),
+        targets: &[(&LoadedMesh, &Path)],
         options: &PlacementOptions,
         per_cell: usize,
         jitter: Option<Jitter>,
     ) -> Result<MorphGeometry, MeshError> {
         check_options(options, per_cell, jitter)?;
+        let Some((&(tgt, target_path), earlier)) = targets.split_last() else {
+            return Err(MeshError::BadOption("a morph needs a target mesh".into()));
+        };
         let source_solid = Solid::measure(&src.mesh, source_path)?;
         let target_solid = Solid::measure(&tgt.mesh, target_path)?;
-        let placement = Placement::new(&source_solid, &target_solid, options)?;
+        let earlier_solids = earlier
+            .iter()
+            .map(|(m, p)| Solid::measure(&m.mesh, p))
+            .collect::<Result<Vec<_>, _>>()?;
+        let mut all: Vec<&Solid> = earlier_solids.iter().collect();
+        all.push(&target_solid);
+        let placement = Placement::with_targets(&source_solid, &all, options)?;
         placement.check_output_range(source_path, per_cell)?;
         if options.target_fit == TargetFit::AsGiven {
             // A body's own forces cannot move its centre of mass: a target far from the
@@ -103,6 +135,26 @@ impl MorphGeometry {
         }
         let mut warnings = src.warnings.clone();
         warnings.extend(tgt.warnings.iter().cloned());
+        let mut keyframes = Vec::with_capacity(earlier.len());
+        for (k, ((mesh, path), solid)) in earlier.iter().zip(earlier_solids).enumerate() {
+            let sim = placement.keyframe_to_sim(k).apply_mesh(&mesh.mesh);
+            let particles = particles_in(&sim, &placement.grid, per_cell, None);
+            if particles.positions.is_empty() {
+                return Err(MeshError::NoInside {
+                    path: (*path).into(),
+                    reason: format!(
+                        "no particle fits inside at resolution {} (the shape is thinner than a particle spacing); raise --resolution",
+                        options.resolution
+                    ),
+                });
+            }
+            warnings.extend(mesh.warnings.iter().cloned());
+            keyframes.push(KeyframeTarget {
+                particles,
+                solid,
+                sim,
+            });
+        }
         Ok(MorphGeometry {
             placement,
             source,
@@ -111,6 +163,7 @@ impl MorphGeometry {
             target_solid,
             target_sim,
             warnings,
+            keyframes,
         })
     }
 }
@@ -169,10 +222,33 @@ impl MorphGeometry {
         kernel: crate::mpm::KernelKind,
         density: f64,
     ) -> Result<Vec<f64>, crate::mpm::SimError> {
+        self.masses_of(&self.target.positions, grid, kernel, density)
+    }
+
+    /// The nodal masses of keyframe target `k` (see [`MorphGeometry::keyframes`]), like
+    /// [`MorphGeometry::target_masses_on`].
+    pub fn keyframe_masses_on(
+        &self,
+        k: usize,
+        grid: &crate::mpm::GridSpec,
+        kernel: crate::mpm::KernelKind,
+        density: f64,
+    ) -> Result<Vec<f64>, crate::mpm::SimError> {
+        self.masses_of(&self.keyframes[k].particles.positions, grid, kernel, density)
+    }
+
+    /// Target particles carrying the source's total mass, transferred to `grid`.
+    fn masses_of(
+        &self,
+        positions: &[Vector3<f64>],
+        grid: &crate::mpm::GridSpec,
+        kernel: crate::mpm::KernelKind,
+        density: f64,
+    ) -> Result<Vec<f64>, crate::mpm::SimError> {
         let source_mass = density * self.source.volume * self.source.positions.len() as f64;
-        let per_particle = source_mass / self.target.positions.len() as f64;
-        let masses = vec![per_particle; self.target.positions.len()];
-        crate::mpm::transfer::mass_grid(grid, kernel, &self.target.positions, &masses)
+        let per_particle = source_mass / positions.len() as f64;
+        let masses = vec![per_particle; positions.len()];
+        crate::mpm::transfer::mass_grid(grid, kernel, positions, &masses)
     }
 }
 

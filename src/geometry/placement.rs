@@ -146,11 +146,15 @@ pub enum TargetFit {
     MatchVolume,
     /// Use the target exactly as given, in the source's coordinates.
     AsGiven,
+    /// Scale the target to the source's volume, centre it horizontally (x, z) under the
+    /// source's centroid and stand its lowest point on the ground plane (a scene with gravity
+    /// and a ground: the body falls and lands there).
+    OnGround,
 }
 
 impl TargetFit {
     /// Every value, in declaration order (the command line lists them by their serde names).
-    pub const ALL: [TargetFit; 2] = [TargetFit::MatchVolume, TargetFit::AsGiven];
+    pub const ALL: [TargetFit; 3] = [TargetFit::MatchVolume, TargetFit::AsGiven, TargetFit::OnGround];
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -161,6 +165,10 @@ pub struct PlacementOptions {
     /// Empty margin on each side of the shapes, as a fraction of `resolution` (at least 3
     /// cells).
     pub padding: f64,
+    /// Height (world y) of a ground plane: the domain reaches down to it, and
+    /// [`TargetFit::OnGround`] stands targets on it.
+    #[serde(default)]
+    pub ground: Option<f64>,
 }
 
 impl Default for PlacementOptions {
@@ -169,6 +177,7 @@ impl Default for PlacementOptions {
             resolution: 32,
             target_fit: TargetFit::MatchVolume,
             padding: 0.15,
+            ground: None,
         }
     }
 }
@@ -207,32 +216,70 @@ pub struct Placement {
     pub world_to_sim: Similarity,
     /// Target mesh coordinates -> world coordinates (`target.scale`, `target.translation`).
     pub target_to_world: Similarity,
+    /// The same for each keyframe target before the last (`morph A B C`: B's), in order.
+    #[serde(default)]
+    pub keyframes_to_world: Vec<Similarity>,
 }
 
 impl Placement {
+    /// Places one target; see [`Placement::with_targets`].
     pub fn new(
         source: &Solid,
         target: &Solid,
         options: &PlacementOptions,
     ) -> Result<Placement, MeshError> {
+        Placement::with_targets(source, &[target], options)
+    }
+
+    /// Places every target by the target-fit rule, each on its own against the source, and
+    /// makes a grid over the source, the placed targets and (when set) the ground's height.
+    pub fn with_targets(
+        source: &Solid,
+        targets: &[&Solid],
+        options: &PlacementOptions,
+    ) -> Result<Placement, MeshError> {
         options.validate()?;
-        let target_to_world = match options.target_fit {
-            TargetFit::AsGiven => Similarity::identity(),
-            TargetFit::MatchVolume => {
-                let scale = target.scale_to_volume_of(source);
-                let t = Vector3::from(source.centroid) - scale * Vector3::from(target.centroid);
-                Similarity {
-                    scale,
-                    translation: t.into(),
+        let fit = |target: &Solid| -> Result<Similarity, MeshError> {
+            Ok(match options.target_fit {
+                TargetFit::AsGiven => Similarity::identity(),
+                TargetFit::MatchVolume | TargetFit::OnGround => {
+                    let scale = target.scale_to_volume_of(source);
+                    let mut t =
+                        Vector3::from(source.centroid) - scale * Vector3::from(target.centroid);
+                    if options.target_fit == TargetFit::OnGround {
+                        let Some(ground) = options.ground else {
+                            return Err(MeshError::BadOption(
+                                "--target-fit on-ground needs a ground plane (a scene's [ground])"
+                                    .into(),
+                            ));
+                        };
+                        t.y = ground - scale * target.bounds_min[1];
+                    }
+                    Similarity {
+                        scale,
+                        translation: t.into(),
+                    }
                 }
-            }
+            })
         };
-        let tb = target.bounds();
-        let target_in_world = Aabb::of_points(&[
-            target_to_world.apply(&tb.min),
-            target_to_world.apply(&tb.max),
-        ]);
-        let shapes = source.bounds().union(&target_in_world);
+        let fits = targets.iter().map(|t| fit(t)).collect::<Result<Vec<_>, _>>()?;
+        let mut shapes = source.bounds();
+        for (target, to_world) in targets.iter().zip(&fits) {
+            let tb = target.bounds();
+            shapes = shapes.union(&Aabb::of_points(&[
+                to_world.apply(&tb.min),
+                to_world.apply(&tb.max),
+            ]));
+        }
+        if let Some(ground) = options.ground {
+            // The ground lies inside the domain, so the body can land on it.
+            shapes.min.y = shapes.min.y.min(ground);
+            shapes.max.y = shapes.max.y.max(ground);
+        }
+        let (target_to_world, keyframes_to_world) = match fits.split_last() {
+            Some((last, earlier)) => (*last, earlier.to_vec()),
+            None => (Similarity::identity(), Vec::new()),
+        };
         let pad = options.pad_cells();
         let inner = options.resolution.saturating_sub(2 * pad).max(1);
         let dx = DOMAIN_SIZE / options.resolution as f64;
@@ -259,12 +306,18 @@ impl Placement {
             },
             world_to_sim,
             target_to_world,
+            keyframes_to_world,
         })
     }
 
     /// Target mesh coordinates -> sim coordinates.
     pub fn target_to_sim(&self) -> Similarity {
         self.world_to_sim.after(&self.target_to_world)
+    }
+
+    /// Keyframe target `k`'s mesh coordinates -> sim coordinates.
+    pub fn keyframe_to_sim(&self, k: usize) -> Similarity {
+        self.world_to_sim.after(&self.keyframes_to_world[k])
     }
 
     pub fn sim_to_world(&self) -> Similarity {

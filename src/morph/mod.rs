@@ -12,6 +12,7 @@ pub mod memory;
 pub mod metrics;
 pub mod output;
 pub mod quality;
+pub mod scene_file;
 pub mod segment;
 pub mod settings;
 
@@ -135,9 +136,8 @@ pub struct Prepared {
     pub substeps: usize,
     /// Morph steps of each segment (see [`MorphSettings::shot`]).
     pub segment_steps: Vec<usize>,
-    /// The source's nodal masses on the simulation grid and on the fine loss's grid, which
-    /// `--arrive` blends toward the target's (`None` without it).
-    pub arrival_source: Option<(Vec<f64>, Option<Vec<f64>>)>,
+    /// When each target is reached and what the segments before it aim at (`--at`).
+    pub schedule: Schedule,
     /// Bytes the tape of one segment rollout may hold (`usize::MAX`: no cap); set by
     /// [`Prepared::plan_memory`].
     pub tape_budget: usize,
@@ -164,6 +164,21 @@ pub enum MorphError {
     Interrupted { signal: usize, kept: bool },
 }
 
+/// When each keyframe target is reached, and the nodal masses a segment aims at before it
+/// (see [`MorphSettings::at`]).
+pub struct Schedule {
+    /// Morph step by which each target is reached, in order (the last is the final target).
+    pub steps: Vec<usize>,
+    /// The nodal masses (simulation grid, fine loss grid) of each keyframe target before the
+    /// last, in order; the last one's are the loss's target.
+    pub keyframes: Vec<(Vec<f64>, Option<Vec<f64>>)>,
+    /// Where the body would be on its own, by morph step: the source's positions at the end of
+    /// each segment that ends before the first keyframe, from a run without controls. Empty
+    /// when nothing moves a body at rest (no gravity, no initial velocity): it stays where it
+    /// starts.
+    pub passive: Vec<(usize, Vec<Vector3<f64>>)>,
+}
+
 impl Prepared {
     /// Loads and places both meshes, fills them with particles, builds the simulator and the
     /// loss against the target's nodal masses.
@@ -172,10 +187,28 @@ impl Prepared {
         source: &Path,
         target: &Path,
     ) -> Result<Prepared, MorphError> {
+        Prepared::with_keyframes(settings, source, &[target.to_path_buf()])
+    }
+
+    /// [`Prepared::new`] for a morph through several targets in turn, the last being the
+    /// final one; each is reached at its frame in [`MorphSettings::at`].
+    pub fn with_keyframes(
+        settings: &MorphSettings,
+        source: &Path,
+        targets: &[PathBuf],
+    ) -> Result<Prepared, MorphError> {
         settings.validate().map_err(MorphError::Settings)?;
         let src = crate::geometry::load_mesh(source)?;
-        let tgt = crate::geometry::load_mesh(target)?;
-        Prepared::from_meshes(settings, (&src, source), (&tgt, target))
+        let loaded = targets
+            .iter()
+            .map(|t| crate::geometry::load_mesh(t))
+            .collect::<Result<Vec<_>, _>>()?;
+        let targets: Vec<(&LoadedMesh, &Path)> = loaded
+            .iter()
+            .zip(targets)
+            .map(|(m, p)| (m, p.as_path()))
+            .collect();
+        Prepared::from_keyframe_meshes(settings, (&src, source), &targets)
     }
 
     /// [`Prepared::new`] for meshes a program holds in memory: pass each through
@@ -186,7 +219,23 @@ impl Prepared {
         source: (&LoadedMesh, &Path),
         target: (&LoadedMesh, &Path),
     ) -> Result<Prepared, MorphError> {
+        Prepared::from_keyframe_meshes(settings, source, &[target])
+    }
+
+    /// [`Prepared::from_meshes`] through several targets (see [`Prepared::with_keyframes`]).
+    pub fn from_keyframe_meshes(
+        settings: &MorphSettings,
+        source: (&LoadedMesh, &Path),
+        targets: &[(&LoadedMesh, &Path)],
+    ) -> Result<Prepared, MorphError> {
         settings.validate().map_err(MorphError::Settings)?;
+        if !settings.at.is_empty() && settings.at.len() != targets.len() {
+            return Err(MorphError::Settings(format!(
+                "--at gives {} frame(s) for {} target(s): give one frame per target",
+                settings.at.len(),
+                targets.len()
+            )));
+        }
         let jitter = (settings.jitter > 0.0).then_some(Jitter {
             amount: settings.jitter,
             seed: settings.seed,
@@ -195,11 +244,12 @@ impl Prepared {
             let placement = PlacementOptions {
                 resolution,
                 target_fit: settings.target_fit,
+                ground: settings.ground.as_ref().map(|g| g.height),
                 ..Default::default()
             };
-            MorphGeometry::from_loaded(
+            MorphGeometry::with_keyframes(
                 source,
-                target,
+                targets,
                 &placement,
                 settings.particles_per_cell,
                 jitter,
@@ -228,6 +278,13 @@ impl Prepared {
         let shot = settings.shot();
         settings.segments = shot.segment_steps.len();
         settings.frame_every = shot.frame_every;
+        if settings.at.is_empty() {
+            // The last target near the end, earlier ones evenly before it.
+            let last = settings::default_arrival(shot.frame_count());
+            let n = targets.len();
+            settings.at = (1..=n).map(|k| 1 + (last - 1) * k / n).collect();
+        }
+        settings.validate().map_err(MorphError::Settings)?;
         let settings = &settings;
         let grid = geometry.placement.grid.clone();
         let mut scene = SceneConfig {
@@ -235,18 +292,8 @@ impl Prepared {
             dt: settings.dt.unwrap_or(shot.step),
             kernel: settings.kernel,
             material: settings.material.clone(),
-            effects: Vec::new(),
+            effects: scene_effects(settings, &geometry.placement),
         };
-        if settings.drag > 0.0 {
-            scene.effects.push(EffectConfig::Drag {
-                coefficient: settings.drag,
-            });
-        }
-        // Slip walls three cells deep: a safety net so no kernel stencil can leave the grid.
-        scene.effects.push(EffectConfig::Walls {
-            mode: crate::effects::WallMode::Slip,
-            thickness: 3,
-        });
         let volumes = vec![geometry.source.volume; geometry.source.positions.len()];
         // Without a set dt, a morph step (1/120 s, or what --fps makes) is split into the
         // fewest equal substeps that keep each within half the elastic stability bound: a
@@ -282,23 +329,50 @@ impl Prepared {
         } else {
             None
         };
-        let initial = State::at_rest(geometry.source.positions.clone());
-        let arrival_source = match settings.arrive {
-            None => None,
-            Some(_) => {
-                let model = engine.model();
-                let fine = match &fine_loss {
-                    Some(f) => Some(crate::mpm::transfer::mass_grid(
-                        &f.grid,
-                        FINE_KERNEL,
-                        &initial.x,
-                        &model.mass,
-                    )?),
+        let mut initial = State::at_rest(geometry.source.positions.clone());
+        let v0 = geometry.placement.world_to_sim.scale * Vector3::from(settings.initial_velocity);
+        initial.v.iter_mut().for_each(|v| *v = v0);
+        let keyframes = (0..geometry.keyframes.len())
+            .map(|k| {
+                let density = settings.material.density;
+                let on_sim = geometry.keyframe_masses_on(k, &scene.grid, settings.kernel, density)?;
+                let on_fine = match &fine_loss {
+                    Some(f) => Some(geometry.keyframe_masses_on(k, &f.grid, FINE_KERNEL, density)?),
                     None => None,
                 };
-                Some((model.mass_grid(&initial.x)?, fine))
+                Ok((on_sim, on_fine))
+            })
+            .collect::<Result<Vec<_>, SimError>>()?;
+        let steps: Vec<usize> = settings
+            .at
+            .iter()
+            .map(|f| (f - 1) * settings.frame_every)
+            .collect();
+        // Where the body goes on its own, up to the first keyframe: a run without controls,
+        // when anything moves a body at rest.
+        let mut passive = Vec::new();
+        if settings.gravity.is_some() || v0 != Vector3::zeros() {
+            let mut ends = Vec::new();
+            let mut end = 0;
+            for &n in &shot.segment_steps {
+                end += n;
+                if end >= steps[0] {
+                    break;
+                }
+                ends.push(end);
             }
-        };
+            if let Some(&last) = ends.last() {
+                let mut state = initial.clone();
+                let mut on_step = |k: usize, st: &State| {
+                    if (k + 1) % substeps == 0 && ends.contains(&((k + 1) / substeps)) {
+                        passive.push(((k + 1) / substeps, st.x.clone()));
+                    }
+                };
+                crate::with_integrator!(&engine, sim => {
+                    sim.forward_observed(&mut state, &[], 0, last * substeps, None, Some(&mut on_step))
+                })?;
+            }
+        }
         Ok(Prepared {
             settings: settings.clone(),
             geometry,
@@ -308,7 +382,11 @@ impl Prepared {
             initial,
             substeps,
             segment_steps: shot.segment_steps,
-            arrival_source,
+            schedule: Schedule {
+                steps,
+                keyframes,
+                passive,
+            },
             tape_budget: usize::MAX,
         })
     }
@@ -364,52 +442,94 @@ impl Prepared {
         self.settings.frame_every * self.substeps
     }
 
-    /// How far segment `k`'s targets are blended from the source toward the target (1: the
-    /// target itself): a smoothstep `3u^2 - 2u^3` of the segment's end time over the
-    /// `--arrive` frame's time.
-    pub fn arrival_blend(&self, k: usize) -> f64 {
-        let Some(frame) = self.settings.arrive else {
-            return 1.0;
-        };
+    /// What segment `k` aims at, as `(from, to, w)`: keyframe indices (0 = where the body is
+    /// on its own, `i` = the `i`-th target) and the smoothstep weight `3u^2 - 2u^3` of `to`,
+    /// `u` the segment's end time between the two keyframes' times. `w = 1`: `to` itself.
+    pub fn segment_blend(&self, k: usize) -> (usize, usize, f64) {
         let end: usize = self.segment_steps[..=k].iter().sum();
-        let arrive = (frame - 1) * self.settings.frame_every;
-        let u = (end as f64 / arrive.max(1) as f64).min(1.0);
-        u * u * (3.0 - 2.0 * u)
+        let steps = &self.schedule.steps;
+        match steps.iter().position(|&s| end < s) {
+            None => (steps.len(), steps.len(), 1.0),
+            Some(i) => {
+                let start = if i == 0 { 0 } else { steps[i - 1] };
+                let u = (end - start) as f64 / (steps[i] - start) as f64;
+                (i, i + 1, u * u * (3.0 - 2.0 * u))
+            }
+        }
     }
 
-    /// The losses segment `k` optimizes: the target's, or with `--arrive` the blend of
-    /// [`Prepared::arrival_blend`] between the source's and the target's nodal masses.
+    /// Keyframe `i`'s nodal masses on the simulation and fine grids for segment `k`
+    /// (keyframe 0: where the body would be on its own at the segment's end).
+    fn keyframe_masses(&self, i: usize, k: usize) -> Result<(Vec<f64>, Option<Vec<f64>>), SimError> {
+        let n = self.schedule.steps.len();
+        if i == n {
+            let fine = self.fine_loss.as_ref().map(|f| f.loss.target.clone());
+            return Ok((self.loss.target.clone(), fine));
+        }
+        if i > 0 {
+            return Ok(self.schedule.keyframes[i - 1].clone());
+        }
+        let end: usize = self.segment_steps[..=k].iter().sum();
+        let x = self
+            .schedule
+            .passive
+            .iter()
+            .find(|(step, _)| *step == end)
+            .map_or(&self.initial.x, |(_, x)| x);
+        let model = self.model();
+        let fine = match &self.fine_loss {
+            Some(f) => Some(crate::mpm::transfer::mass_grid(
+                &f.grid,
+                FINE_KERNEL,
+                x,
+                &model.mass,
+            )?),
+            None => None,
+        };
+        Ok((model.mass_grid(x)?, fine))
+    }
+
+    /// The losses segment `k` optimizes: against the nodal masses of
+    /// [`Prepared::segment_blend`], the final target's once it is reached.
     pub fn segment_losses(
         &self,
         k: usize,
-    ) -> (
-        std::borrow::Cow<'_, MassLoss>,
-        Option<std::borrow::Cow<'_, FineMassLoss>>,
-    ) {
+    ) -> Result<
+        (
+            std::borrow::Cow<'_, MassLoss>,
+            Option<std::borrow::Cow<'_, FineMassLoss>>,
+        ),
+        SimError,
+    > {
         use std::borrow::Cow;
-        let w = self.arrival_blend(k);
-        let Some((source, fine_source)) = self.arrival_source.as_ref().filter(|_| w < 1.0) else {
-            return (
+        let (from, to, w) = self.segment_blend(k);
+        if from == to && to == self.schedule.steps.len() {
+            return Ok((
                 Cow::Borrowed(&self.loss),
                 self.fine_loss.as_ref().map(Cow::Borrowed),
-            );
-        };
+            ));
+        }
+        let (a, a_fine) = self.keyframe_masses(from, k)?;
+        let (b, b_fine) = self.keyframe_masses(to, k)?;
         let blend = |src: &[f64], tgt: &[f64]| -> Vec<f64> {
             src.iter()
                 .zip(tgt)
                 .map(|(s, t)| (1.0 - w) * s + w * t)
                 .collect()
         };
-        let loss = MassLoss::new(self.loss.kind, blend(source, &self.loss.target));
+        let loss = MassLoss::new(self.loss.kind, blend(&a, &b));
         let fine = self.fine_loss.as_ref().map(|f| {
-            let src = fine_source.as_deref().expect("made with the fine loss");
+            let (a, b) = (a_fine.as_deref(), b_fine.as_deref());
             Cow::Owned(FineMassLoss {
                 grid: f.grid.clone(),
-                loss: MassLoss::new(f.loss.kind, blend(src, &f.loss.target)),
+                loss: MassLoss::new(
+                    f.loss.kind,
+                    blend(a.expect("made with the fine loss"), b.expect("made with the fine loss")),
+                ),
                 weight: f.weight,
             })
         });
-        (Cow::Owned(loss), fine)
+        Ok((Cow::Owned(loss), fine))
     }
 
     /// Frames the chain exports: the initial state and every `frame_every`-th step.
@@ -419,12 +539,18 @@ impl Prepared {
 
     /// The quality judge's verdict on `state` (see [`quality`]).
     pub fn quality(&self, state: &State) -> quality::Quality {
+        self.quality_against(state, self.schedule.steps.len() - 1)
+    }
+
+    /// The judge's verdict on `state` against target `t` (0-based, in keyframe order; the
+    /// last is the final target).
+    pub fn quality_against(&self, state: &State, t: usize) -> quality::Quality {
         let spacing = self.model().grid.dx / self.settings.particles_per_cell as f64;
-        let judge = quality::Judge::new(
-            &self.geometry.target_sim,
-            spacing,
-            &self.geometry.target.positions,
-        );
+        let (mesh, positions) = match self.geometry.keyframes.get(t) {
+            Some(k) => (&k.sim, &k.particles.positions),
+            None => (&self.geometry.target_sim, &self.geometry.target.positions),
+        };
+        let judge = quality::Judge::new(mesh, spacing, positions);
         let j: Vec<f64> = state.f.iter().map(|f| f.determinant()).collect();
         judge.judge(&state.x, &j)
     }
@@ -662,7 +788,7 @@ fn chain<I: Integrator>(
         }
         for k in from..s.segments {
             let seg_clock = Instant::now();
-            let (loss, fine_loss) = prep.segment_losses(k);
+            let (loss, fine_loss) = prep.segment_losses(k)?;
             let segment = Segment {
                 sim,
                 loss: &loss,
@@ -778,6 +904,51 @@ pub const MORPH_STEP: f64 = 1.0 / 120.0;
 
 /// Substeps past which a morph is refused (the material is too stiff for its grid).
 pub const MAX_SUBSTEPS: usize = 10_000;
+
+/// The effects a morph's settings call for, in the order they act: drag on the particles;
+/// then on the grid gravity, the ground and the colliders, and last the walls. Nothing else
+/// runs. World quantities (gravity, the ground's height, collider meshes) are mapped into
+/// simulation units by `placement`.
+fn scene_effects(settings: &MorphSettings, placement: &crate::geometry::Placement) -> Vec<EffectConfig> {
+    use crate::scene::ColliderConfig;
+    let to_sim = placement.world_to_sim;
+    let mut effects = Vec::new();
+    if settings.drag > 0.0 {
+        effects.push(EffectConfig::Drag {
+            coefficient: settings.drag,
+        });
+    }
+    if let Some(g) = settings.gravity {
+        effects.push(EffectConfig::Gravity {
+            acceleration: (to_sim.scale * Vector3::from(g)).into(),
+        });
+    }
+    if let Some(ground) = &settings.ground {
+        effects.push(EffectConfig::Collider {
+            shape: ColliderConfig::Plane {
+                point: to_sim.apply(&Vector3::new(0.0, ground.height, 0.0)).into(),
+                normal: [0.0, 1.0, 0.0],
+            },
+            friction: ground.friction,
+        });
+    }
+    for c in &settings.colliders {
+        effects.push(EffectConfig::Collider {
+            shape: ColliderConfig::Mesh {
+                path: c.mesh.clone(),
+                scale: to_sim.scale,
+                translation: to_sim.translation,
+            },
+            friction: c.friction,
+        });
+    }
+    // Always: a safety net, so no kernel stencil can leave the grid.
+    effects.push(EffectConfig::Walls {
+        mode: settings.walls.mode,
+        thickness: settings.walls.thickness,
+    });
+    effects
+}
 
 /// The fewest equal substeps of `step` that are each at most `bound` seconds.
 pub fn substeps_for(step: f64, bound: f64) -> Result<usize, String> {

@@ -5,6 +5,7 @@
 //! OUT/meshes/frame_0001.obj ...   closed surface per frame (world units)
 //! OUT/final_mass.mgrid            final nodal mass grid (see io::massgrid)
 //! OUT/manifest.json               inputs + hashes, settings, placement, losses, timings, frames
+//! OUT/scene.toml                  the resolved scene: `morph --scene OUT/scene.toml` reruns it
 //! OUT/loss.png, OUT/preview.png
 //! ```
 //!
@@ -130,12 +131,14 @@ impl FramesSummary {
 pub struct RunIdentity {
     tool: String,
     version: String,
-    inputs: [InputFile; 2],
+    /// The source, each target in keyframe order, then each collider mesh.
+    inputs: Vec<InputFile>,
+    /// The settings, with each collider's mesh path replaced by its content's hash.
     settings: MorphSettings,
 }
 
 impl RunIdentity {
-    fn new(settings: &MorphSettings, source: &Path, target: &Path) -> Result<Self, MorphError> {
+    fn new(settings: &MorphSettings, source: &Path, targets: &[PathBuf]) -> Result<Self, MorphError> {
         let input = |p: &Path| -> Result<InputFile, MorphError> {
             Ok(InputFile {
                 path: p.display().to_string(),
@@ -147,11 +150,21 @@ impl RunIdentity {
                 })?,
             })
         };
+        let mut inputs = vec![input(source)?];
+        for t in targets {
+            inputs.push(input(t)?);
+        }
+        let mut settings = settings.clone();
+        for c in &mut settings.colliders {
+            let file = input(&c.mesh)?;
+            c.mesh = PathBuf::from(format!("sha256:{}", file.sha256));
+            inputs.push(file);
+        }
         Ok(RunIdentity {
             tool: "morph".into(),
             version: env!("CARGO_PKG_VERSION").into(),
-            inputs: [input(source)?, input(target)?],
-            settings: settings.clone(),
+            inputs,
+            settings,
         })
     }
 
@@ -161,7 +174,7 @@ impl RunIdentity {
         let decisive = (
             &self.tool,
             &self.version,
-            [&self.inputs[0].sha256, &self.inputs[1].sha256],
+            self.inputs.iter().map(|i| &i.sha256).collect::<Vec<_>>(),
             &self.settings,
         );
         sha256_hex(&serde_json::to_vec(&decisive).expect("plain data"))
@@ -177,11 +190,25 @@ impl RunIdentity {
                 other.version, self.version
             ));
         }
-        for (i, which) in ["source", "target"].iter().enumerate() {
-            if self.inputs[i].sha256 != other.inputs[i].sha256 {
+        if self.inputs.len() != other.inputs.len() {
+            out.push(format!(
+                "{} input meshes vs {}",
+                other.inputs.len(),
+                self.inputs.len()
+            ));
+        }
+        for (i, (a, b)) in self.inputs.iter().zip(&other.inputs).enumerate() {
+            if a.sha256 != b.sha256 {
+                let which = match i {
+                    0 => "source".to_string(),
+                    i if i < self.inputs.len() - self.settings.colliders.len() => {
+                        format!("target {i}")
+                    }
+                    _ => "collider".to_string(),
+                };
                 out.push(format!(
                     "{which} mesh content ('{}' vs '{}')",
-                    other.inputs[i].path, self.inputs[i].path
+                    b.path, a.path
                 ));
             }
         }
@@ -229,7 +256,7 @@ struct Manifest {
     version: String,
     /// SHA-256 of the run identity (tool version, input hashes, settings).
     run_id: String,
-    inputs: [InputFile; 2],
+    inputs: Vec<InputFile>,
     settings: MorphSettings,
     grid_cells: [usize; 3],
     dx_sim: f64,
@@ -263,9 +290,10 @@ struct Manifest {
     /// How the run's memory was planned (absent in manifests written before it was).
     #[serde(default)]
     memory: Option<MemoryPlan>,
-    /// With `--arrive`: the quality judge on the arrival frame and on the frame halfway to it.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    arrival: Option<ArrivalReport>,
+    /// Each target's keyframe: the quality judge against that target on the frame it is
+    /// reached and on the frame halfway there from the previous keyframe.
+    #[serde(default)]
+    keyframes: Vec<KeyframeReport>,
     /// The judge on frames a quarter of the sequence apart (and the `--arrive` ones): how
     /// the shape approaches the target over time (frames written before a `--resume` are
     /// missing).
@@ -273,12 +301,15 @@ struct Manifest {
     quality_over_time: Vec<JudgedFrame>,
 }
 
-/// How a run with `--arrive` met its arrival (frames are numbered from 1, the rest shape).
+/// How a run met one target's keyframe (`--at`; frames are numbered from 1, the rest shape).
 #[derive(Clone, Debug, Serialize, Deserialize)]
-pub struct ArrivalReport {
+pub struct KeyframeReport {
+    /// The target's input file.
+    pub target: String,
     pub frame: usize,
     pub time: f64,
-    /// The judge on the arrival frame (absent when a resumed run had already written it).
+    /// The judge against this target on its frame (absent when a resumed run had already
+    /// written it).
     pub quality: Option<Quality>,
     pub halfway_frame: usize,
     pub halfway_quality: Option<Quality>,
@@ -347,20 +378,23 @@ pub fn frame_name(index: usize, count: usize) -> String {
 pub fn morph_to_folder(
     settings: &MorphSettings,
     source: &Path,
-    target: &Path,
+    targets: &[PathBuf],
     request: &OutputRequest,
     mut on_event: impl FnMut(&MorphEvent),
 ) -> Result<Summary, MorphError> {
     let clock = Instant::now();
     settings.validate().map_err(MorphError::Settings)?;
+    let mut inputs: Vec<&Path> = vec![source];
+    inputs.extend(targets.iter().map(PathBuf::as_path));
+    inputs.extend(settings.colliders.iter().map(|c| c.mesh.as_path()));
     let plan = outdir::plan(
         request.out,
-        &[source, target],
+        &inputs,
         request.overwrite || request.resume,
         MANIFEST,
     )
     .map_err(MorphError::Settings)?;
-    let identity = RunIdentity::new(settings, source, target)?;
+    let identity = RunIdentity::new(settings, source, targets)?;
     let run_id = identity.id();
     if plan.existing == outdir::Existing::Ours {
         let done = read_manifest(&plan.out.join(MANIFEST));
@@ -432,8 +466,13 @@ pub fn morph_to_folder(
         crate::io::write_atomically(&run_path, |w| std::io::Write::write_all(w, &json))
             .map_err(|e| out_err("run identity", &run_path, e))?;
     }
-    let result = Prepared::new(settings, source, target).and_then(|mut prep| {
+    let result = Prepared::with_keyframes(settings, source, targets).and_then(|mut prep| {
         let memory = prep.plan_memory(request.memory_limit)?;
+        // The resolved scene: `morph --scene OUT/scene.toml` runs this again, bit for bit.
+        let scene = super::scene_file::SceneFile::resolved(&prep.settings, source, targets);
+        let scene_path = staging.dir.join(super::scene_file::RESOLVED);
+        crate::io::write_atomically(&scene_path, |w| std::io::Write::write_all(w, scene.as_bytes()))
+            .map_err(|e| out_err("resolved scene", &scene_path, e))?;
         let setup_s = clock.elapsed().as_secs_f64();
         let resume = if resuming {
             checkpoint::load(&staging.dir, prep.initial.len(), &prep.segment_layers())?
@@ -526,18 +565,23 @@ impl FrameSink for PlyObjSink {
     }
 }
 
-/// The frame halfway (in time) between the rest shape and frame `arrive`.
-fn halfway(arrive: usize) -> usize {
-    1 + (arrive - 1) / 2
+/// The frame halfway (in time) between the previous keyframe's frame (the rest shape's for
+/// the first) and target `t`'s.
+fn halfway(prep: &Prepared, t: usize) -> usize {
+    let at = &prep.settings.at;
+    let before = if t == 0 { 1 } else { at[t - 1] };
+    before + (at[t] - before) / 2
 }
 
-/// The frames the judge sees as the run goes (numbered from 1): a quarter of the sequence
-/// apart, and with `--arrive` the arrival frame and the one halfway to it.
-fn judged_frames(prep: &Prepared) -> Vec<usize> {
+/// The frames the judge sees as the run goes (numbered from 1), each with the target it is
+/// judged against: a quarter of the sequence apart against the final target, and each
+/// target's keyframe and the frame halfway to it against that target.
+fn judged_frames(prep: &Prepared) -> Vec<(usize, usize)> {
     let n = prep.frame_count();
-    let mut f: Vec<usize> = (1..=4).map(|q| 1 + q * (n - 1) / 4).collect();
-    if let Some(a) = prep.settings.arrive {
-        f.extend([a, halfway(a)]);
+    let last = prep.settings.at.len() - 1;
+    let mut f: Vec<(usize, usize)> = (1..=4).map(|q| (1 + q * (n - 1) / 4, last)).collect();
+    for (t, &a) in prep.settings.at.iter().enumerate() {
+        f.extend([(a, t), (halfway(prep, t), t)]);
     }
     f.sort_unstable();
     f.dedup();
@@ -582,8 +626,8 @@ struct FolderWriter<'a> {
     particles: usize,
     preview_at: Vec<usize>,
     preview: Vec<(usize, Vec<Vector3<f64>>)>,
-    /// With `--arrive`: the judge's verdict on the frames it asks about, by frame number.
-    judged: Vec<(usize, Quality)>,
+    /// The judge's verdict on the frames [`judged_frames`] names: (frame, target, verdict).
+    judged: Vec<(usize, usize, Quality)>,
     stop: Option<&'a AtomicUsize>,
     on_event: &'a mut dyn FnMut(&MorphEvent),
 }
@@ -646,10 +690,12 @@ impl Observer for FolderWriter<'_> {
         let index = frame.index;
         self.stats.truncate(index);
         self.stats.push(stats);
-        if judged_frames(frame.prep).contains(&(index + 1)) {
-            self.judged.retain(|(f, _)| *f != index + 1);
-            self.judged
-                .push((index + 1, frame.prep.quality(frame.state)));
+        for (f, t) in judged_frames(frame.prep) {
+            if f == index + 1 {
+                self.judged.retain(|j| (j.0, j.1) != (f, t));
+                self.judged
+                    .push((f, t, frame.prep.quality_against(frame.state, t)));
+            }
         }
         if self.preview_at.contains(&index) {
             let path = self.preview_path(index);
@@ -734,27 +780,38 @@ fn write_run(
     let frames_summary = FramesSummary::of(&frame_stats);
     let run_warnings = super::run_warnings(&result.segments);
     let mut judged = std::mem::take(&mut writer.judged);
-    judged.sort_by_key(|(f, _)| *f);
+    judged.sort_by_key(|(f, t, _)| (*f, *t));
     let frame_time = |f: usize| ((f - 1) * prep.sim_frame_every()) as f64 * prep.model().dt;
+    let last = settings.at.len() - 1;
     let quality_over_time = judged
         .iter()
-        .map(|(f, q)| JudgedFrame {
+        .filter(|(_, t, _)| *t == last)
+        .map(|(f, _, q)| JudgedFrame {
             frame: *f,
             time: frame_time(*f),
             fill: q.fill,
             iou: q.iou,
         })
         .collect();
-    let arrival = settings.arrive.map(|frame| {
-        let at = |f: usize| judged.iter().find(|(i, _)| *i == f).map(|(_, q)| *q);
-        ArrivalReport {
-            frame,
-            time: frame_time(frame),
-            quality: at(frame),
-            halfway_frame: halfway(frame),
-            halfway_quality: at(halfway(frame)),
-        }
-    });
+    let keyframes = (0..settings.at.len())
+        .map(|t| {
+            let at = |f: usize| {
+                judged
+                    .iter()
+                    .find(|(i, j, _)| (*i, *j) == (f, t))
+                    .map(|(_, _, q)| *q)
+            };
+            let frame = settings.at[t];
+            KeyframeReport {
+                target: identity.inputs[1 + t].path.clone(),
+                frame,
+                time: frame_time(frame),
+                quality: at(frame),
+                halfway_frame: halfway(prep, t),
+                halfway_quality: at(halfway(prep, t)),
+            }
+        })
+        .collect();
     let optimize_s = clock.elapsed().as_secs_f64() - setup_s;
 
     // Final nodal mass grid, on world coordinates.
@@ -841,7 +898,7 @@ fn write_run(
             .cloned()
             .collect(),
         memory: Some(memory),
-        arrival,
+        keyframes,
         quality_over_time,
     };
     let manifest_path = dir.join(MANIFEST);

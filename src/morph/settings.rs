@@ -126,14 +126,95 @@ pub struct MorphSettings {
     /// `None`: `segments` segments.
     #[serde(default)]
     pub frames: Option<usize>,
-    /// The frame (1 = the rest shape) by which the target is reached: each segment's targets
-    /// are the source's nodal masses blended toward the target's along a smoothstep in time,
-    /// whole at this frame; after it the shape holds and settles. `None`: every segment aims
-    /// at the target itself.
+    /// The frame (1 = the rest shape) by which each target is reached, in order (`--at`;
+    /// `--arrive` for one target). Between keyframes a segment aims at the nodal masses of
+    /// the previous keyframe blended toward the next one's along a smoothstep in time; before
+    /// the first, "the previous keyframe" is where the body would be on its own (at rest, or
+    /// falling under gravity). After the last the shape holds and settles. Empty: the last
+    /// target at [`default_arrival`] and any earlier ones evenly before it. `[1]`: aim at the
+    /// target from the first segment on.
     #[serde(default)]
-    pub arrive: Option<usize>,
+    pub at: Vec<usize>,
+    /// Gravity in the source mesh's units per second squared (y is up: `[0, -9.81, 0]` for a
+    /// mesh in metres). `None`: no gravity.
+    #[serde(default)]
+    pub gravity: Option<[f64; 3]>,
+    /// A ground plane the body lands on and stands on.
+    #[serde(default)]
+    pub ground: Option<Ground>,
+    /// Static mesh colliders (closed meshes), in the source mesh's coordinates.
+    #[serde(default)]
+    pub colliders: Vec<MeshCollider>,
+    /// The walls on the grid's faces that keep every particle inside it.
+    #[serde(default)]
+    pub walls: WallSettings,
+    /// The body's velocity at the first frame, in the source mesh's units per second.
+    #[serde(default)]
+    pub initial_velocity: [f64; 3],
     /// Write a closed surface per frame.
     pub surfaces: bool,
+}
+
+/// Friction of a ground or collider when a scene does not give one.
+pub const DEFAULT_FRICTION: f64 = 0.5;
+
+fn default_friction() -> f64 {
+    DEFAULT_FRICTION
+}
+
+/// A ground plane: everything below `height` (the source mesh's y; y is up) is solid.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Ground {
+    pub height: f64,
+    /// Coulomb friction coefficient (0: ice).
+    #[serde(default = "default_friction")]
+    pub friction: f64,
+}
+
+/// A closed mesh, in the source mesh's coordinates, that the body cannot enter.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MeshCollider {
+    pub mesh: std::path::PathBuf,
+    /// Coulomb friction coefficient (0: frictionless).
+    #[serde(default = "default_friction")]
+    pub friction: f64,
+}
+
+/// The walls on the grid's faces (a safety net: no kernel stencil may leave the grid).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct WallSettings {
+    /// Slip (the body slides along a wall) or sticky (it stops there).
+    pub mode: crate::effects::WallMode,
+    /// Depth in grid cells, at least [`MIN_WALL_THICKNESS`].
+    pub thickness: usize,
+}
+
+/// The cubic kernel reaches two cells from a particle: a wall a cell deeper keeps every
+/// stencil on the grid.
+pub const MIN_WALL_THICKNESS: usize = 3;
+
+impl Default for WallSettings {
+    fn default() -> Self {
+        WallSettings {
+            mode: crate::effects::WallMode::Slip,
+            thickness: MIN_WALL_THICKNESS,
+        }
+    }
+}
+
+/// The frame the last target is reached by default: 80% of the way through the sequence,
+/// leaving the rest to hold the shape and settle.
+pub fn default_arrival(frames: usize) -> usize {
+    ((0.8 * frames.saturating_sub(1) as f64).round() as usize + 1).max(1)
+}
+
+impl Default for MorphSettings {
+    fn default() -> Self {
+        MorphSettings::preset(Preset::default())
+    }
 }
 
 impl MorphSettings {
@@ -183,7 +264,12 @@ impl MorphSettings {
             frame_every: 3,
             fps: Some(DEFAULT_FPS),
             frames: None,
-            arrive: None,
+            at: Vec::new(),
+            gravity: None,
+            ground: None,
+            colliders: Vec::new(),
+            walls: WallSettings::default(),
+            initial_velocity: [0.0; 3],
             surfaces: true,
         }
     }
@@ -277,9 +363,60 @@ impl MorphSettings {
                 limits::MAX_FPS
             ));
         }
-        if let Some(a) = self.arrive {
-            let frames = self.shot().frame_count();
-            range("arrive", a, 2..=frames.max(2))?;
+        let frames = self.shot().frame_count();
+        for (k, &a) in self.at.iter().enumerate() {
+            let first = if k == 0 { 1 } else { self.at[k - 1] + 1 };
+            if !(first..=frames).contains(&a) {
+                return Err(format!(
+                    "--at: keyframe {} at frame {a} must be {}at most the last frame, {frames}",
+                    k + 1,
+                    if k == 0 {
+                        "at least 1 and ".to_string()
+                    } else {
+                        format!("after the previous keyframe's frame {} and ", self.at[k - 1])
+                    }
+                ));
+            }
+        }
+        if let Some(g) = self.gravity
+            && !g.iter().all(|v| v.is_finite())
+        {
+            return Err(format!("gravity must be finite, got {g:?}"));
+        }
+        if !self.initial_velocity.iter().all(|v| v.is_finite()) {
+            return Err(format!(
+                "initial_velocity must be finite, got {:?}",
+                self.initial_velocity
+            ));
+        }
+        let frictions = self
+            .ground
+            .iter()
+            .map(|g| ("ground", g.friction))
+            .chain(self.colliders.iter().map(|c| ("collider", c.friction)));
+        for (what, mu) in frictions {
+            if !(mu.is_finite() && mu >= 0.0) {
+                return Err(format!("{what} friction must be >= 0, got {mu}"));
+            }
+            if mu > 0.0 && self.integrator == crate::integrator::IntegratorKind::Rk4 {
+                return Err(format!(
+                    "{what} friction needs --integrator euler: the RK4 form applies colliders without friction (set friction = 0 to use it)"
+                ));
+            }
+        }
+        if let Some(g) = &self.ground
+            && !g.height.is_finite()
+        {
+            return Err(format!("ground height must be finite, got {}", g.height));
+        }
+        if self.walls.thickness < MIN_WALL_THICKNESS {
+            return Err(format!(
+                "walls thickness must be at least {MIN_WALL_THICKNESS} cells (the kernel's reach), got {}",
+                self.walls.thickness
+            ));
+        }
+        if self.target_fit == crate::geometry::TargetFit::OnGround && self.ground.is_none() {
+            return Err("--target-fit on-ground needs a ground plane (a scene's [ground])".into());
         }
         if let Some(n) = self.frames {
             range("frames", n, limits::FRAMES)?;

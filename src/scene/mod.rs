@@ -1,7 +1,7 @@
 //! Scene description (serde JSON): grid, time step, kernel, material, particles' density and
 //! the list of effects that are on. Only listed effects run.
 
-use crate::effects::{Drag, Effect, Gravity, WallMode, Walls};
+use crate::effects::{Collider, ColliderShape, Drag, Effect, Gravity, WallMode, Walls};
 use crate::material::{ConstitutiveModel, MaterialModel};
 use crate::mpm::model::Model;
 use crate::mpm::{GridSpec, KernelKind, SimError, Simulator};
@@ -16,12 +16,37 @@ pub enum EffectConfig {
     Drag { coefficient: f64 },
     Gravity { acceleration: [f64; 3] },
     Walls { mode: WallMode, thickness: usize },
+    /// A static collider with Coulomb friction (see [`crate::effects::collider`]).
+    Collider {
+        shape: ColliderConfig,
+        friction: f64,
+    },
+}
+
+/// A collider's solid, in simulation coordinates.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "lowercase")]
+pub enum ColliderConfig {
+    /// The half-space below the plane through `point` with upward `normal`.
+    Plane { point: [f64; 3], normal: [f64; 3] },
+    /// The inside of a closed mesh file, mapped by `x -> scale x + translation`.
+    Mesh {
+        path: std::path::PathBuf,
+        scale: f64,
+        translation: [f64; 3],
+    },
 }
 
 impl EffectConfig {
-    pub fn build(&self) -> Result<Box<dyn Effect>, SimError> {
+    /// The effect on `grid` (colliders find their boundary nodes on it).
+    pub fn build(&self, grid: &GridSpec) -> Result<Box<dyn Effect>, SimError> {
         let bad = |why: String| Err(SimError::InvalidScene(why));
         Ok(match *self {
+            EffectConfig::Collider {
+                ref shape,
+                friction,
+            } => Box::new(collider(shape, friction, grid)?),
+
             EffectConfig::Drag { coefficient } => {
                 if !(coefficient.is_finite() && coefficient >= 0.0) {
                     return bad(format!(
@@ -46,6 +71,57 @@ impl EffectConfig {
             }
         })
     }
+}
+
+/// A collider's boundary on `grid`.
+fn collider(shape: &ColliderConfig, friction: f64, grid: &GridSpec) -> Result<Collider, SimError> {
+    let bad = |why: String| Err(SimError::InvalidScene(why));
+        if !(friction.is_finite() && friction >= 0.0) {
+            return bad(format!(
+                "collider friction must be finite and >= 0, got {friction}"
+            ));
+        }
+        let collider = match shape {
+            ColliderConfig::Plane { point, normal } => {
+                let n = Vector3::from(*normal);
+                if !(n.norm() > 0.0 && n.iter().chain(point).all(|v| v.is_finite())) {
+                    return bad(format!(
+                        "a plane collider needs a finite point and a non-zero normal, got {point:?} and {normal:?}"
+                    ));
+                }
+                Collider::on_grid(
+                    "ground".into(),
+                    ColliderShape::HalfSpace {
+                        point: Vector3::from(*point),
+                        normal: n,
+                    },
+                    friction,
+                    grid,
+                )
+            }
+            ColliderConfig::Mesh {
+                path,
+                scale,
+                translation,
+            } => {
+                let mesh = crate::geometry::load_mesh(path)
+                    .map_err(|e| SimError::InvalidScene(format!("collider: {e}")))?;
+                if !mesh.mesh.topology().is_closed() {
+                    return bad(format!(
+                        "collider mesh {} is not closed: its inside is not defined",
+                        path.display()
+                    ));
+                }
+                let placed = mesh.mesh.transformed(*scale, &Vector3::from(*translation));
+                Collider::on_grid(
+                    format!("collider {}", path.display()),
+                    ColliderShape::Mesh(&placed),
+                    friction,
+                    grid,
+                )
+            }
+        };
+        Ok(collider)
 }
 
 /// A material: which model (a tag; fixed-corotated when absent), its Lamé parameters and its
@@ -120,7 +196,7 @@ impl SceneConfig {
         let effects = self
             .effects
             .iter()
-            .map(EffectConfig::build)
+            .map(|e| e.build(&self.grid))
             .collect::<Result<Vec<_>, _>>()?;
         let mass = volumes.iter().map(|v| v * m.density).collect();
         Model::new(

@@ -1,0 +1,338 @@
+//! Scene files (`morph --scene shot.toml`): a shot's meshes and every setting, in TOML or
+//! JSON. The keys are [`MorphSettings`]'s field names (the command line's option names with
+//! `_` for `-`; `steps_per_segment` is `--steps`), nested tables for its parts
+//! (`[material]`, `[optimizer]`, `[ground]`, `[[colliders]]`, `[walls]`), and two more:
+//! `source`, the mesh to start from, and `targets`, the meshes to become in keyframe order.
+//! Mesh paths are relative to the file's folder.
+//!
+//! A file is read over its preset's settings (`preset = "final"`; the default preset when it
+//! names none): only the keys it gives change anything. A key the settings do not have is an
+//! error naming the key, the file and the line. `[material]` may give `youngs_modulus` and
+//! `poisson_ratio` in place of `mu` and `lambda`.
+//!
+//! A morph writes its resolved scene (every setting, absolute mesh paths) as `scene.toml` in
+//! its output folder: `morph --scene OUT/scene.toml` runs it again, bit for bit.
+
+use super::settings::{Ground, MeshCollider, MorphSettings, Preset};
+use std::path::{Path, PathBuf};
+
+/// The name of the resolved scene in an output folder.
+pub const RESOLVED: &str = "scene.toml";
+
+/// A shot read from a scene file.
+#[derive(Clone, Debug)]
+pub struct SceneFile {
+    /// The file it came from.
+    pub path: PathBuf,
+    pub source: Option<PathBuf>,
+    pub targets: Vec<PathBuf>,
+    /// The preset's settings with the file's keys applied.
+    pub settings: MorphSettings,
+}
+
+impl SceneFile {
+    /// Reads `path` (TOML, or JSON when it ends in `.json`) over the settings of `preset`, or
+    /// of the preset the file names when `preset` is `None`.
+    pub fn read(path: &Path, preset: Option<Preset>) -> Result<SceneFile, String> {
+        let text = std::fs::read_to_string(path)
+            .map_err(|e| format!("cannot read scene file '{}': {e}", path.display()))?;
+        SceneFile::parse(&text, path, preset)
+    }
+
+    /// [`SceneFile::read`] on text already read from `path`.
+    pub fn parse(text: &str, path: &Path, preset: Option<Preset>) -> Result<SceneFile, String> {
+        let shown = path.display();
+        let json = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("json"));
+        let mut table: toml::Table = if json {
+            let value: serde_json::Value = serde_json::from_str(text)
+                .map_err(|e| format!("scene file '{shown}': {e}"))?;
+            toml::Table::try_from(value).map_err(|e| {
+                format!("scene file '{shown}': {e} (the top level must be an object)")
+            })?
+        } else {
+            text.parse().map_err(|e: toml::de::Error| {
+                format!("scene file '{shown}': {}", one_line(&e.to_string()))
+            })?
+        };
+        check_keys(&table, &schema(), "").map_err(|key| {
+            let line = line_of(text, &key, json)
+                .map_or(String::new(), |l| format!(" line {l}:"));
+            format!(
+                "scene file '{shown}':{line} unknown key `{key}` (the keys are the settings' names; see docs/scenes.md)"
+            )
+        })?;
+        let dir = path.parent().unwrap_or(Path::new("."));
+        let resolve = |p: &str| -> PathBuf {
+            let p = PathBuf::from(p);
+            if p.is_absolute() { p } else { dir.join(p) }
+        };
+        let path_of = |v: toml::Value, key: &str| -> Result<PathBuf, String> {
+            match v {
+                toml::Value::String(s) => Ok(resolve(&s)),
+                other => Err(format!(
+                    "scene file '{shown}': `{key}` must be a file path, got {other}"
+                )),
+            }
+        };
+        let source = table.remove("source").map(|v| path_of(v, "source")).transpose()?;
+        let targets = match table.remove("targets") {
+            None => Vec::new(),
+            Some(toml::Value::Array(a)) => a
+                .into_iter()
+                .map(|v| path_of(v, "targets"))
+                .collect::<Result<_, _>>()?,
+            Some(other) => {
+                return Err(format!(
+                    "scene file '{shown}': `targets` must be a list of mesh paths, got {other}"
+                ));
+            }
+        };
+        if let Some(toml::Value::Array(colliders)) = table.get_mut("colliders") {
+            for c in colliders {
+                if let Some(toml::Value::String(m)) = c.get_mut("mesh") {
+                    *m = resolve(m).display().to_string();
+                }
+            }
+        }
+        if let Some(toml::Value::Table(m)) = table.get_mut("material") {
+            young_poisson_to_lame(m).map_err(|e| format!("scene file '{shown}': {e}"))?;
+        }
+        // The file's frame rate rule is the command line's: a frame every n steps (or a set
+        // dt) without fps replaces the rate.
+        let no_fps = !table.contains_key("fps")
+            && (table.contains_key("frame_every") || table.contains_key("dt"));
+        let preset = match (preset, table.get("preset")) {
+            (Some(p), _) => p,
+            (None, Some(v)) => v
+                .clone()
+                .try_into()
+                .map_err(|e| format!("scene file '{shown}': preset: {}", one_line(&e.to_string())))?,
+            (None, None) => Preset::default(),
+        };
+        table.remove("preset");
+        let mut merged = toml::Table::try_from(MorphSettings::preset(preset))
+            .expect("settings serialize to TOML");
+        merge(&mut merged, table);
+        let mut settings: MorphSettings = toml::Value::Table(merged)
+            .try_into()
+            .map_err(|e| format!("scene file '{shown}': {}", one_line(&e.to_string())))?;
+        if no_fps {
+            settings.fps = None;
+        }
+        Ok(SceneFile {
+            path: path.to_path_buf(),
+            source,
+            targets,
+            settings,
+        })
+    }
+
+    /// The resolved scene of a run: every setting and the meshes' absolute paths, as TOML
+    /// that [`SceneFile::parse`] reads back to the same settings.
+    pub fn resolved(settings: &MorphSettings, source: &Path, targets: &[PathBuf]) -> String {
+        let absolute = |p: &Path| {
+            std::path::absolute(p)
+                .unwrap_or_else(|_| p.to_path_buf())
+                .display()
+                .to_string()
+        };
+        let mut settings = settings.clone();
+        for c in &mut settings.colliders {
+            c.mesh = PathBuf::from(absolute(&c.mesh));
+        }
+        let mut table = toml::Table::new();
+        table.insert("source".into(), absolute(source).into());
+        table.insert(
+            "targets".into(),
+            toml::Value::Array(targets.iter().map(|t| absolute(t).into()).collect()),
+        );
+        let body = toml::Table::try_from(&settings).expect("settings serialize to TOML");
+        table.extend(body);
+        format!(
+            "# The resolved scene of a morph run: `morph --scene scene.toml -o OUT` runs it again,\n# bit for bit (docs/scenes.md).\n{}",
+            toml::to_string(&table).expect("a table serializes")
+        )
+    }
+}
+
+/// Every key a scene file may hold, as a table of example values: the settings with every
+/// optional part present.
+fn schema() -> toml::Table {
+    let mut s = MorphSettings::default();
+    s.particles = Some(1);
+    s.dt = Some(1.0);
+    s.frames = Some(2);
+    s.gravity = Some([0.0; 3]);
+    s.ground = Some(Ground {
+        height: 0.0,
+        friction: 0.0,
+    });
+    s.colliders = vec![MeshCollider {
+        mesh: PathBuf::new(),
+        friction: 0.0,
+    }];
+    let mut t = toml::Table::try_from(&s).expect("settings serialize to TOML");
+    t.insert("source".into(), "".into());
+    t.insert("targets".into(), toml::Value::Array(Vec::new()));
+    if let Some(toml::Value::Table(m)) = t.get_mut("material") {
+        m.insert("youngs_modulus".into(), 1.0.into());
+        m.insert("poisson_ratio".into(), 0.0.into());
+    }
+    t
+}
+
+/// The first key of `given` (a dotted path under `at`) that `schema` does not have.
+fn check_keys(given: &toml::Table, schema: &toml::Table, at: &str) -> Result<(), String> {
+    for (key, value) in given {
+        let path = if at.is_empty() {
+            key.clone()
+        } else {
+            format!("{at}.{key}")
+        };
+        let Some(known) = schema.get(key) else {
+            return Err(path);
+        };
+        match (value, known) {
+            (toml::Value::Table(g), toml::Value::Table(k)) => check_keys(g, k, &path)?,
+            (toml::Value::Array(g), toml::Value::Array(k)) => {
+                if let Some(toml::Value::Table(k)) = k.first() {
+                    for item in g {
+                        if let toml::Value::Table(item) = item {
+                            check_keys(item, k, &path)?;
+                        }
+                    }
+                }
+            }
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
+/// The 1-based line where the last part of dotted `key` first appears as a key.
+fn line_of(text: &str, key: &str, json: bool) -> Option<usize> {
+    let name = key.rsplit('.').next()?;
+    text.lines().position(|line| {
+        let t = line.trim_start();
+        if json {
+            t.contains(&format!("\"{name}\""))
+        } else {
+            let t = t.trim_start_matches('[').trim_start();
+            t.strip_prefix(name).is_some_and(|rest| {
+                rest.trim_start().starts_with('=') || rest.trim_start().starts_with(']')
+            }) || t.strip_prefix(&format!("\"{name}\"")).is_some()
+        }
+    })
+    .map(|i| i + 1)
+}
+
+/// `over`'s values replace `base`'s; tables merge key by key.
+fn merge(base: &mut toml::Table, over: toml::Table) {
+    for (key, value) in over {
+        match (base.get_mut(&key), value) {
+            (Some(toml::Value::Table(b)), toml::Value::Table(o)) => merge(b, o),
+            (_, value) => {
+                base.insert(key, value);
+            }
+        }
+    }
+}
+
+/// `[material]` with `youngs_modulus` and/or `poisson_ratio`: the Lamé parameters they make
+/// (the other one from the default material).
+fn young_poisson_to_lame(m: &mut toml::Table) -> Result<(), String> {
+    let e = m.remove("youngs_modulus");
+    let nu = m.remove("poisson_ratio");
+    if e.is_none() && nu.is_none() {
+        return Ok(());
+    }
+    if m.contains_key("mu") || m.contains_key("lambda") {
+        return Err(
+            "[material] gives both youngs_modulus/poisson_ratio and mu/lambda; give one pair"
+                .into(),
+        );
+    }
+    let number = |v: toml::Value, key: &str| -> Result<f64, String> {
+        match v {
+            toml::Value::Float(f) => Ok(f),
+            toml::Value::Integer(i) => Ok(i as f64),
+            other => Err(format!("[material] {key} must be a number, got {other}")),
+        }
+    };
+    let d = MorphSettings::default().material;
+    let (e0, nu0) = crate::material::young_poisson_from_lame(d.mu, d.lambda);
+    let e = e.map(|v| number(v, "youngs_modulus")).transpose()?.unwrap_or(e0);
+    let nu = nu.map(|v| number(v, "poisson_ratio")).transpose()?.unwrap_or(nu0);
+    if !(e.is_finite() && e > 0.0) {
+        return Err(format!("[material] youngs_modulus must be > 0, got {e}"));
+    }
+    if !(0.0..=0.49).contains(&nu) {
+        return Err(format!(
+            "[material] poisson_ratio must be between 0 and 0.49, got {nu}"
+        ));
+    }
+    let (mu, lambda) = crate::material::lame_from_young_poisson(e, nu);
+    m.insert("mu".into(), mu.into());
+    m.insert("lambda".into(), lambda.into());
+    Ok(())
+}
+
+/// The first line of a multi-line parser message, with its location kept.
+fn one_line(message: &str) -> String {
+    // toml's messages are "TOML parse error at line L, column C\n  |\nL | ...\n  | ^\nwhat".
+    let lines: Vec<&str> = message.lines().map(str::trim).filter(|l| !l.is_empty()).collect();
+    match (lines.first(), lines.last()) {
+        (Some(first), Some(last)) if lines.len() > 1 => {
+            let at = first.trim_start_matches("TOML parse error at ");
+            format!("{at}: {last}")
+        }
+        _ => message.trim().to_string(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn unknown_keys_are_named_with_their_line() {
+        let text = "preset = \"draft\"\nresolution = 16\n\n[ground]\nheight = 0.0\nfrction = 0.3\n";
+        let e = SceneFile::parse(text, Path::new("shot.toml"), None).unwrap_err();
+        assert!(e.contains("line 6") && e.contains("`ground.frction`") && e.contains("shot.toml"), "{e}");
+        let e = SceneFile::parse("gravty = [0, -9.8, 0]\n", Path::new("s.toml"), None).unwrap_err();
+        assert!(e.contains("line 1") && e.contains("`gravty`"), "{e}");
+        let e = SceneFile::parse("{\n  \"resolution\": 16,\n  \"fpz\": 24\n}", Path::new("s.json"), None)
+            .unwrap_err();
+        assert!(e.contains("line 3") && e.contains("`fpz`"), "{e}");
+    }
+
+    #[test]
+    fn a_file_changes_only_the_keys_it_gives_over_its_preset() {
+        let text = "preset = \"draft\"\nresolution = 20\n[material]\ndensity = 80.0\n[optimizer]\niterations = 3\n";
+        let s = SceneFile::parse(text, Path::new("a/shot.toml"), None).unwrap().settings;
+        let mut want = MorphSettings::preset(Preset::Draft);
+        want.resolution = 20;
+        want.material.density = 80.0;
+        want.optimizer.iterations = 3;
+        assert_eq!(s, want);
+    }
+
+    #[test]
+    fn the_resolved_scene_reads_back_to_the_same_settings() {
+        let mut s = MorphSettings::preset(Preset::Final);
+        s.gravity = Some([0.0, -9.81, 0.0]);
+        s.ground = Some(Ground {
+            height: -1.0,
+            friction: 0.2,
+        });
+        s.at = vec![10, 20];
+        s.fps = None;
+        s.frame_every = 4;
+        s.dt = Some(1e-3);
+        let text = SceneFile::resolved(&s, Path::new("/m/a.obj"), &["/m/b.obj".into(), "/m/c.obj".into()]);
+        let back = SceneFile::parse(&text, Path::new("/out/scene.toml"), None).unwrap();
+        assert_eq!(back.settings, s);
+        assert_eq!(back.source, Some(PathBuf::from("/m/a.obj")));
+        assert_eq!(back.targets.len(), 2);
+    }
+}
