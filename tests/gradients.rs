@@ -335,6 +335,49 @@ fn reverse_pass_matches_fd_with_slip_walls() {
     );
 }
 
+/// A ground collider with friction, tilted, struck by the body at an angle: the contact nodes
+/// slide with friction (and some stick), through the impact. As with slip walls, the contact
+/// switches are kinks of the loss, so the difference step is small (1e-6). The RK4 form
+/// (frictionless, so friction 0) through the same impact.
+#[test]
+fn reverse_pass_matches_fd_with_a_ground_collider() {
+    use morph::scene::ColliderConfig;
+    let ground = |friction: f64| {
+        vec![EffectConfig::Collider {
+            shape: ColliderConfig::Plane {
+                point: [0.0, -4.6, 0.0],
+                normal: [0.15, 1.0, -0.05],
+            },
+            friction,
+        }]
+    };
+    let onto_ground = |s: &mut State| {
+        for p in 0..s.len() {
+            s.v[p] = Vector3::new(12.0, -40.0, 3.0);
+            s.c[p] = Matrix3::zeros();
+            s.f[p] = Matrix3::identity();
+        }
+    };
+    for kernel in [KernelKind::Quadratic, KernelKind::Cubic] {
+        check_case_with(
+            kernel,
+            MassLossKind::Log,
+            ground(0.4),
+            STEPS,
+            1e-6,
+            onto_ground,
+        );
+    }
+    check_scene_on(
+        small_scene(KernelKind::Cubic, ground(0.0)),
+        IntegratorKind::Rk4,
+        MassLossKind::Log,
+        STEPS,
+        1e-6,
+        onto_ground,
+    );
+}
+
 /// dL/dg for the gravity effect's parameter.
 #[test]
 fn gravity_parameter_gradient_matches_fd() {

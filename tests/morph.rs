@@ -330,12 +330,12 @@ fn command_line_errors() {
         (vec!["--fps", "24", "--dt", "0.001"], 2, "--dt"),
         (vec!["--frames", "1"], 2, "--frames"),
         (vec!["--arrive", "0"], 2, "--at: keyframe 1 at frame 0"),
+        (vec!["--arrive", "5000"], 2, "at most the last frame, 73"),
         (
-            vec!["--arrive", "5000"],
+            vec!["--at", "20,40"],
             2,
-            "at most the last frame, 73",
+            "--at gives 2 frame(s) for 1 target(s)",
         ),
-        (vec!["--at", "20,40"], 2, "--at gives 2 frame(s) for 1 target(s)"),
         (vec!["--frames", "10", "--segments", "3"], 2, "--segments"),
         (
             vec!["--particles", "5000", "--resolution", "20"],

@@ -232,7 +232,9 @@ impl MorphArgs {
         };
         match self.meshes.as_slice() {
             [] => {}
-            [_] => return Err("give a SOURCE and at least one TARGET mesh (see morph --help)".into()),
+            [_] => {
+                return Err("give a SOURCE and at least one TARGET mesh (see morph --help)".into());
+            }
             [first, rest @ ..] => {
                 source = Some(first.clone());
                 targets = rest.to_vec();
@@ -246,7 +248,10 @@ impl MorphArgs {
         };
         if targets.is_empty() {
             return Err(match &self.scene {
-                Some(p) => format!("scene file '{}' names no targets; give `targets = [\"mesh.obj\"]`", p.display()),
+                Some(p) => format!(
+                    "scene file '{}' names no targets; give `targets = [\"mesh.obj\"]`",
+                    p.display()
+                ),
                 None => "give a TARGET mesh after the SOURCE (see morph --help)".into(),
             });
         }

@@ -91,7 +91,9 @@ impl Collider {
                         let nearest = tris
                             .iter()
                             .map(|t| closest_point_on_triangle(&q, t))
-                            .min_by(|a, b| (a - q).norm_squared().total_cmp(&(b - q).norm_squared()))
+                            .min_by(|a, b| {
+                                (a - q).norm_squared().total_cmp(&(b - q).norm_squared())
+                            })
                             .unwrap_or(q);
                         let out = nearest - q;
                         // A node on the surface itself: the normal of the triangle there.
@@ -140,7 +142,12 @@ impl Collider {
 
     /// Reverse of [`Collider::project`]: dL/dv from dL/dv' `g`, at the input velocity `v`.
     #[inline]
-    fn project_reverse(&self, n: &Vector3<f64>, v: &Vector3<f64>, g: &Vector3<f64>) -> Vector3<f64> {
+    fn project_reverse(
+        &self,
+        n: &Vector3<f64>,
+        v: &Vector3<f64>,
+        g: &Vector3<f64>,
+    ) -> Vector3<f64> {
         let vn = v.dot(n);
         if vn >= 0.0 {
             return *g;
@@ -307,7 +314,10 @@ mod tests {
             (Vector3::new(1.0, 1.0, 0.0), Vector3::new(0.5, 0.5, 0.0)),
         ];
         for (p, want) in cases {
-            assert!((closest_point_on_triangle(&p, &t) - want).norm() < 1e-12, "{p:?}");
+            assert!(
+                (closest_point_on_triangle(&p, &t) - want).norm() < 1e-12,
+                "{p:?}"
+            );
         }
     }
 }

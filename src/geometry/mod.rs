@@ -234,7 +234,12 @@ impl MorphGeometry {
         kernel: crate::mpm::KernelKind,
         density: f64,
     ) -> Result<Vec<f64>, crate::mpm::SimError> {
-        self.masses_of(&self.keyframes[k].particles.positions, grid, kernel, density)
+        self.masses_of(
+            &self.keyframes[k].particles.positions,
+            grid,
+            kernel,
+            density,
+        )
     }
 
     /// Target particles carrying the source's total mass, transferred to `grid`.

@@ -154,7 +154,11 @@ pub enum TargetFit {
 
 impl TargetFit {
     /// Every value, in declaration order (the command line lists them by their serde names).
-    pub const ALL: [TargetFit; 3] = [TargetFit::MatchVolume, TargetFit::AsGiven, TargetFit::OnGround];
+    pub const ALL: [TargetFit; 3] = [
+        TargetFit::MatchVolume,
+        TargetFit::AsGiven,
+        TargetFit::OnGround,
+    ];
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -262,7 +266,10 @@ impl Placement {
                 }
             })
         };
-        let fits = targets.iter().map(|t| fit(t)).collect::<Result<Vec<_>, _>>()?;
+        let fits = targets
+            .iter()
+            .map(|t| fit(t))
+            .collect::<Result<Vec<_>, _>>()?;
         let mut shapes = source.bounds();
         for (target, to_world) in targets.iter().zip(&fits) {
             let tb = target.bounds();

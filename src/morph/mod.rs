@@ -335,9 +335,12 @@ impl Prepared {
         let keyframes = (0..geometry.keyframes.len())
             .map(|k| {
                 let density = settings.material.density;
-                let on_sim = geometry.keyframe_masses_on(k, &scene.grid, settings.kernel, density)?;
+                let on_sim =
+                    geometry.keyframe_masses_on(k, &scene.grid, settings.kernel, density)?;
                 let on_fine = match &fine_loss {
-                    Some(f) => Some(geometry.keyframe_masses_on(k, &f.grid, FINE_KERNEL, density)?),
+                    Some(f) => {
+                        Some(geometry.keyframe_masses_on(k, &f.grid, FINE_KERNEL, density)?)
+                    }
                     None => None,
                 };
                 Ok((on_sim, on_fine))
@@ -460,7 +463,11 @@ impl Prepared {
 
     /// Keyframe `i`'s nodal masses on the simulation and fine grids for segment `k`
     /// (keyframe 0: where the body would be on its own at the segment's end).
-    fn keyframe_masses(&self, i: usize, k: usize) -> Result<(Vec<f64>, Option<Vec<f64>>), SimError> {
+    fn keyframe_masses(
+        &self,
+        i: usize,
+        k: usize,
+    ) -> Result<(Vec<f64>, Option<Vec<f64>>), SimError> {
         let n = self.schedule.steps.len();
         if i == n {
             let fine = self.fine_loss.as_ref().map(|f| f.loss.target.clone());
@@ -524,7 +531,10 @@ impl Prepared {
                 grid: f.grid.clone(),
                 loss: MassLoss::new(
                     f.loss.kind,
-                    blend(a.expect("made with the fine loss"), b.expect("made with the fine loss")),
+                    blend(
+                        a.expect("made with the fine loss"),
+                        b.expect("made with the fine loss"),
+                    ),
                 ),
                 weight: f.weight,
             })
@@ -909,7 +919,10 @@ pub const MAX_SUBSTEPS: usize = 10_000;
 /// then on the grid gravity, the ground and the colliders, and last the walls. Nothing else
 /// runs. World quantities (gravity, the ground's height, collider meshes) are mapped into
 /// simulation units by `placement`.
-fn scene_effects(settings: &MorphSettings, placement: &crate::geometry::Placement) -> Vec<EffectConfig> {
+fn scene_effects(
+    settings: &MorphSettings,
+    placement: &crate::geometry::Placement,
+) -> Vec<EffectConfig> {
     use crate::scene::ColliderConfig;
     let to_sim = placement.world_to_sim;
     let mut effects = Vec::new();

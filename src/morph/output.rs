@@ -138,7 +138,11 @@ pub struct RunIdentity {
 }
 
 impl RunIdentity {
-    fn new(settings: &MorphSettings, source: &Path, targets: &[PathBuf]) -> Result<Self, MorphError> {
+    fn new(
+        settings: &MorphSettings,
+        source: &Path,
+        targets: &[PathBuf],
+    ) -> Result<Self, MorphError> {
         let input = |p: &Path| -> Result<InputFile, MorphError> {
             Ok(InputFile {
                 path: p.display().to_string(),
@@ -471,8 +475,10 @@ pub fn morph_to_folder(
         // The resolved scene: `morph --scene OUT/scene.toml` runs this again, bit for bit.
         let scene = super::scene_file::SceneFile::resolved(&prep.settings, source, targets);
         let scene_path = staging.dir.join(super::scene_file::RESOLVED);
-        crate::io::write_atomically(&scene_path, |w| std::io::Write::write_all(w, scene.as_bytes()))
-            .map_err(|e| out_err("resolved scene", &scene_path, e))?;
+        crate::io::write_atomically(&scene_path, |w| {
+            std::io::Write::write_all(w, scene.as_bytes())
+        })
+        .map_err(|e| out_err("resolved scene", &scene_path, e))?;
         let setup_s = clock.elapsed().as_secs_f64();
         let resume = if resuming {
             checkpoint::load(&staging.dir, prep.initial.len(), &prep.segment_layers())?

@@ -42,10 +42,12 @@ impl SceneFile {
     /// [`SceneFile::read`] on text already read from `path`.
     pub fn parse(text: &str, path: &Path, preset: Option<Preset>) -> Result<SceneFile, String> {
         let shown = path.display();
-        let json = path.extension().is_some_and(|e| e.eq_ignore_ascii_case("json"));
+        let json = path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("json"));
         let mut table: toml::Table = if json {
-            let value: serde_json::Value = serde_json::from_str(text)
-                .map_err(|e| format!("scene file '{shown}': {e}"))?;
+            let value: serde_json::Value =
+                serde_json::from_str(text).map_err(|e| format!("scene file '{shown}': {e}"))?;
             toml::Table::try_from(value).map_err(|e| {
                 format!("scene file '{shown}': {e} (the top level must be an object)")
             })?
@@ -74,7 +76,10 @@ impl SceneFile {
                 )),
             }
         };
-        let source = table.remove("source").map(|v| path_of(v, "source")).transpose()?;
+        let source = table
+            .remove("source")
+            .map(|v| path_of(v, "source"))
+            .transpose()?;
         let targets = match table.remove("targets") {
             None => Vec::new(),
             Some(toml::Value::Array(a)) => a
@@ -103,10 +108,9 @@ impl SceneFile {
             && (table.contains_key("frame_every") || table.contains_key("dt"));
         let preset = match (preset, table.get("preset")) {
             (Some(p), _) => p,
-            (None, Some(v)) => v
-                .clone()
-                .try_into()
-                .map_err(|e| format!("scene file '{shown}': preset: {}", one_line(&e.to_string())))?,
+            (None, Some(v)) => v.clone().try_into().map_err(|e| {
+                format!("scene file '{shown}': preset: {}", one_line(&e.to_string()))
+            })?,
             (None, None) => Preset::default(),
         };
         table.remove("preset");
@@ -212,18 +216,19 @@ fn check_keys(given: &toml::Table, schema: &toml::Table, at: &str) -> Result<(),
 /// The 1-based line where the last part of dotted `key` first appears as a key.
 fn line_of(text: &str, key: &str, json: bool) -> Option<usize> {
     let name = key.rsplit('.').next()?;
-    text.lines().position(|line| {
-        let t = line.trim_start();
-        if json {
-            t.contains(&format!("\"{name}\""))
-        } else {
-            let t = t.trim_start_matches('[').trim_start();
-            t.strip_prefix(name).is_some_and(|rest| {
-                rest.trim_start().starts_with('=') || rest.trim_start().starts_with(']')
-            }) || t.strip_prefix(&format!("\"{name}\"")).is_some()
-        }
-    })
-    .map(|i| i + 1)
+    text.lines()
+        .position(|line| {
+            let t = line.trim_start();
+            if json {
+                t.contains(&format!("\"{name}\""))
+            } else {
+                let t = t.trim_start_matches('[').trim_start();
+                t.strip_prefix(name).is_some_and(|rest| {
+                    rest.trim_start().starts_with('=') || rest.trim_start().starts_with(']')
+                }) || t.strip_prefix(&format!("\"{name}\"")).is_some()
+            }
+        })
+        .map(|i| i + 1)
 }
 
 /// `over`'s values replace `base`'s; tables merge key by key.
@@ -261,8 +266,14 @@ fn young_poisson_to_lame(m: &mut toml::Table) -> Result<(), String> {
     };
     let d = MorphSettings::default().material;
     let (e0, nu0) = crate::material::young_poisson_from_lame(d.mu, d.lambda);
-    let e = e.map(|v| number(v, "youngs_modulus")).transpose()?.unwrap_or(e0);
-    let nu = nu.map(|v| number(v, "poisson_ratio")).transpose()?.unwrap_or(nu0);
+    let e = e
+        .map(|v| number(v, "youngs_modulus"))
+        .transpose()?
+        .unwrap_or(e0);
+    let nu = nu
+        .map(|v| number(v, "poisson_ratio"))
+        .transpose()?
+        .unwrap_or(nu0);
     if !(e.is_finite() && e > 0.0) {
         return Err(format!("[material] youngs_modulus must be > 0, got {e}"));
     }
@@ -280,7 +291,11 @@ fn young_poisson_to_lame(m: &mut toml::Table) -> Result<(), String> {
 /// The first line of a multi-line parser message, with its location kept.
 fn one_line(message: &str) -> String {
     // toml's messages are "TOML parse error at line L, column C\n  |\nL | ...\n  | ^\nwhat".
-    let lines: Vec<&str> = message.lines().map(str::trim).filter(|l| !l.is_empty()).collect();
+    let lines: Vec<&str> = message
+        .lines()
+        .map(str::trim)
+        .filter(|l| !l.is_empty())
+        .collect();
     match (lines.first(), lines.last()) {
         (Some(first), Some(last)) if lines.len() > 1 => {
             let at = first.trim_start_matches("TOML parse error at ");
@@ -298,18 +313,27 @@ mod tests {
     fn unknown_keys_are_named_with_their_line() {
         let text = "preset = \"draft\"\nresolution = 16\n\n[ground]\nheight = 0.0\nfrction = 0.3\n";
         let e = SceneFile::parse(text, Path::new("shot.toml"), None).unwrap_err();
-        assert!(e.contains("line 6") && e.contains("`ground.frction`") && e.contains("shot.toml"), "{e}");
+        assert!(
+            e.contains("line 6") && e.contains("`ground.frction`") && e.contains("shot.toml"),
+            "{e}"
+        );
         let e = SceneFile::parse("gravty = [0, -9.8, 0]\n", Path::new("s.toml"), None).unwrap_err();
         assert!(e.contains("line 1") && e.contains("`gravty`"), "{e}");
-        let e = SceneFile::parse("{\n  \"resolution\": 16,\n  \"fpz\": 24\n}", Path::new("s.json"), None)
-            .unwrap_err();
+        let e = SceneFile::parse(
+            "{\n  \"resolution\": 16,\n  \"fpz\": 24\n}",
+            Path::new("s.json"),
+            None,
+        )
+        .unwrap_err();
         assert!(e.contains("line 3") && e.contains("`fpz`"), "{e}");
     }
 
     #[test]
     fn a_file_changes_only_the_keys_it_gives_over_its_preset() {
         let text = "preset = \"draft\"\nresolution = 20\n[material]\ndensity = 80.0\n[optimizer]\niterations = 3\n";
-        let s = SceneFile::parse(text, Path::new("a/shot.toml"), None).unwrap().settings;
+        let s = SceneFile::parse(text, Path::new("a/shot.toml"), None)
+            .unwrap()
+            .settings;
         let mut want = MorphSettings::preset(Preset::Draft);
         want.resolution = 20;
         want.material.density = 80.0;
@@ -329,7 +353,11 @@ mod tests {
         s.fps = None;
         s.frame_every = 4;
         s.dt = Some(1e-3);
-        let text = SceneFile::resolved(&s, Path::new("/m/a.obj"), &["/m/b.obj".into(), "/m/c.obj".into()]);
+        let text = SceneFile::resolved(
+            &s,
+            Path::new("/m/a.obj"),
+            &["/m/b.obj".into(), "/m/c.obj".into()],
+        );
         let back = SceneFile::parse(&text, Path::new("/out/scene.toml"), None).unwrap();
         assert_eq!(back.settings, s);
         assert_eq!(back.source, Some(PathBuf::from("/m/a.obj")));

@@ -373,7 +373,10 @@ impl MorphSettings {
                     if k == 0 {
                         "at least 1 and ".to_string()
                     } else {
-                        format!("after the previous keyframe's frame {} and ", self.at[k - 1])
+                        format!(
+                            "after the previous keyframe's frame {} and ",
+                            self.at[k - 1]
+                        )
                     }
                 ));
             }

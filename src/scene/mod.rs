@@ -13,9 +13,16 @@ use std::sync::Arc;
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "type", rename_all = "lowercase")]
 pub enum EffectConfig {
-    Drag { coefficient: f64 },
-    Gravity { acceleration: [f64; 3] },
-    Walls { mode: WallMode, thickness: usize },
+    Drag {
+        coefficient: f64,
+    },
+    Gravity {
+        acceleration: [f64; 3],
+    },
+    Walls {
+        mode: WallMode,
+        thickness: usize,
+    },
     /// A static collider with Coulomb friction (see [`crate::effects::collider`]).
     Collider {
         shape: ColliderConfig,
@@ -76,52 +83,52 @@ impl EffectConfig {
 /// A collider's boundary on `grid`.
 fn collider(shape: &ColliderConfig, friction: f64, grid: &GridSpec) -> Result<Collider, SimError> {
     let bad = |why: String| Err(SimError::InvalidScene(why));
-        if !(friction.is_finite() && friction >= 0.0) {
-            return bad(format!(
-                "collider friction must be finite and >= 0, got {friction}"
-            ));
+    if !(friction.is_finite() && friction >= 0.0) {
+        return bad(format!(
+            "collider friction must be finite and >= 0, got {friction}"
+        ));
+    }
+    let collider = match shape {
+        ColliderConfig::Plane { point, normal } => {
+            let n = Vector3::from(*normal);
+            if !(n.norm() > 0.0 && n.iter().chain(point).all(|v| v.is_finite())) {
+                return bad(format!(
+                    "a plane collider needs a finite point and a non-zero normal, got {point:?} and {normal:?}"
+                ));
+            }
+            Collider::on_grid(
+                "ground".into(),
+                ColliderShape::HalfSpace {
+                    point: Vector3::from(*point),
+                    normal: n,
+                },
+                friction,
+                grid,
+            )
         }
-        let collider = match shape {
-            ColliderConfig::Plane { point, normal } => {
-                let n = Vector3::from(*normal);
-                if !(n.norm() > 0.0 && n.iter().chain(point).all(|v| v.is_finite())) {
-                    return bad(format!(
-                        "a plane collider needs a finite point and a non-zero normal, got {point:?} and {normal:?}"
-                    ));
-                }
-                Collider::on_grid(
-                    "ground".into(),
-                    ColliderShape::HalfSpace {
-                        point: Vector3::from(*point),
-                        normal: n,
-                    },
-                    friction,
-                    grid,
-                )
+        ColliderConfig::Mesh {
+            path,
+            scale,
+            translation,
+        } => {
+            let mesh = crate::geometry::load_mesh(path)
+                .map_err(|e| SimError::InvalidScene(format!("collider: {e}")))?;
+            if !mesh.mesh.topology().is_closed() {
+                return bad(format!(
+                    "collider mesh {} is not closed: its inside is not defined",
+                    path.display()
+                ));
             }
-            ColliderConfig::Mesh {
-                path,
-                scale,
-                translation,
-            } => {
-                let mesh = crate::geometry::load_mesh(path)
-                    .map_err(|e| SimError::InvalidScene(format!("collider: {e}")))?;
-                if !mesh.mesh.topology().is_closed() {
-                    return bad(format!(
-                        "collider mesh {} is not closed: its inside is not defined",
-                        path.display()
-                    ));
-                }
-                let placed = mesh.mesh.transformed(*scale, &Vector3::from(*translation));
-                Collider::on_grid(
-                    format!("collider {}", path.display()),
-                    ColliderShape::Mesh(&placed),
-                    friction,
-                    grid,
-                )
-            }
-        };
-        Ok(collider)
+            let placed = mesh.mesh.transformed(*scale, &Vector3::from(*translation));
+            Collider::on_grid(
+                format!("collider {}", path.display()),
+                ColliderShape::Mesh(&placed),
+                friction,
+                grid,
+            )
+        }
+    };
+    Ok(collider)
 }
 
 /// A material: which model (a tag; fixed-corotated when absent), its Lamé parameters and its
