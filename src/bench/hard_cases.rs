@@ -447,6 +447,9 @@ pub fn cases(meshes: &Path) -> Result<Vec<Case>, MorphError> {
                 s.resolution = 12;
                 s.segments = 40;
                 s.optimizer.iterations = 2;
+                // Every segment aims at the target, so the body arrives early and the chain
+                // is mostly holding: what this case checks is that holding stays bounded.
+                s.at = vec![1];
             }),
             Expect::Stable,
         ),

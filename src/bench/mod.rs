@@ -220,14 +220,40 @@ fn effect_costs(steps: usize, repeats: usize) -> anyhow::Result<()> {
         acceleration: [0.0, -9.81, 0.0],
     };
     let walls = |mode| EffectConfig::Walls { mode, thickness: 3 };
+    // A ground a half cell into the ball's bottom, and a cube of 8 cells under it (a mesh
+    // collider, written to a temporary file), both with friction.
+    let ground = EffectConfig::Collider {
+        shape: crate::scene::ColliderConfig::Plane {
+            point: [0.0, -7.5, 0.0],
+            normal: [0.0, 1.0, 0.0],
+        },
+        friction: 0.5,
+    };
+    let cube_path =
+        std::env::temp_dir().join(format!("morph-bench-cube-{}.obj", std::process::id()));
+    crate::geometry::assets::cube(2.0, 8).write_obj(&cube_path)?;
+    let cube = EffectConfig::Collider {
+        shape: crate::scene::ColliderConfig::Mesh {
+            path: cube_path.clone(),
+            scale: 4.0,
+            translation: [0.0, -11.5, 0.0],
+        },
+        friction: 0.5,
+    };
     let cases: Vec<(&str, Vec<EffectConfig>, bool)> = vec![
         ("none", vec![], false),
         ("drag", vec![drag.clone()], false),
         ("gravity", vec![gravity.clone()], false),
+        ("ground", vec![ground.clone()], false),
+        ("mesh collider", vec![cube], false),
         ("slip walls", vec![walls(WallMode::Slip)], false),
         ("sticky walls", vec![walls(WallMode::Sticky)], false),
         ("controls Fc", vec![], true),
-        ("all", vec![drag, gravity, walls(WallMode::Slip)], true),
+        (
+            "all",
+            vec![drag, gravity, ground, walls(WallMode::Slip)],
+            true,
+        ),
     ];
     let mut baseline = None;
     for (name, effects, controls) in cases {
@@ -237,7 +263,11 @@ fn effect_costs(steps: usize, repeats: usize) -> anyhow::Result<()> {
             steps,
             effects,
             controls,
-        )?;
+        );
+        if name == "mesh collider" {
+            let _ = std::fs::remove_file(&cube_path);
+        }
+        let w = w?;
         let (mut forward, mut both) = (f64::INFINITY, f64::INFINITY);
         // One untimed run first: the first case would otherwise pay the allocator's warm-up.
         std::hint::black_box(w.run_forward_reverse(steps)?);

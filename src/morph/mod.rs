@@ -367,7 +367,7 @@ impl Prepared {
             if let Some(&last) = ends.last() {
                 let mut state = initial.clone();
                 let mut on_step = |k: usize, st: &State| {
-                    if (k + 1) % substeps == 0 && ends.contains(&((k + 1) / substeps)) {
+                    if (k + 1).is_multiple_of(substeps) && ends.contains(&((k + 1) / substeps)) {
                         passive.push(((k + 1) / substeps, st.x.clone()));
                     }
                 };
@@ -1011,12 +1011,17 @@ pub fn run_warnings(segments: &[SegmentRecord]) -> Vec<String> {
             break;
         }
     }
-    // A segment no step improved while the morph is far from done (its loss above half the
-    // run's first): a body that has arrived has little left to gain, and is not warned about.
-    let first = segments.first().map_or(0.0, |r| r.initial_loss);
+    // A segment no step improved while it was far from its aim (its loss above half the
+    // largest a segment started with): a body that has arrived, or that follows a schedule
+    // of keyframes closely, has little left to gain, and is not warned about.
+    let largest = segments
+        .iter()
+        .map(|r| r.initial_loss)
+        .filter(|l| l.is_finite())
+        .fold(0.0, f64::max);
     let stalled: Vec<String> = segments
         .iter()
-        .filter(|r| r.evaluations > 1 && r.loss >= r.initial_loss && r.initial_loss > 0.5 * first)
+        .filter(|r| r.evaluations > 1 && r.loss >= r.initial_loss && r.initial_loss > 0.5 * largest)
         .map(|r| format!("{}", r.segment + 1))
         .collect();
     if !stalled.is_empty() {

@@ -74,6 +74,15 @@ pub struct FrameStats {
     /// (0 in records written before it was measured).
     #[serde(default)]
     pub rms_speed: f64,
+    /// Kinetic energy `1/2 sum m |v|^2`, with the body's density and world units.
+    #[serde(default)]
+    pub kinetic_energy: f64,
+    /// Root-mean-square particle jerk `|v_k - 2 v_(k-1) + v_(k-2)| / dt^2` over this frame and
+    /// the two before it (`dt` the frame interval), world units per second cubed: how abruptly
+    /// the motion changes. Absent on the first two frames (and on the first two after a
+    /// `--resume`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rms_jerk: Option<f64>,
     /// Volume inside the rebuilt surface (world units), when surfaces are written.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub surface_volume: Option<f64>,
@@ -94,6 +103,12 @@ pub struct FramesSummary {
     /// The largest of the frames' `rms_speed`.
     #[serde(default)]
     pub max_rms_speed: f64,
+    /// The largest of the frames' `kinetic_energy`.
+    #[serde(default)]
+    pub max_kinetic_energy: f64,
+    /// The largest of the frames' `rms_jerk`.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_rms_jerk: Option<f64>,
     /// Largest `|surface_volume_error|` over the frames (when surfaces are written).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub max_surface_volume_error: Option<f64>,
@@ -108,6 +123,8 @@ impl FramesSummary {
             frames_inverted: 0,
             max_close_share: 0.0,
             max_rms_speed: 0.0,
+            max_kinetic_energy: 0.0,
+            max_rms_jerk: None,
             max_surface_volume_error: None,
         };
         for f in stats {
@@ -116,6 +133,10 @@ impl FramesSummary {
             s.frames_inverted += usize::from(f.inverted > 0);
             s.max_close_share = s.max_close_share.max(f.close_share);
             s.max_rms_speed = s.max_rms_speed.max(f.rms_speed);
+            s.max_kinetic_energy = s.max_kinetic_energy.max(f.kinetic_energy);
+            if let Some(j) = f.rms_jerk {
+                s.max_rms_jerk = Some(s.max_rms_jerk.unwrap_or(0.0).max(j));
+            }
             if let Some(e) = f.surface_volume_error {
                 let worst = s.max_surface_volume_error.unwrap_or(0.0).max(e.abs());
                 s.max_surface_volume_error = Some(worst);
@@ -608,7 +629,20 @@ pub struct JudgedFrame {
 fn frame_stats(frame: &Frame, spacing: f64) -> FrameStats {
     let j = &frame.world.j;
     let n = j.len().max(1) as f64;
+    // Particle masses in world units: density times the world volume each stands for.
+    let to_world = frame.prep.geometry.placement.sim_to_world().scale.powi(3);
+    let kinetic_energy = 0.5
+        * frame
+            .prep
+            .model()
+            .mass
+            .iter()
+            .zip(&frame.world.v)
+            .map(|(m, v)| m * to_world * v.norm_squared())
+            .sum::<f64>();
     FrameStats {
+        kinetic_energy,
+        rms_jerk: None,
         min_j: j.iter().copied().fold(f64::INFINITY, f64::min),
         mean_j: j.iter().sum::<f64>() / n,
         max_j: j.iter().copied().fold(f64::NEG_INFINITY, f64::max),
@@ -627,6 +661,9 @@ struct FolderWriter<'a> {
     sink: PlyObjSink,
     /// Each written frame's measurements, in frame order.
     stats: Vec<FrameStats>,
+    /// The velocities (world units) of the last two frames written, with their indices: the
+    /// jerk needs three frames.
+    recent: Vec<(usize, Vec<Vector3<f64>>)>,
     /// The body's volume (world units) the surfaces are measured against.
     body_volume: f64,
     particles: usize,
@@ -694,6 +731,22 @@ impl Observer for FolderWriter<'_> {
         stats.surface_volume = surface_volume;
         stats.surface_volume_error = surface_volume.map(|v| v / self.body_volume - 1.0);
         let index = frame.index;
+        self.recent.retain(|(i, _)| *i + 2 >= index && *i < index);
+        if let [(a, older), (b, previous)] = self.recent.as_slice()
+            && *a + 2 == index
+            && *b + 1 == index
+        {
+            let dt = frame.prep.sim_frame_every() as f64 * frame.prep.model().dt;
+            let v = &frame.world.v;
+            let sum: f64 = v
+                .iter()
+                .zip(previous)
+                .zip(older)
+                .map(|((v, p), o)| (v - 2.0 * p + o).norm_squared())
+                .sum();
+            stats.rms_jerk = Some((sum / v.len().max(1) as f64).sqrt() / (dt * dt));
+        }
+        self.recent.push((index, frame.world.v.clone()));
         self.stats.truncate(index);
         self.stats.push(stats);
         for (f, t) in judged_frames(frame.prep) {
@@ -766,6 +819,7 @@ fn write_run(
         dir,
         sink,
         stats: Vec::new(),
+        recent: Vec::new(),
         body_volume: prep.geometry.source_solid.volume,
         particles: prep.initial.len(),
         preview_at: (0..6).map(|i| i * (n_frames - 1) / 5).collect(),

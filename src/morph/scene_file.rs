@@ -162,19 +162,21 @@ impl SceneFile {
 /// Every key a scene file may hold, as a table of example values: the settings with every
 /// optional part present.
 fn schema() -> toml::Table {
-    let mut s = MorphSettings::default();
-    s.particles = Some(1);
-    s.dt = Some(1.0);
-    s.frames = Some(2);
-    s.gravity = Some([0.0; 3]);
-    s.ground = Some(Ground {
-        height: 0.0,
-        friction: 0.0,
-    });
-    s.colliders = vec![MeshCollider {
-        mesh: PathBuf::new(),
-        friction: 0.0,
-    }];
+    let s = MorphSettings {
+        particles: Some(1),
+        dt: Some(1.0),
+        frames: Some(2),
+        gravity: Some([0.0; 3]),
+        ground: Some(Ground {
+            height: 0.0,
+            friction: 0.0,
+        }),
+        colliders: vec![MeshCollider {
+            mesh: PathBuf::new(),
+            friction: 0.0,
+        }],
+        ..MorphSettings::default()
+    };
     let mut t = toml::Table::try_from(&s).expect("settings serialize to TOML");
     t.insert("source".into(), "".into());
     t.insert("targets".into(), toml::Value::Array(Vec::new()));
