@@ -471,10 +471,15 @@ fn more_effort_never_judges_worse_and_frames_keep_their_volume() {
 }
 
 /// `--fps 24 --frames 48`: exactly 48 frames 1/24 s apart, the rest shape first; the chain is
-/// cut into segments of --steps steps with a shorter last one; 25 fps takes steps of 1/125 s.
+/// cut into segments of --steps steps with a shorter last one; 25 fps takes steps of 1/125 s,
+/// and `--seconds` gives the frames that fill it.
 #[test]
 fn fps_and_frames_set_the_sequence() {
-    for (fps, frames, dt) in [(24.0, 48usize, 1.0 / 120.0), (25.0, 10, 1.0 / 125.0)] {
+    for (fps, frames, dt, length) in [
+        (24.0, 48usize, 1.0 / 120.0, ["--frames", "48"]),
+        // 0.36 s at 25 fps: 9 intervals, 10 frames.
+        (25.0, 10, 1.0 / 125.0, ["--seconds", "0.36"]),
+    ] {
         let out = scratch(&format!("fps-{fps}"));
         let r = morph(&[
             "assets/sphere.obj",
@@ -491,8 +496,8 @@ fn fps_and_frames_set_the_sequence() {
             "--quiet",
             "--fps",
             &fps.to_string(),
-            "--frames",
-            &frames.to_string(),
+            length[0],
+            length[1],
         ]);
         assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
         let m = manifest(&out);

@@ -182,6 +182,10 @@ pub struct MorphArgs {
     /// --steps steps to fit (the last one shorter) [default: --segments segments].
     #[arg(long, conflicts_with = "segments")]
     frames: Option<usize>,
+    /// The shot's length in seconds instead of --frames: the frames that fill it at the frame
+    /// rate, the rest shape first (4 s at 24 fps: 97 frames).
+    #[arg(long, conflicts_with_all = ["segments", "frames"])]
+    seconds: Option<f64>,
     /// The frame (1 = the rest shape) by which each target is reached, comma-separated in
     /// target order (--arrive for one target). The shape eases there along a smoothstep in
     /// time, then holds and settles; 1 aims at the target from the start [default: the last
@@ -338,6 +342,9 @@ impl MorphArgs {
         }
         if self.frames.is_some() {
             s.frames = self.frames;
+        }
+        if let Some(seconds) = self.seconds {
+            s.frames = Some(s.frames_for(seconds)?);
         }
         if self.segments.is_some() {
             // --segments replaces a scene's frame count, as --frames replaces its segments.

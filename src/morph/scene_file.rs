@@ -3,7 +3,8 @@
 //! `_` for `-`; `steps_per_segment` is `--steps`), nested tables for its parts
 //! (`[material]`, `[optimizer]`, `[ground]`, `[[colliders]]`, `[walls]`), and two more:
 //! `source`, the mesh to start from, and `targets`, the meshes to become in keyframe order.
-//! Mesh paths are relative to the file's folder.
+//! Mesh paths are relative to the file's folder. `seconds` may stand for `frames`, as
+//! `--seconds` does on the command line.
 //!
 //! A file is read over its preset's settings (`preset = "final"`; the default preset when it
 //! names none): only the keys it gives change anything. A key the settings do not have is an
@@ -104,8 +105,10 @@ impl SceneFile {
         }
         // The file's frame rate rule is the command line's: a frame every n steps (or a set
         // dt) without fps replaces the rate.
+        let table_had_frames = table.contains_key("frames");
         let no_fps = !table.contains_key("fps")
             && (table.contains_key("frame_every") || table.contains_key("dt"));
+        let seconds = table.remove("seconds");
         let preset = match (preset, table.get("preset")) {
             (Some(p), _) => p,
             (None, Some(v)) => v.clone().try_into().map_err(|e| {
@@ -122,6 +125,28 @@ impl SceneFile {
             .map_err(|e| format!("scene file '{shown}': {}", one_line(&e.to_string())))?;
         if no_fps {
             settings.fps = None;
+        }
+        if let Some(v) = seconds {
+            if table_had_frames {
+                return Err(format!(
+                    "scene file '{shown}': give `frames` or `seconds`, not both"
+                ));
+            }
+            let seconds = match v {
+                toml::Value::Float(f) => f,
+                toml::Value::Integer(i) => i as f64,
+                other => {
+                    return Err(format!(
+                        "scene file '{shown}': `seconds` must be a number, got {other}"
+                    ));
+                }
+            };
+            settings.frames = Some(settings.frames_for(seconds).map_err(|e| {
+                format!(
+                    "scene file '{shown}': {}",
+                    e.replace("--seconds", "seconds")
+                )
+            })?);
         }
         Ok(SceneFile {
             path: path.to_path_buf(),
@@ -179,6 +204,7 @@ fn schema() -> toml::Table {
     };
     let mut t = toml::Table::try_from(&s).expect("settings serialize to TOML");
     t.insert("source".into(), "".into());
+    t.insert("seconds".into(), 1.0.into());
     t.insert("targets".into(), toml::Value::Array(Vec::new()));
     if let Some(toml::Value::Table(m)) = t.get_mut("material") {
         m.insert("youngs_modulus".into(), 1.0.into());

@@ -435,6 +435,21 @@ impl MorphSettings {
         Ok(())
     }
 
+    /// The frames a shot of `seconds` holds at this frame rate, the rest shape first
+    /// (`--seconds`; 4 s at 24 fps: 97).
+    pub fn frames_for(&self, seconds: f64) -> Result<usize, String> {
+        let shot = self.shot();
+        let interval = self.dt.unwrap_or(shot.step) * shot.frame_every as f64;
+        let frames = (seconds / interval).round() + 1.0;
+        if !(seconds.is_finite() && seconds > 0.0) || frames > *limits::FRAMES.end() as f64 {
+            return Err(format!(
+                "--seconds must be above 0 and at most {} frames long, got {seconds}",
+                limits::FRAMES.end()
+            ));
+        }
+        Ok((frames as usize).max(*limits::FRAMES.start()))
+    }
+
     /// The shot's timing: the morph step, the steps between frames and each segment's steps.
     pub fn shot(&self) -> Shot {
         let (step, frame_every) = match self.fps {
