@@ -228,7 +228,7 @@ fn the_examples_run() {
                 check_keyframes(&out, &[60]);
                 // The body lands and stays on the ground: on the last frame no particle is
                 // more than a particle spacing below it, and the lowest is within two cells.
-                let ground = -2.5;
+                let ground = m["settings"]["ground"]["height"].as_f64().unwrap();
                 let (lowest, spacing) = lowest_point(&out, &m);
                 assert!(lowest > ground - spacing, "lowest {lowest}");
                 assert!(

@@ -27,7 +27,9 @@ optimized per-particle controls until it flows into TARGET. The result is a fold
 frame sequence for Blender or Houdini.
 
 SOURCE and TARGET are OBJ or PLY meshes in any units and position; open meshes (holes) are
-accepted. TARGET is scaled to SOURCE's volume and centred on it unless --target-fit as-given.";
+accepted. TARGET is scaled to SOURCE's volume and centred on it unless --target-fit as-given.
+More targets make keyframes (--at). A scene file (--scene, docs/scenes.md) adds gravity, a
+ground, colliders and any setting.";
 
 pub(super) const AFTER_LONG_HELP: &str = "\
 OUTPUT (folder -o, written in the locked OUT.partial and put in place when complete):
@@ -36,6 +38,7 @@ OUTPUT (folder -o, written in the locked OUT.partial and put in place when compl
   final_mass.mgrid           final nodal mass grid; compare two with `morph compare`
   manifest.json              inputs with SHA-256, settings, placement, losses, timings, frames
   run.json                   what decides the result: tool version, input hashes, settings
+  scene.toml                 the resolved scene: `morph --scene OUT/scene.toml` reruns it
   loss.png, preview.png      loss curves; a contact sheet of frames
   -o is checked before any work; --overwrite replaces only an earlier morph output; a second
   run on the same -o fails at once. Each completed segment is checkpointed in OUT.partial.
@@ -55,6 +58,8 @@ EXIT CODES:
 EXAMPLES:
   morph assets/sphere.obj assets/two-lobes.obj -o out
   morph sphere.obj bunny.obj -o bunny_morph --preset final --json > log.jsonl
+  morph sphere.obj cube.obj bunny.obj -o keys --at 48,96 --frames 120  # through a cube
+  morph --scene examples/fall-onto-floor.toml -o fall                   # a scene file
   morph sphere.obj bunny.obj -o bunny_morph --preset final --resume   # after an interruption
   morph compare out/final_mass.mgrid golden/final_mass.mgrid --rtol 1e-6";
 
