@@ -4,30 +4,13 @@
 use morph::geometry::{assets, load_mesh};
 use morph::io::massgrid::MassGrid;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Command;
 
-fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
+mod common;
+use common::cli::{manifest, morph, scratch_in};
 
 fn scratch(name: &str) -> PathBuf {
-    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("morph-tests");
-    std::fs::create_dir_all(&dir).unwrap();
-    let p = dir.join(name);
-    let _ = std::fs::remove_dir_all(&p);
-    p
-}
-
-fn morph(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_morph"))
-        .current_dir(root())
-        .args(args)
-        .output()
-        .unwrap()
-}
-
-fn manifest(dir: &Path) -> serde_json::Value {
-    serde_json::from_slice(&std::fs::read(dir.join("manifest.json")).unwrap()).unwrap()
+    scratch_in("morph-tests", name)
 }
 
 /// Floats of a frame PLY written by morph (7 float32 per particle after the header).

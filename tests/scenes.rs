@@ -2,39 +2,12 @@
 //! morph bit for bit) and the example scenes in `examples/`, each run at low resolution.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
 
-fn root() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-}
+mod common;
+use common::cli::{manifest, morph, ok, root, scratch_in};
 
 fn scratch(name: &str) -> PathBuf {
-    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("scene-tests");
-    std::fs::create_dir_all(&dir).unwrap();
-    let p = dir.join(name);
-    let _ = std::fs::remove_dir_all(&p);
-    p
-}
-
-fn morph(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_morph"))
-        .current_dir(root())
-        .args(args)
-        .output()
-        .unwrap()
-}
-
-fn ok(r: &Output) {
-    assert!(
-        r.status.success(),
-        "exit {:?}: {}",
-        r.status.code(),
-        String::from_utf8_lossy(&r.stderr)
-    );
-}
-
-fn manifest(dir: &Path) -> serde_json::Value {
-    serde_json::from_slice(&std::fs::read(dir.join("manifest.json")).unwrap()).unwrap()
+    scratch_in("scene-tests", name)
 }
 
 fn fill(q: &serde_json::Value) -> f64 {

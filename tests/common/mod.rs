@@ -1,5 +1,8 @@
-//! Shared scene builders for the integration tests.
+//! Shared scene builders for the integration tests, and helpers for the tests that run the
+//! `morph` binary.
 #![allow(dead_code)]
+
+pub mod cli;
 
 use morph::integrator::{Engine, Integrator, IntegratorKind};
 use morph::loss::{MassLoss, MassLossKind};
