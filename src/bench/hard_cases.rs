@@ -271,7 +271,7 @@ pub fn quick() -> MorphSettings {
     s.resolution = 16;
     s.segments = 2;
     s.optimizer.iterations = 3;
-    s.surfaces = false;
+    s.surfaces = crate::morph::settings::Surfaces::None;
     s
 }
 
@@ -474,7 +474,7 @@ pub fn cases(meshes: &Path) -> Result<Vec<Case>, MorphError> {
     big.particles = Some(300_000);
     big.segments = 2;
     big.optimizer.iterations = 4;
-    big.surfaces = false;
+    big.surfaces = crate::morph::settings::Surfaces::None;
     all.push(Case {
         long: true,
         memory_limit: MemoryLimit::Bytes(4 << 30),

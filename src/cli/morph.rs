@@ -12,7 +12,7 @@ use morph::morph::basis::ControlResolution;
 use morph::morph::memory::MemoryLimit;
 use morph::morph::scene_file::SceneFile;
 use morph::morph::segment::Optimizer;
-use morph::morph::settings::limits;
+use morph::morph::settings::{Surfaces, limits};
 use morph::morph::{MorphError, MorphEvent, MorphSettings, Preset};
 use morph::mpm::ControlForm;
 use std::path::PathBuf;
@@ -197,8 +197,10 @@ pub struct MorphArgs {
     /// target at 80% of the frames, earlier ones evenly before it].
     #[arg(long, visible_alias = "arrive", value_delimiter = ',', num_args = 1..)]
     at: Vec<usize>,
-    /// Skip the per-frame surface meshes (points only).
-    #[arg(long)]
+    #[arg(long, value_parser = choice(&Surfaces::ALL), help = format!("Surfaces per frame: carried (the source mesh itself, with its UVs and groups, following the body; carried/), rebuilt (a closed surface made from the particles, which follows any change of topology; meshes/), both, or none [default {}]", name(&defaults().surfaces)))]
+    surface: Option<Surfaces>,
+    /// Points only: the same as --surface none.
+    #[arg(long, conflicts_with = "surface")]
     no_surfaces: bool,
     /// Print one JSON object per event on stdout (for farm logs) instead of progress bars;
     /// a failure ends the stream with an `error` event.
@@ -367,8 +369,11 @@ impl MorphArgs {
         if let Some(fit) = self.target_fit {
             s.target_fit = fit;
         }
+        if let Some(surfaces) = self.surface {
+            s.surfaces = surfaces;
+        }
         if self.no_surfaces {
-            s.surfaces = false;
+            s.surfaces = Surfaces::None;
         }
         Ok(s)
     }

@@ -55,6 +55,41 @@ pub fn uv_sphere(
     }
 }
 
+/// Texture coordinates for [`uv_sphere`] of the same `rings` and `segments`: the
+/// equirectangular map (u along the longitude, v from the south pole up), with the seam's
+/// column doubled and one coordinate per pole triangle. Returns the coordinates and, for each
+/// of the sphere's triangles in order, its corners' coordinate indices.
+pub fn uv_sphere_uvs(rings: usize, segments: usize) -> (Vec<[f64; 2]>, Vec<[u32; 3]>) {
+    let mut uvs = Vec::new();
+    // Ring i (1..rings), column j (0..=segments).
+    let grid = |i: usize, j: usize| (i - 1) * (segments + 1) + j;
+    for i in 1..rings {
+        for j in 0..=segments {
+            uvs.push([j as f64 / segments as f64, 1.0 - i as f64 / rings as f64]);
+        }
+    }
+    let north = uvs.len();
+    for j in 0..segments {
+        uvs.push([(j as f64 + 0.5) / segments as f64, 1.0]);
+    }
+    let south = uvs.len();
+    for j in 0..segments {
+        uvs.push([(j as f64 + 0.5) / segments as f64, 0.0]);
+    }
+    let mut corners = Vec::new();
+    for j in 0..segments {
+        corners.push([north + j, grid(1, j), grid(1, j + 1)]);
+        for i in 1..rings - 1 {
+            let (a0, a1, b0, b1) = (grid(i, j), grid(i, j + 1), grid(i + 1, j), grid(i + 1, j + 1));
+            corners.push([a0, b0, b1]);
+            corners.push([a0, b1, a1]);
+        }
+        corners.push([south + j, grid(rings - 1, j + 1), grid(rings - 1, j)]);
+    }
+    let corners = corners.into_iter().map(|c| c.map(|k| k as u32)).collect();
+    (uvs, corners)
+}
+
 /// A ring torus about the z axis (genus 1).
 pub fn torus(major: f64, minor: f64, around: usize, tube: usize) -> TriMesh {
     let mut vertices = Vec::with_capacity(around * tube);
@@ -139,10 +174,13 @@ pub fn two_lobes(rings: usize, segments: usize) -> TriMesh {
     mesh
 }
 
+/// The built-in sphere's rings and segments.
+const SPHERE: (usize, usize) = (32, 64);
+
 /// The built-in assets by file name.
 pub fn builtin() -> Vec<(&'static str, TriMesh)> {
     vec![
-        ("sphere.obj", uv_sphere(1.0, 32, 64, |_, _| 1.0)),
+        ("sphere.obj", uv_sphere(1.0, SPHERE.0, SPHERE.1, |_, _| 1.0)),
         ("torus.obj", torus(1.0, 0.4, 64, 32)),
         ("cube.obj", cube(2.0, 8)),
         ("two-lobes.obj", two_lobes(48, 64)),
@@ -167,7 +205,13 @@ pub fn write_builtin(dir: &Path, overwrite: bool) -> std::io::Result<Vec<std::pa
         .into_iter()
         .map(|(name, mesh)| {
             let path = dir.join(name);
-            mesh.write_obj(&path)?;
+            if name == "sphere.obj" {
+                // The sphere carries texture coordinates, as a modelled source would.
+                let (uvs, corners) = uv_sphere_uvs(SPHERE.0, SPHERE.1);
+                mesh.write_obj_with_uvs(&path, &uvs, &corners)?;
+            } else {
+                mesh.write_obj(&path)?;
+            }
             Ok(path)
         })
         .collect()

@@ -367,6 +367,24 @@ impl TriMesh {
     /// Writes a Wavefront OBJ (vertices and faces only) atomically: to a temporary name in
     /// the same folder, then renamed over `path`.
     pub fn write_obj(&self, path: &Path) -> std::io::Result<()> {
+        self.write_obj_with_uvs(path, &[], &[])
+    }
+
+    /// [`TriMesh::write_obj`] with texture coordinates: `uv_corners[t]` holds triangle `t`'s
+    /// corners' indices into `uvs` (both empty: no `vt`).
+    pub fn write_obj_with_uvs(
+        &self,
+        path: &Path,
+        uvs: &[[f64; 2]],
+        uv_corners: &[[u32; 3]],
+    ) -> std::io::Result<()> {
+        let textured = !uv_corners.is_empty();
+        if textured && uv_corners.len() != self.triangles.len() {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::InvalidInput,
+                "one set of texture corners per triangle",
+            ));
+        }
         if let Some(i) = self
             .vertices
             .iter()
@@ -382,8 +400,25 @@ impl TriMesh {
             for v in &self.vertices {
                 writeln!(w, "v {} {} {}", v.x as f32, v.y as f32, v.z as f32)?;
             }
-            for t in &self.triangles {
-                writeln!(w, "f {} {} {}", t[0] + 1, t[1] + 1, t[2] + 1)?;
+            for uv in uvs {
+                writeln!(w, "vt {} {}", uv[0] as f32, uv[1] as f32)?;
+            }
+            for (k, t) in self.triangles.iter().enumerate() {
+                if textured {
+                    let c = uv_corners[k];
+                    writeln!(
+                        w,
+                        "f {}/{} {}/{} {}/{}",
+                        t[0] + 1,
+                        c[0] + 1,
+                        t[1] + 1,
+                        c[1] + 1,
+                        t[2] + 1,
+                        c[2] + 1
+                    )?;
+                } else {
+                    writeln!(w, "f {} {} {}", t[0] + 1, t[1] + 1, t[2] + 1)?;
+                }
             }
             Ok(())
         })

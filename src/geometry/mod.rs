@@ -3,6 +3,7 @@
 //! from particles for export. `assets` generates the built-in shapes.
 
 pub mod assets;
+pub mod carried;
 pub mod error;
 pub mod mesh;
 pub mod placement;

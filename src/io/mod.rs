@@ -1,11 +1,12 @@
 //! What a morph writes: PLY point frames, the nodal mass grid file (and its comparison),
-//! the manifest, and the loss / preview images. Every file is written to a temporary name
+//! the manifest, the loss / preview images and the USD file of the whole sequence. Every file is written to a temporary name
 //! and renamed, so no reader ever sees half a file.
 
 pub mod frames;
 pub mod images;
 pub mod massgrid;
 pub mod outdir;
+pub mod usd;
 
 pub use crate::geometry::mesh::write_atomically;
 

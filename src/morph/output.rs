@@ -21,6 +21,7 @@ use super::{
     Frame, FrameSink, IterationRecord, MorphError, MorphEvent, MorphSettings, Observer, Prepared,
     RunProgress, SegmentRecord, WorldFrame, checkpoint, run,
 };
+use crate::geometry::carried::{CarriedStats, CarriedSurface};
 use crate::geometry::{Similarity, extract_surface};
 use crate::io::outdir::{self, Previous, Staging};
 use crate::io::{frames::write_points_ply, images, massgrid::MassGrid, sha256_file};
@@ -55,6 +56,9 @@ struct FrameEntry {
     points: String,
     #[serde(skip_serializing_if = "Option::is_none")]
     mesh: Option<String>,
+    /// The carried surface's file (with `--surface carried` or `both`).
+    #[serde(default, skip_serializing_if = "Option::is_none", rename = "carried_mesh")]
+    carried: Option<String>,
     #[serde(flatten)]
     stats: Option<FrameStats>,
 }
@@ -83,6 +87,11 @@ pub struct FrameStats {
     /// `--resume`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rms_jerk: Option<f64>,
+    /// What the carried surface measures on this frame (with `--surface carried` or `both`):
+    /// the largest and smallest principal stretch of its triangles, and its vertices left
+    /// away from the body.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub carried: Option<CarriedStats>,
     /// Volume inside the rebuilt surface (world units), when surfaces are written.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub surface_volume: Option<f64>,
@@ -109,6 +118,10 @@ pub struct FramesSummary {
     /// The largest of the frames' `rms_jerk`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub max_rms_jerk: Option<f64>,
+    /// The carried surface's largest and smallest triangle stretch and most detached
+    /// vertices over the frames.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub carried: Option<CarriedStats>,
     /// Largest `|surface_volume_error|` over the frames (when surfaces are written).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub max_surface_volume_error: Option<f64>,
@@ -125,6 +138,7 @@ impl FramesSummary {
             max_rms_speed: 0.0,
             max_kinetic_energy: 0.0,
             max_rms_jerk: None,
+            carried: None,
             max_surface_volume_error: None,
         };
         for f in stats {
@@ -134,6 +148,12 @@ impl FramesSummary {
             s.max_close_share = s.max_close_share.max(f.close_share);
             s.max_rms_speed = s.max_rms_speed.max(f.rms_speed);
             s.max_kinetic_energy = s.max_kinetic_energy.max(f.kinetic_energy);
+            if let Some(c) = f.carried {
+                let w = s.carried.get_or_insert(c);
+                w.max_stretch = w.max_stretch.max(c.max_stretch);
+                w.min_stretch = w.min_stretch.min(c.min_stretch);
+                w.detached = w.detached.max(c.detached);
+            }
             if let Some(j) = f.rms_jerk {
                 s.max_rms_jerk = Some(s.max_rms_jerk.unwrap_or(0.0).max(j));
             }
@@ -556,7 +576,11 @@ fn sha256_hex(bytes: &[u8]) -> String {
 pub struct PlyObjSink {
     pub dir: PathBuf,
     pub n_frames: usize,
-    pub surfaces: bool,
+    /// Write the surface rebuilt from the particles (`meshes/`).
+    pub rebuilt: bool,
+    /// The source's surface carried through the morph, and the particles' rest positions it
+    /// was bound to (`carried/`).
+    pub carried: Option<(CarriedSurface, Vec<Vector3<f64>>)>,
     /// Particle spacing (simulation units) and rest volume, for the surface.
     pub spacing: f64,
     pub rest_volume: f64,
@@ -567,12 +591,31 @@ impl PlyObjSink {
     /// Writes `frame`; returns the volume its surface encloses (world units) when surfaces
     /// are written.
     pub fn write(&mut self, frame: &Frame) -> Result<Option<f64>, MorphError> {
+        Ok(self.write_measured(frame)?.0)
+    }
+
+    /// [`PlyObjSink::write`], also returning what the carried surface measures.
+    pub fn write_measured(
+        &mut self,
+        frame: &Frame,
+    ) -> Result<(Option<f64>, Option<CarriedStats>), MorphError> {
         let name = frame_name(frame.index, self.n_frames);
         let WorldFrame { x, v, j } = &frame.world;
         let points = self.dir.join("frames").join(format!("{name}.ply"));
         write_points_ply(&points, x, v, j).map_err(|e| out_err("frame", &points, e))?;
-        if !self.surfaces {
-            return Ok(None);
+        let carried = match &self.carried {
+            Some((surface, rest)) => {
+                let on_frame = surface.carry(rest, &frame.state.x, &frame.state.f);
+                let path = self.dir.join("carried").join(format!("{name}.obj"));
+                surface
+                    .write_obj(&path, &on_frame)
+                    .map_err(|e| out_err("carried surface", &path, e))?;
+                Some(surface.stats(&on_frame, &frame.state.x, self.spacing))
+            }
+            None => None,
+        };
+        if !self.rebuilt {
+            return Ok((None, carried));
         }
         let volumes: Vec<f64> = j.iter().map(|j| self.rest_volume * j.max(0.0)).collect();
         let surface = extract_surface(&frame.state.x, &volumes, self.spacing)
@@ -582,7 +625,7 @@ impl PlyObjSink {
         world
             .write_obj(&path)
             .map_err(|e| out_err("surface", &path, e))?;
-        Ok(Some(world.signed_volume()))
+        Ok((Some(world.signed_volume()), carried))
     }
 }
 
@@ -643,6 +686,7 @@ fn frame_stats(frame: &Frame, spacing: f64) -> FrameStats {
     FrameStats {
         kinetic_energy,
         rms_jerk: None,
+        carried: None,
         min_j: j.iter().copied().fold(f64::INFINITY, f64::min),
         mean_j: j.iter().sum::<f64>() / n,
         max_j: j.iter().copied().fold(f64::NEG_INFINITY, f64::max),
@@ -726,8 +770,9 @@ impl Observer for FolderWriter<'_> {
     }
 
     fn frame(&mut self, frame: &Frame) -> Result<(), MorphError> {
-        let surface_volume = self.sink.write(frame)?;
+        let (surface_volume, carried) = self.sink.write_measured(frame)?;
         let mut stats = frame_stats(frame, self.sink.spacing);
+        stats.carried = carried;
         stats.surface_volume = surface_volume;
         stats.surface_volume_error = surface_volume.map(|v| v / self.body_volume - 1.0);
         let index = frame.index;
@@ -794,8 +839,10 @@ fn write_run(
     on_event: &mut dyn FnMut(&MorphEvent),
 ) -> Result<Summary, MorphError> {
     let settings = &prep.settings;
-    for sub in ["frames", "meshes", checkpoint::FOLDER] {
-        if sub == "meshes" && !settings.surfaces {
+    for sub in ["frames", "meshes", "carried", checkpoint::FOLDER] {
+        if (sub == "meshes" && !settings.surfaces.rebuilt())
+            || (sub == "carried" && !settings.surfaces.carried())
+        {
             continue;
         }
         let d = dir.join(sub);
@@ -807,10 +854,31 @@ fn write_run(
     let resumed_from = resume
         .as_ref()
         .map(|p| checkpoint::describe(p, settings.passes, prep.settings.segments));
+    let carried = if settings.surfaces.carried() {
+        let source = Path::new(&identity.inputs[0].path);
+        let loaded = crate::geometry::load_mesh(source)?;
+        let surface = CarriedSurface::bind(
+            source,
+            &loaded.mesh,
+            prep.geometry.placement.world_to_sim,
+            &prep.initial.x,
+            spacing,
+        )
+        .map_err(|e| {
+            MorphError::Mesh(crate::geometry::MeshError::Unreadable {
+                path: source.into(),
+                reason: e.to_string(),
+            })
+        })?;
+        Some((surface, prep.initial.x.clone()))
+    } else {
+        None
+    };
     let sink = PlyObjSink {
         dir: dir.to_path_buf(),
         n_frames,
-        surfaces: settings.surfaces,
+        rebuilt: settings.surfaces.rebuilt(),
+        carried,
         spacing,
         rest_volume: prep.geometry.source.volume,
         to_world,
@@ -874,6 +942,28 @@ fn write_run(
         .collect();
     let optimize_s = clock.elapsed().as_secs_f64() - setup_s;
 
+    // The whole sequence as one USD file, from the frames on disk.
+    let names: Vec<String> = (0..n_frames).map(|i| frame_name(i, n_frames)).collect();
+    let files = |folder: &str, ext: &str| -> Vec<PathBuf> {
+        names
+            .iter()
+            .map(|n| Path::new(folder).join(format!("{n}.{ext}")))
+            .collect()
+    };
+    let usd_path = dir.join(crate::io::usd::FILE);
+    crate::io::usd::write_usda(
+        &usd_path,
+        &crate::io::usd::UsdSequence {
+            dir,
+            fps: 1.0 / (prep.sim_frame_every() as f64 * prep.model().dt),
+            points: files("frames", "ply"),
+            carried: settings.surfaces.carried().then(|| files("carried", "obj")),
+            rebuilt: settings.surfaces.rebuilt().then(|| files("meshes", "obj")),
+            width: spacing * to_world.scale,
+        },
+    )
+    .map_err(|e| out_err("USD file", &usd_path, e))?;
+
     // Final nodal mass grid, on world coordinates.
     let s = to_world.scale;
     let mass = prep.model().mass_grid(&result.final_state.x)?;
@@ -912,7 +1002,14 @@ fn write_run(
                 step,
                 time: step as f64 * prep.model().dt,
                 points: format!("frames/{name}.ply"),
-                mesh: settings.surfaces.then(|| format!("meshes/{name}.obj")),
+                mesh: settings
+                    .surfaces
+                    .rebuilt()
+                    .then(|| format!("meshes/{name}.obj")),
+                carried: settings
+                    .surfaces
+                    .carried()
+                    .then(|| format!("carried/{name}.obj")),
                 stats: frame_stats.get(i).copied(),
             }
         })

@@ -151,8 +151,43 @@ pub struct MorphSettings {
     /// The body's velocity at the first frame, in the source mesh's units per second.
     #[serde(default)]
     pub initial_velocity: [f64; 3],
-    /// Write a closed surface per frame.
-    pub surfaces: bool,
+    /// Which surfaces each frame gets besides its points (`--surface`).
+    pub surfaces: Surfaces,
+}
+
+/// The surfaces written per frame.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Surfaces {
+    /// Points only.
+    None,
+    /// The source mesh carried through the morph (its topology, UVs and groups; `carried/`).
+    Carried,
+    /// A closed surface rebuilt from the particles every frame (follows any topology;
+    /// `meshes/`).
+    Rebuilt,
+    /// Both: the carried surface for texturing, the rebuilt one where the shape's topology
+    /// changes (sphere -> torus) and the carried one cannot follow.
+    #[default]
+    Both,
+}
+
+impl Surfaces {
+    /// Every value, in declaration order (the command line lists them by their serde names).
+    pub const ALL: [Surfaces; 4] = [
+        Surfaces::None,
+        Surfaces::Carried,
+        Surfaces::Rebuilt,
+        Surfaces::Both,
+    ];
+
+    pub fn carried(self) -> bool {
+        matches!(self, Surfaces::Carried | Surfaces::Both)
+    }
+
+    pub fn rebuilt(self) -> bool {
+        matches!(self, Surfaces::Rebuilt | Surfaces::Both)
+    }
 }
 
 /// Friction of a ground or collider when a scene does not give one.
@@ -270,7 +305,7 @@ impl MorphSettings {
             colliders: Vec::new(),
             walls: WallSettings::default(),
             initial_velocity: [0.0; 3],
-            surfaces: true,
+            surfaces: Surfaces::default(),
         }
     }
 

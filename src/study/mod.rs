@@ -154,7 +154,7 @@ impl StudyConfig {
         s.optimizer.iterations = self.iterations;
         s.passes = self.passes;
         s.segments = self.segments;
-        s.surfaces = false;
+        s.surfaces = crate::morph::settings::Surfaces::None;
         s
     }
 }

@@ -1,0 +1,154 @@
+#!/usr/bin/env python3
+"""Opens a morph output folder with the tools studios use, and checks what they read back.
+
+    python scripts/check_clients.py OUT
+
+OUT is a folder written by `morph SOURCE TARGET -o OUT` with the default surfaces (carried and
+rebuilt). Needs the PyPI packages `usd-core` (Pixar's USD) and `bpy` (Blender 4.5 as a module);
+`.ci/run` installs both into a cached venv and runs this on a small morph.
+
+Checks, each printed with what was read:
+- USD (pxr): the stage's time codes, frame rate, up axis and units; the particles' points,
+  velocities, ids and J primvar per frame; the carried mesh's topology and UVs against the
+  source; the rebuilt mesh's points; and Pixar's validators (what `usdchecker` runs) report no
+  error.
+- Blender (bpy): imports morph.usda and reads back the frame range, fps, point count, the
+  velocity attribute, the carried mesh's vertex count and UV layer; imports a carried OBJ, a
+  rebuilt OBJ and a PLY frame and reads their vertex counts, UVs and attributes.
+Exits 1 with the first failed check.
+"""
+
+import json
+import sys
+from pathlib import Path
+
+failures = []
+passed = []
+
+
+def check(what, ok, detail=""):
+    print(f"{'ok  ' if ok else 'FAIL'} {what}{': ' + str(detail) if detail != '' else ''}")
+    (passed if ok else failures).append(what)
+
+
+def obj_counts(path):
+    v = vt = f = 0
+    for line in open(path):
+        if line.startswith("v "):
+            v += 1
+        elif line.startswith("vt "):
+            vt += 1
+        elif line.startswith("f "):
+            f += 1
+    return v, vt, f
+
+
+def check_usd(out, manifest):
+    from pxr import Usd, UsdGeom, UsdValidation
+
+    path = out / "morph.usda"
+    stage = Usd.Stage.Open(str(path))
+    n = len(manifest["frames"])
+    fps = manifest["fps"]
+    check("usd time codes 1..frames", (stage.GetStartTimeCode(), stage.GetEndTimeCode()) == (1, n),
+          (stage.GetStartTimeCode(), stage.GetEndTimeCode()))
+    check("usd timeCodesPerSecond and framesPerSecond = fps",
+          abs(stage.GetTimeCodesPerSecond() - fps) < 1e-9 and abs(stage.GetFramesPerSecond() - fps) < 1e-9,
+          (stage.GetTimeCodesPerSecond(), stage.GetFramesPerSecond()))
+    check("usd upAxis Y, metersPerUnit 1",
+          UsdGeom.GetStageUpAxis(stage) == "Y" and UsdGeom.GetStageMetersPerUnit(stage) == 1.0)
+    pts = UsdGeom.Points(stage.GetPrimAtPath("/Morph/particles"))
+    count = manifest["particles"]
+    for t in (1, n):
+        check(f"usd particles at frame {t}: points, velocities",
+              len(pts.GetPointsAttr().Get(t)) == count and len(pts.GetVelocitiesAttr().Get(t)) == count,
+              count)
+    check("usd ids", list(pts.GetIdsAttr().Get()) == list(range(count)))
+    j = UsdGeom.PrimvarsAPI(pts).GetPrimvar("J")
+    check("usd primvars:J per point", j.GetInterpolation() == "vertex" and len(j.Get(n)) == count)
+    carried = UsdGeom.Mesh(stage.GetPrimAtPath("/Morph/carried"))
+    sv, svt, sf = obj_counts(out / manifest["frames"][0]["carried_mesh"])
+    check("usd carried mesh: source's vertex and face counts",
+          len(carried.GetPointsAttr().Get(n)) == sv and len(carried.GetFaceVertexCountsAttr().Get()) == sf,
+          (sv, sf))
+    st = UsdGeom.PrimvarsAPI(carried).GetPrimvar("st")
+    check("usd carried mesh: st primvar (faceVarying) with the source's UVs",
+          st.GetInterpolation() == "faceVarying" and len(st.Get()) == svt, svt)
+    check("usd carried mesh: velocities", len(carried.GetVelocitiesAttr().Get(2)) == sv)
+    rebuilt = UsdGeom.Mesh(stage.GetPrimAtPath("/Morph/rebuilt"))
+    check("usd rebuilt mesh: points on every frame",
+          all(len(rebuilt.GetPointsAttr().Get(t)) > 0 for t in range(1, n + 1)))
+    validators = UsdValidation.ValidationRegistry().GetOrLoadAllValidators()
+    errors = UsdValidation.ValidationContext(validators).Validate(stage)
+    check(f"usd validators ({len(validators)}, what usdchecker runs): no errors", len(errors) == 0,
+          [e.GetMessage() for e in errors][:5])
+
+
+def check_blender(out, manifest):
+    import bpy
+
+    n = len(manifest["frames"])
+    fps = manifest["fps"]
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.wm.usd_import(filepath=str(out / "morph.usda"), set_frame_range=True)
+    scene = bpy.context.scene
+    check("blender frame range from the USD", (scene.frame_start, scene.frame_end) == (1, n),
+          (scene.frame_start, scene.frame_end))
+    check("blender fps from the USD", abs(scene.render.fps / scene.render.fps_base - fps) < 1e-6,
+          scene.render.fps / scene.render.fps_base)
+    objects = {o.name: o for o in scene.objects}
+    print("     blender objects:", sorted(objects))
+    scene.frame_set(n)
+    depsgraph = bpy.context.evaluated_depsgraph_get()
+    particles = objects.get("particles")
+    check("blender particles object", particles is not None)
+    if particles is not None:
+        data = particles.evaluated_get(depsgraph).data
+        check("blender point count", len(data.vertices if hasattr(data, "vertices") else data.points) == manifest["particles"],
+              manifest["particles"])
+        names = [a.name for a in data.attributes]
+        check("blender velocity attribute on the points", "velocity" in names, names)
+    carried = objects.get("carried")
+    sv, svt, sf = obj_counts(out / manifest["frames"][0]["carried_mesh"])
+    check("blender carried mesh", carried is not None)
+    if carried is not None:
+        mesh = carried.evaluated_get(depsgraph).data
+        check("blender carried mesh: the source's vertex count", len(mesh.vertices) == sv, (len(mesh.vertices), sv))
+        check("blender carried mesh: a UV layer", len(mesh.uv_layers) >= 1, [u.name for u in mesh.uv_layers])
+
+    # The loose files: a carried OBJ keeps its UVs; a rebuilt OBJ and a PLY frame import.
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    last = manifest["frames"][-1]
+    bpy.ops.wm.obj_import(filepath=str(out / last["carried_mesh"]))
+    obj = bpy.context.selected_objects[0]
+    check("blender carried OBJ: vertex count and UVs", len(obj.data.vertices) == sv and len(obj.data.uv_layers) == 1,
+          (len(obj.data.vertices), len(obj.data.uv_layers)))
+    bpy.ops.wm.obj_import(filepath=str(out / last["mesh"]))
+    obj = bpy.context.selected_objects[0]
+    check("blender rebuilt OBJ imports", len(obj.data.vertices) > 0, len(obj.data.vertices))
+    bpy.ops.wm.ply_import(filepath=str(out / last["points"]))
+    obj = bpy.context.selected_objects[0]
+    names = [a.name for a in obj.data.attributes]
+    check("blender PLY frame: points and vx vy vz J attributes",
+          len(obj.data.vertices) == manifest["particles"] and all(k in names for k in ("vx", "vy", "vz", "J")),
+          names)
+
+
+def main():
+    if len(sys.argv) != 2:
+        sys.exit(__doc__)
+    out = Path(sys.argv[1])
+    manifest = json.load(open(out / "manifest.json"))
+    check_usd(out, manifest)
+    check_blender(out, manifest)
+    usd = (out / "morph.usda").stat().st_size
+    loose = sum(p.stat().st_size for d in ("frames", "meshes", "carried") for p in (out / d).glob("*"))
+    print(f"     sizes: morph.usda {usd / 1e6:.1f} MB, frames/ meshes/ carried/ {loose / 1e6:.1f} MB")
+    print(f"clients: {len(passed)} passed, {len(failures)} failed")
+    if failures:
+        print(f"first failure: {failures[0]}")
+        sys.exit(1)
+
+
+if __name__ == "__main__":
+    main()

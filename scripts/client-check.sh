@@ -1,0 +1,19 @@
+#!/usr/bin/env bash
+# Checks a morph's output with the clients studios use: Pixar's USD library (usd-core, and the
+# validators usdchecker runs) and Blender 4.5 as a Python module (bpy), installed into a cached
+# venv outside the repo. Usage: scripts/client-check.sh [OUT]; without OUT it makes a small
+# morph of the built-in assets first. Needs python3.11 (bpy 4.5's).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+venv="${MORPH_CLIENT_VENV:-${XDG_CACHE_HOME:-$HOME/.cache}/morph-client-venv}"
+if ! "$venv/bin/python" -c 'import pxr, bpy' >/dev/null 2>&1; then
+  python3 -m venv "$venv"
+  "$venv/bin/pip" install --quiet --disable-pip-version-check usd-core "bpy==4.5.*"
+fi
+out="${1:-}"
+if [ -z "$out" ]; then
+  out="$(mktemp -d)/small"
+  cargo run --release --quiet -- assets/sphere.obj assets/two-lobes.obj -o "$out" \
+    --preset draft --resolution 16 --quiet
+fi
+"$venv/bin/python" scripts/check_clients.py "$out"

@@ -1,0 +1,478 @@
+//! The source's own surface carried through the morph: every vertex of the source mesh is
+//! bound, at rest, to the particles around it, and follows their local deformation. On a
+//! frame a vertex at rest position `X` is at
+//!
+//! ```text
+//!   x = X + sum_p w_p [ (x_p - X_p) + (F_p - I) (X - X_p) ]
+//! ```
+//!
+//! (sim units; `x_p`, `F_p` the particle's position and deformation gradient, `X_p` its rest
+//! position; `w_p` the binding's weights, summing to 1). At rest every term is exactly zero,
+//! so frame 1 is the source asset, bit for bit: its vertex lines are written as they were read.
+//! Normals follow the deformation too: `n' ~ F^-T n` with `F = sum_p w_p F_p` at their vertex.
+//!
+//! An OBJ source is rewritten line by line: `v` and `vn` lines get their new values, every
+//! other line (`vt`, faces, groups, materials, smoothing, comments) is kept as it was, so the
+//! topology, UVs and groups are the source's; `mtllib` points at the source's material file.
+//! A PLY source is carried as the mesh morph read from it (welded, without its properties).
+//!
+//! A vertex whose particles have spread apart (the material tore or ejected around it) keeps
+//! following their average motion; a frame counts the vertices left more than
+//! [`DETACHED_SPACINGS`] particle spacings from every particle, and the largest triangle
+//! stretch, so a run says when the carried surface no longer sits on the body.
+
+use super::mesh::TriMesh;
+use nalgebra::{Matrix2, Matrix3, Vector3};
+use std::io::Write;
+use std::path::Path;
+
+/// Binding radius, in particle spacings: particles within it carry a vertex.
+const BIND_SPACINGS: f64 = 2.5;
+
+/// A carried vertex farther than this many particle spacings from every particle is counted
+/// as detached.
+pub const DETACHED_SPACINGS: f64 = 2.0;
+
+/// One line of the source file.
+#[derive(Clone, Debug)]
+enum Line {
+    Kept(String),
+    /// A `v` line: the vertex index, and what followed its coordinates (a `w` or a colour).
+    Vertex(usize, String),
+    /// A `vn` line: the normal index.
+    Normal(usize),
+}
+
+/// The source surface bound to the particles (see the module doc).
+#[derive(Clone, Debug)]
+pub struct CarriedSurface {
+    lines: Vec<Line>,
+    /// The source's `v` lines as read, for frames where a vertex has not moved.
+    vertex_text: Vec<String>,
+    /// Rest positions, world units.
+    rest: Vec<Vector3<f64>>,
+    /// Rest normals, and a vertex each is used at (its deformation turns it).
+    normals: Vec<(Vector3<f64>, Option<usize>)>,
+    /// Faces fan-triangulated, by vertex index (for the stretch measure).
+    pub triangles: Vec<[usize; 3]>,
+    /// Texture coordinates (`vt` lines).
+    pub uvs: usize,
+    /// Binding: vertex `i`'s particles and weights are `bind[offsets[i]..offsets[i + 1]]`.
+    offsets: Vec<usize>,
+    bind: Vec<(u32, f64)>,
+    /// World -> sim map the binding was made with.
+    to_sim: super::Similarity,
+}
+
+/// A carried surface on one frame.
+pub struct CarriedFrame {
+    /// World positions, one per source vertex.
+    pub positions: Vec<Vector3<f64>>,
+    /// The interpolated deformation gradient at each vertex.
+    pub deformation: Vec<Matrix3<f64>>,
+}
+
+/// What a frame's carried surface measures.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct CarriedStats {
+    /// Largest principal stretch of any triangle against its rest shape (1: unstretched).
+    pub max_stretch: f64,
+    /// Smallest principal stretch (below 1: compressed).
+    pub min_stretch: f64,
+    /// Vertices more than [`DETACHED_SPACINGS`] particle spacings from every particle.
+    pub detached: usize,
+}
+
+impl CarriedSurface {
+    /// Reads the source's own file (OBJ: every line kept; anything else: `fallback`, the mesh
+    /// as loaded) and binds its vertices to the particles at rest (`particles`, sim units,
+    /// `spacing` apart), through the world -> sim map `to_sim`.
+    pub fn bind(
+        source: &Path,
+        fallback: &TriMesh,
+        to_sim: super::Similarity,
+        particles: &[Vector3<f64>],
+        spacing: f64,
+    ) -> std::io::Result<CarriedSurface> {
+        let is_obj = source
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("obj"));
+        let mut surface = if is_obj {
+            parse_obj(source, &std::fs::read_to_string(source)?)
+        } else {
+            from_mesh(fallback)
+        };
+        surface.to_sim = to_sim;
+        let (offsets, bind) = binding(&surface.rest, to_sim, particles, spacing);
+        surface.offsets = offsets;
+        surface.bind = bind;
+        Ok(surface)
+    }
+
+    pub fn vertex_count(&self) -> usize {
+        self.rest.len()
+    }
+
+    /// Rest positions, world units (the source's vertices).
+    pub fn rest(&self) -> &[Vector3<f64>] {
+        &self.rest
+    }
+
+    /// The surface on a frame of particle positions `x` and deformation gradients `f` (sim
+    /// units, in the particles' order at binding); `to_world` maps sim to world.
+    pub fn carry(
+        &self,
+        rest_particles: &[Vector3<f64>],
+        x: &[Vector3<f64>],
+        f: &[Matrix3<f64>],
+    ) -> CarriedFrame {
+        let back = 1.0 / self.to_sim.scale;
+        let (positions, deformation) = (0..self.rest.len())
+            .map(|i| {
+                let at = self.to_sim.apply(&self.rest[i]);
+                let mut u = Vector3::zeros();
+                let mut fv = Matrix3::zeros();
+                for &(p, w) in &self.bind[self.offsets[i]..self.offsets[i + 1]] {
+                    let p = p as usize;
+                    let rest = rest_particles[p];
+                    u += w * ((x[p] - rest) + (f[p] - Matrix3::identity()) * (at - rest));
+                    fv += w * f[p];
+                }
+                (self.rest[i] + back * u, fv)
+            })
+            .unzip();
+        CarriedFrame {
+            positions,
+            deformation,
+        }
+    }
+
+    /// Largest and smallest principal stretch over the triangles, and the vertices detached
+    /// from the particles `x` (sim units, `spacing` apart).
+    pub fn stats(&self, frame: &CarriedFrame, x: &[Vector3<f64>], spacing: f64) -> CarriedStats {
+        let (mut max_stretch, mut min_stretch) = (1.0f64, 1.0f64);
+        for t in &self.triangles {
+            let [a, b, c] = t.map(|i| self.rest[i]);
+            let [p, q, r] = t.map(|i| frame.positions[i]);
+            if let Some((lo, hi)) = principal_stretches([b - a, c - a], [q - p, r - p]) {
+                max_stretch = max_stretch.max(hi);
+                min_stretch = min_stretch.min(lo);
+            }
+        }
+        let sim: Vec<Vector3<f64>> = frame
+            .positions
+            .iter()
+            .map(|v| self.to_sim.apply(v))
+            .collect();
+        CarriedStats {
+            max_stretch,
+            min_stretch,
+            detached: detached(&sim, x, DETACHED_SPACINGS * spacing),
+        }
+    }
+
+    /// Writes the frame as the source's OBJ with new vertex positions and normals; a vertex
+    /// that has not moved keeps its line as read.
+    pub fn write_obj(&self, path: &Path, frame: &CarriedFrame) -> std::io::Result<()> {
+        if let Some(i) = frame
+            .positions
+            .iter()
+            .position(|v| !v.iter().all(|&c| (c as f32).is_finite()))
+        {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::InvalidData,
+                format!("carried vertex {} is not finite in 32-bit floats", i + 1),
+            ));
+        }
+        super::mesh::write_atomically(path, |w| {
+            for line in &self.lines {
+                match line {
+                    Line::Kept(s) => writeln!(w, "{s}")?,
+                    Line::Vertex(i, rest) => {
+                        let v = frame.positions[*i];
+                        if v == self.rest[*i] {
+                            writeln!(w, "{}", self.vertex_text[*i])?;
+                        } else {
+                            writeln!(w, "v {} {} {}{rest}", v.x as f32, v.y as f32, v.z as f32)?;
+                        }
+                    }
+                    Line::Normal(k) => {
+                        let (n, at) = self.normals[*k];
+                        let n = match at.and_then(|i| frame.deformation[i].try_inverse()) {
+                            Some(inv) => (inv.transpose() * n).try_normalize(1e-30).unwrap_or(n),
+                            None => n,
+                        };
+                        writeln!(w, "vn {} {} {}", n.x as f32, n.y as f32, n.z as f32)?;
+                    }
+                }
+            }
+            Ok(())
+        })
+    }
+}
+
+/// The largest and smallest singular values of the map taking a triangle's rest edges to its
+/// current ones (`None` for a degenerate rest triangle).
+fn principal_stretches(rest: [Vector3<f64>; 2], now: [Vector3<f64>; 2]) -> Option<(f64, f64)> {
+    let u = rest[0].try_normalize(1e-300)?;
+    let normal = rest[0].cross(&rest[1]);
+    let v = normal.cross(&rest[0]).try_normalize(1e-300)?;
+    let e = Matrix2::new(rest[0].dot(&u), rest[1].dot(&u), rest[0].dot(&v), rest[1].dot(&v));
+    let inv = e.try_inverse()?;
+    // G = [now0 now1] E^-1 (3x2); its singular values are the roots of G^T G's eigenvalues.
+    let g0 = now[0] * inv[(0, 0)] + now[1] * inv[(1, 0)];
+    let g1 = now[0] * inv[(0, 1)] + now[1] * inv[(1, 1)];
+    let (a, b, d) = (g0.dot(&g0), g0.dot(&g1), g1.dot(&g1));
+    let mean = 0.5 * (a + d);
+    let spread = (0.25 * (a - d) * (a - d) + b * b).sqrt();
+    Some(((mean - spread).max(0.0).sqrt(), (mean + spread).sqrt()))
+}
+
+/// Vertices (sim units) farther than `radius` from every particle of `x`.
+fn detached(vertices: &[Vector3<f64>], x: &[Vector3<f64>], radius: f64) -> usize {
+    let grid = CellHash::new(x, radius);
+    vertices
+        .iter()
+        .filter(|v| grid.within(v, radius, x).next().is_none())
+        .count()
+}
+
+/// Each vertex's particles within [`BIND_SPACINGS`] spacings, weighted by
+/// `(1 - d^2 / R^2)^3` and normalized; a vertex with none takes its nearest particle.
+fn binding(
+    rest: &[Vector3<f64>],
+    to_sim: super::Similarity,
+    particles: &[Vector3<f64>],
+    spacing: f64,
+) -> (Vec<usize>, Vec<(u32, f64)>) {
+    let radius = BIND_SPACINGS * spacing;
+    let grid = CellHash::new(particles, radius);
+    let mut offsets = vec![0];
+    let mut bind = Vec::new();
+    for v in rest {
+        let at = to_sim.apply(v);
+        let start = bind.len();
+        for p in grid.within(&at, radius, particles) {
+            let q = (particles[p] - at).norm_squared() / (radius * radius);
+            bind.push((p as u32, (1.0 - q).powi(3)));
+        }
+        if bind.len() == start {
+            let nearest = (0..particles.len())
+                .min_by(|&a, &b| {
+                    (particles[a] - at)
+                        .norm_squared()
+                        .total_cmp(&(particles[b] - at).norm_squared())
+                })
+                .expect("a morph has particles");
+            bind.push((nearest as u32, 1.0));
+        }
+        let total: f64 = bind[start..].iter().map(|(_, w)| w).sum();
+        for (_, w) in &mut bind[start..] {
+            *w /= total;
+        }
+        offsets.push(bind.len());
+    }
+    (offsets, bind)
+}
+
+/// Points hashed into cubic cells, for radius queries.
+struct CellHash {
+    cell: f64,
+    cells: std::collections::HashMap<[i64; 3], Vec<u32>>,
+}
+
+impl CellHash {
+    fn new(points: &[Vector3<f64>], cell: f64) -> CellHash {
+        let mut cells: std::collections::HashMap<[i64; 3], Vec<u32>> = Default::default();
+        for (i, p) in points.iter().enumerate() {
+            cells
+                .entry(Self::key(p, cell))
+                .or_default()
+                .push(i as u32);
+        }
+        CellHash { cell, cells }
+    }
+
+    fn key(p: &Vector3<f64>, cell: f64) -> [i64; 3] {
+        [0, 1, 2].map(|a| (p[a] / cell).floor() as i64)
+    }
+
+    /// Points within `radius` (at most the cell size) of `q`, in index order per cell.
+    fn within<'a>(
+        &'a self,
+        q: &'a Vector3<f64>,
+        radius: f64,
+        points: &'a [Vector3<f64>],
+    ) -> impl Iterator<Item = usize> + 'a {
+        let k = Self::key(q, self.cell);
+        (-1..=1)
+            .flat_map(move |a| (-1..=1).flat_map(move |b| (-1..=1).map(move |c| [a, b, c])))
+            .filter_map(move |d| self.cells.get(&[k[0] + d[0], k[1] + d[1], k[2] + d[2]]))
+            .flatten()
+            .map(|&i| i as usize)
+            .filter(move |&i| (points[i] - q).norm_squared() <= radius * radius)
+    }
+}
+
+/// An OBJ file's lines, its vertices, normals and faces.
+fn parse_obj(source: &Path, text: &str) -> CarriedSurface {
+    let dir = source.parent().unwrap_or(Path::new("."));
+    let mut surface = empty();
+    let mut normal_vertex: Vec<Option<usize>> = Vec::new();
+    for line in text.lines() {
+        let trimmed = line.trim_start();
+        let mut words = trimmed.split_whitespace();
+        match words.next() {
+            Some("v") => {
+                let xyz: Vec<f64> = words.by_ref().take(3).filter_map(|w| w.parse().ok()).collect();
+                if xyz.len() == 3 {
+                    let rest: Vec<&str> = words.collect();
+                    let tail = if rest.is_empty() {
+                        String::new()
+                    } else {
+                        format!(" {}", rest.join(" "))
+                    };
+                    surface.lines.push(Line::Vertex(surface.rest.len(), tail));
+                    surface.rest.push(Vector3::new(xyz[0], xyz[1], xyz[2]));
+                    surface.vertex_text.push(line.to_string());
+                    continue;
+                }
+            }
+            Some("vn") => {
+                let n: Vec<f64> = words.filter_map(|w| w.parse().ok()).collect();
+                if n.len() == 3 {
+                    surface.lines.push(Line::Normal(surface.normals.len()));
+                    surface.normals.push((Vector3::new(n[0], n[1], n[2]), None));
+                    normal_vertex.push(None);
+                    continue;
+                }
+            }
+            Some("vt") => surface.uvs += 1,
+            Some("f") => {
+                let corners: Vec<(Option<usize>, Option<usize>)> = words
+                    .map(|c| {
+                        let mut parts = c.split('/');
+                        let resolve = |s: Option<&str>, count: usize| {
+                            let i: i64 = s.filter(|s| !s.is_empty())?.parse().ok()?;
+                            let i = if i < 0 { count as i64 + i } else { i - 1 };
+                            (0..count as i64).contains(&i).then_some(i as usize)
+                        };
+                        let v = resolve(parts.next(), surface.rest.len());
+                        let _uv = parts.next();
+                        let n = resolve(parts.next(), surface.normals.len());
+                        (v, n)
+                    })
+                    .collect();
+                for &(v, n) in &corners {
+                    if let (Some(v), Some(n)) = (v, n)
+                        && normal_vertex[n].is_none()
+                    {
+                        normal_vertex[n] = Some(v);
+                    }
+                }
+                let vs: Vec<usize> = corners.iter().filter_map(|c| c.0).collect();
+                if vs.len() == corners.len() {
+                    for k in 1..vs.len().saturating_sub(1) {
+                        surface.triangles.push([vs[0], vs[k], vs[k + 1]]);
+                    }
+                }
+            }
+            Some("mtllib") => {
+                // The material file lives beside the source, not beside the frames.
+                let names: Vec<String> = words
+                    .map(|name| {
+                        let p = dir.join(name);
+                        std::path::absolute(&p).unwrap_or(p).display().to_string()
+                    })
+                    .collect();
+                surface.lines.push(Line::Kept(format!("mtllib {}", names.join(" "))));
+                continue;
+            }
+            _ => {}
+        }
+        surface.lines.push(Line::Kept(line.to_string()));
+    }
+    for (n, v) in surface.normals.iter_mut().zip(normal_vertex) {
+        n.1 = v;
+    }
+    surface
+}
+
+/// A mesh as loaded, written as plain `v` and `f` lines.
+fn from_mesh(mesh: &TriMesh) -> CarriedSurface {
+    let mut surface = empty();
+    surface
+        .lines
+        .push(Line::Kept(format!("# carried by morph {}", env!("CARGO_PKG_VERSION"))));
+    for (i, v) in mesh.vertices.iter().enumerate() {
+        surface.lines.push(Line::Vertex(i, String::new()));
+        surface.rest.push(*v);
+        surface
+            .vertex_text
+            .push(format!("v {} {} {}", v.x as f32, v.y as f32, v.z as f32));
+    }
+    for t in &mesh.triangles {
+        surface
+            .lines
+            .push(Line::Kept(format!("f {} {} {}", t[0] + 1, t[1] + 1, t[2] + 1)));
+        surface.triangles.push(t.map(|i| i as usize));
+    }
+    surface
+}
+
+fn empty() -> CarriedSurface {
+    CarriedSurface {
+        lines: Vec::new(),
+        vertex_text: Vec::new(),
+        rest: Vec::new(),
+        normals: Vec::new(),
+        triangles: Vec::new(),
+        uvs: 0,
+        offsets: Vec::new(),
+        bind: Vec::new(),
+        to_sim: super::Similarity::identity(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_uniform_stretch_is_measured() {
+        let rest = [Vector3::x(), Vector3::y()];
+        let now = [2.0 * Vector3::x(), 0.5 * Vector3::y()];
+        let (lo, hi) = principal_stretches(rest, now).unwrap();
+        assert!((hi - 2.0).abs() < 1e-12 && (lo - 0.5).abs() < 1e-12);
+    }
+
+    /// An affine motion of the particles carries every vertex exactly by the same map, and a
+    /// frame at rest gives the rest positions bit for bit.
+    #[test]
+    fn affine_motion_is_carried_exactly() {
+        let mut particles = Vec::new();
+        for i in 0..6 {
+            for j in 0..6 {
+                for k in 0..6 {
+                    particles.push(Vector3::new(i as f64, j as f64, k as f64) * 0.5);
+                }
+            }
+        }
+        let text = "mtllib m.mtl\nv 1.0 1.2 1.1\nv 1.5 1.0 1.0\nv 1.2 1.6 1.3\nvt 0 0\nvn 0 0 1\nf 1/1/1 2/1/1 3/1/1\n";
+        let mut s = parse_obj(Path::new("/a/b.obj"), text);
+        let to_sim = crate::geometry::Similarity::identity();
+        (s.offsets, s.bind) = binding(&s.rest, to_sim, &particles, 0.5);
+        let f0 = vec![Matrix3::identity(); particles.len()];
+        let at_rest = s.carry(&particles, &particles, &f0);
+        assert_eq!(at_rest.positions, s.rest);
+        let a = Matrix3::new(1.1, 0.2, 0.0, -0.1, 0.9, 0.05, 0.0, 0.1, 1.2);
+        let t = Vector3::new(0.3, -0.2, 0.1);
+        let moved: Vec<_> = particles.iter().map(|p| a * p + t).collect();
+        let frame = s.carry(&particles, &moved, &vec![a; particles.len()]);
+        for (v, r) in frame.positions.iter().zip(&s.rest) {
+            assert!((v - (a * r + t)).norm() < 1e-12);
+        }
+        assert_eq!((s.uvs, s.triangles.len()), (1, 1));
+        assert!(matches!(&s.lines[0], Line::Kept(l) if l == "mtllib /a/m.mtl"));
+    }
+}
