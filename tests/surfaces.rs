@@ -37,7 +37,10 @@ fn the_carried_surface_keeps_the_source_topology_and_uvs() {
     assert_eq!((v0.len(), vt0.len()), (1986, 2143));
     let m = manifest(&out);
     let frames = m["frames"].as_array().unwrap();
-    assert!(!out.join("meshes").exists(), "--surface carried writes no rebuilt surface");
+    assert!(
+        !out.join("meshes").exists(),
+        "--surface carried writes no rebuilt surface"
+    );
     let mut moved = 0;
     for (i, f) in frames.iter().enumerate() {
         let path = out.join(f["carried_mesh"].as_str().unwrap());
@@ -55,7 +58,10 @@ fn the_carried_surface_keeps_the_source_topology_and_uvs() {
         let stretch = c["max_stretch"].as_f64().unwrap();
         assert!(stretch.is_finite() && stretch >= 1.0, "{c}");
     }
-    assert!(moved >= frames.len() / 2, "the body moves the surface: {moved} frames");
+    assert!(
+        moved >= frames.len() / 2,
+        "the body moves the surface: {moved} frames"
+    );
     let summary = &m["frames_summary"]["carried"];
     assert!(summary["max_stretch"].as_f64().unwrap() > 1.0, "{summary}");
 }

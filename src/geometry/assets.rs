@@ -80,7 +80,12 @@ pub fn uv_sphere_uvs(rings: usize, segments: usize) -> (Vec<[f64; 2]>, Vec<[u32;
     for j in 0..segments {
         corners.push([north + j, grid(1, j), grid(1, j + 1)]);
         for i in 1..rings - 1 {
-            let (a0, a1, b0, b1) = (grid(i, j), grid(i, j + 1), grid(i + 1, j), grid(i + 1, j + 1));
+            let (a0, a1, b0, b1) = (
+                grid(i, j),
+                grid(i, j + 1),
+                grid(i + 1, j),
+                grid(i + 1, j + 1),
+            );
             corners.push([a0, b0, b1]);
             corners.push([a0, b1, a1]);
         }

@@ -217,7 +217,12 @@ fn principal_stretches(rest: [Vector3<f64>; 2], now: [Vector3<f64>; 2]) -> Optio
     let u = rest[0].try_normalize(1e-300)?;
     let normal = rest[0].cross(&rest[1]);
     let v = normal.cross(&rest[0]).try_normalize(1e-300)?;
-    let e = Matrix2::new(rest[0].dot(&u), rest[1].dot(&u), rest[0].dot(&v), rest[1].dot(&v));
+    let e = Matrix2::new(
+        rest[0].dot(&u),
+        rest[1].dot(&u),
+        rest[0].dot(&v),
+        rest[1].dot(&v),
+    );
     let inv = e.try_inverse()?;
     // G = [now0 now1] E^-1 (3x2); its singular values are the roots of G^T G's eigenvalues.
     let g0 = now[0] * inv[(0, 0)] + now[1] * inv[(1, 0)];
@@ -285,10 +290,7 @@ impl CellHash {
     fn new(points: &[Vector3<f64>], cell: f64) -> CellHash {
         let mut cells: std::collections::HashMap<[i64; 3], Vec<u32>> = Default::default();
         for (i, p) in points.iter().enumerate() {
-            cells
-                .entry(Self::key(p, cell))
-                .or_default()
-                .push(i as u32);
+            cells.entry(Self::key(p, cell)).or_default().push(i as u32);
         }
         CellHash { cell, cells }
     }
@@ -324,7 +326,11 @@ fn parse_obj(source: &Path, text: &str) -> CarriedSurface {
         let mut words = trimmed.split_whitespace();
         match words.next() {
             Some("v") => {
-                let xyz: Vec<f64> = words.by_ref().take(3).filter_map(|w| w.parse().ok()).collect();
+                let xyz: Vec<f64> = words
+                    .by_ref()
+                    .take(3)
+                    .filter_map(|w| w.parse().ok())
+                    .collect();
                 if xyz.len() == 3 {
                     let rest: Vec<&str> = words.collect();
                     let tail = if rest.is_empty() {
@@ -385,7 +391,9 @@ fn parse_obj(source: &Path, text: &str) -> CarriedSurface {
                         std::path::absolute(&p).unwrap_or(p).display().to_string()
                     })
                     .collect();
-                surface.lines.push(Line::Kept(format!("mtllib {}", names.join(" "))));
+                surface
+                    .lines
+                    .push(Line::Kept(format!("mtllib {}", names.join(" "))));
                 continue;
             }
             _ => {}
@@ -401,9 +409,10 @@ fn parse_obj(source: &Path, text: &str) -> CarriedSurface {
 /// A mesh as loaded, written as plain `v` and `f` lines.
 fn from_mesh(mesh: &TriMesh) -> CarriedSurface {
     let mut surface = empty();
-    surface
-        .lines
-        .push(Line::Kept(format!("# carried by morph {}", env!("CARGO_PKG_VERSION"))));
+    surface.lines.push(Line::Kept(format!(
+        "# carried by morph {}",
+        env!("CARGO_PKG_VERSION")
+    )));
     for (i, v) in mesh.vertices.iter().enumerate() {
         surface.lines.push(Line::Vertex(i, String::new()));
         surface.rest.push(*v);
@@ -412,9 +421,12 @@ fn from_mesh(mesh: &TriMesh) -> CarriedSurface {
             .push(format!("v {} {} {}", v.x as f32, v.y as f32, v.z as f32));
     }
     for t in &mesh.triangles {
-        surface
-            .lines
-            .push(Line::Kept(format!("f {} {} {}", t[0] + 1, t[1] + 1, t[2] + 1)));
+        surface.lines.push(Line::Kept(format!(
+            "f {} {} {}",
+            t[0] + 1,
+            t[1] + 1,
+            t[2] + 1
+        )));
         surface.triangles.push(t.map(|i| i as usize));
     }
     surface

@@ -74,7 +74,10 @@ fn read_obj(path: &Path) -> std::io::Result<ObjFrame> {
             }
             Some("vt") => {
                 let t = numbers(words);
-                frame.uvs.push([t.first().copied().unwrap_or(0.0), t.get(1).copied().unwrap_or(0.0)]);
+                frame.uvs.push([
+                    t.first().copied().unwrap_or(0.0),
+                    t.get(1).copied().unwrap_or(0.0),
+                ]);
             }
             Some("f") => {
                 let mut count = 0;
@@ -85,8 +88,9 @@ fn read_obj(path: &Path) -> std::io::Result<ObjFrame> {
                         let i = if i < 0 { n as i64 + i } else { i - 1 };
                         (0..n as i64).contains(&i).then_some(i as usize)
                     };
-                    let v = index(parts.next(), frame.positions.len())
-                        .ok_or_else(|| bad(path, format!("a face corner '{corner}' out of range")))?;
+                    let v = index(parts.next(), frame.positions.len()).ok_or_else(|| {
+                        bad(path, format!("a face corner '{corner}' out of range"))
+                    })?;
                     frame.indices.push(v);
                     frame.uv_indices.push(index(parts.next(), frame.uvs.len()));
                     count += 1;
@@ -99,9 +103,15 @@ fn read_obj(path: &Path) -> std::io::Result<ObjFrame> {
     Ok(frame)
 }
 
-/// Reads a frame PLY written by [`super::frames::write_points_ply`]: positions, velocities
-/// and `J`.
-pub fn read_points_ply(path: &Path) -> std::io::Result<(Vec<Vector3<f64>>, Vec<Vector3<f64>>, Vec<f64>)> {
+/// A frame's particles: positions, velocities and `J`.
+pub struct PointsFrame {
+    pub x: Vec<Vector3<f64>>,
+    pub v: Vec<Vector3<f64>>,
+    pub j: Vec<f64>,
+}
+
+/// Reads a frame PLY written by [`super::frames::write_points_ply`].
+pub fn read_points_ply(path: &Path) -> std::io::Result<PointsFrame> {
     let bytes = std::fs::read(path)?;
     let end = b"end_header\n";
     let at = bytes
@@ -115,7 +125,10 @@ pub fn read_points_ply(path: &Path) -> std::io::Result<(Vec<Vector3<f64>>, Vec<V
         .find_map(|l| l.strip_prefix("element vertex "))
         .and_then(|n| n.trim().parse().ok())
         .ok_or_else(|| bad(path, "no vertex count"))?;
-    let properties = header.lines().filter(|l| l.starts_with("property ")).count();
+    let properties = header
+        .lines()
+        .filter(|l| l.starts_with("property "))
+        .count();
     let floats: Vec<f32> = bytes[at..]
         .chunks_exact(4)
         .map(|c| f32::from_le_bytes(c.try_into().expect("4 bytes")))
@@ -123,13 +136,17 @@ pub fn read_points_ply(path: &Path) -> std::io::Result<(Vec<Vector3<f64>>, Vec<V
     if properties < 7 || floats.len() < n * properties {
         return Err(bad(path, "a frame PLY of another layout"));
     }
-    let (mut x, mut v, mut j) = (Vec::with_capacity(n), Vec::with_capacity(n), Vec::with_capacity(n));
+    let (mut x, mut v, mut j) = (
+        Vec::with_capacity(n),
+        Vec::with_capacity(n),
+        Vec::with_capacity(n),
+    );
     for p in floats.chunks_exact(properties).take(n) {
         x.push(Vector3::new(p[0], p[1], p[2]).cast::<f64>());
         v.push(Vector3::new(p[3], p[4], p[5]).cast::<f64>());
         j.push(p[6] as f64);
     }
-    Ok((x, v, j))
+    Ok(PointsFrame { x, v, j })
 }
 
 fn vec3s(w: &mut dyn Write, values: &[Vector3<f64>]) -> std::io::Result<()> {
@@ -143,7 +160,10 @@ fn vec3s(w: &mut dyn Write, values: &[Vector3<f64>]) -> std::io::Result<()> {
     write!(w, "]")
 }
 
-fn list<T: std::fmt::Display>(w: &mut dyn Write, values: impl IntoIterator<Item = T>) -> std::io::Result<()> {
+fn list<T: std::fmt::Display>(
+    w: &mut dyn Write,
+    values: impl IntoIterator<Item = T>,
+) -> std::io::Result<()> {
     write!(w, "[")?;
     for (i, v) in values.into_iter().enumerate() {
         if i > 0 {
@@ -201,7 +221,7 @@ pub fn write_usda(path: &Path, seq: &UsdSequence) -> std::io::Result<()> {
         writeln!(w, "def Xform \"Morph\" (\n    kind = \"component\"\n)\n{{")?;
 
         // Particles.
-        let (x0, _, _) = read_points_ply(&at(&seq.points[0]))?;
+        let x0 = read_points_ply(&at(&seq.points[0]))?.x;
         writeln!(w, "    def Points \"particles\"\n    {{")?;
         write!(w, "        int64[] ids = ")?;
         list(w, 0..x0.len())?;
@@ -210,11 +230,18 @@ pub fn write_usda(path: &Path, seq: &UsdSequence) -> std::io::Result<()> {
         list(w, std::iter::repeat_n(seq.width as f32, x0.len()))?;
         writeln!(w)?;
         let read = |k: usize| read_points_ply(&at(&seq.points[k]));
-        samples(w, "point3f[] points", n, |w, k| vec3s(w, &read(k)?.0))?;
-        samples(w, "vector3f[] velocities", n, |w, k| vec3s(w, &read(k)?.1))?;
-        samples(w, "float3[] extent", n, |w, k| vec3s(w, &extent(&read(k)?.0)))?;
-        writeln!(w, "        float[] primvars:J (\n            interpolation = \"vertex\"\n        )")?;
-        samples(w, "float[] primvars:J", n, |w, k| list(w, read(k)?.2.iter().map(|j| *j as f32)))?;
+        samples(w, "point3f[] points", n, |w, k| vec3s(w, &read(k)?.x))?;
+        samples(w, "vector3f[] velocities", n, |w, k| vec3s(w, &read(k)?.v))?;
+        samples(w, "float3[] extent", n, |w, k| {
+            vec3s(w, &extent(&read(k)?.x))
+        })?;
+        writeln!(
+            w,
+            "        float[] primvars:J (\n            interpolation = \"vertex\"\n        )"
+        )?;
+        samples(w, "float[] primvars:J", n, |w, k| {
+            list(w, read(k)?.j.iter().map(|j| *j as f32))
+        })?;
         writeln!(w, "    }}")?;
 
         // The carried surface: the source's topology and UVs, points and velocities per frame.
@@ -237,7 +264,10 @@ pub fn write_usda(path: &Path, seq: &UsdSequence) -> std::io::Result<()> {
                     }
                     write!(w, "({}, {})", t[0] as f32, t[1] as f32)?;
                 }
-                writeln!(w, "] (\n            interpolation = \"faceVarying\"\n        )")?;
+                writeln!(
+                    w,
+                    "] (\n            interpolation = \"faceVarying\"\n        )"
+                )?;
                 write!(w, "        int[] primvars:st:indices = ")?;
                 list(w, first.uv_indices.iter().map(|i| i.expect("checked")))?;
                 writeln!(w)?;
@@ -261,10 +291,18 @@ pub fn write_usda(path: &Path, seq: &UsdSequence) -> std::io::Result<()> {
             let read = |k: usize| read_obj(&at(&files[k]));
             writeln!(w, "\n    def Mesh \"rebuilt\"\n    {{")?;
             writeln!(w, "        uniform token subdivisionScheme = \"none\"")?;
-            samples(w, "int[] faceVertexCounts", n, |w, k| list(w, &read(k)?.counts))?;
-            samples(w, "int[] faceVertexIndices", n, |w, k| list(w, &read(k)?.indices))?;
-            samples(w, "point3f[] points", n, |w, k| vec3s(w, &read(k)?.positions))?;
-            samples(w, "float3[] extent", n, |w, k| vec3s(w, &extent(&read(k)?.positions)))?;
+            samples(w, "int[] faceVertexCounts", n, |w, k| {
+                list(w, &read(k)?.counts)
+            })?;
+            samples(w, "int[] faceVertexIndices", n, |w, k| {
+                list(w, &read(k)?.indices)
+            })?;
+            samples(w, "point3f[] points", n, |w, k| {
+                vec3s(w, &read(k)?.positions)
+            })?;
+            samples(w, "float3[] extent", n, |w, k| {
+                vec3s(w, &extent(&read(k)?.positions))
+            })?;
             writeln!(w, "    }}")?;
         }
         writeln!(w, "}}")?;

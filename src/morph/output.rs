@@ -57,7 +57,11 @@ struct FrameEntry {
     #[serde(skip_serializing_if = "Option::is_none")]
     mesh: Option<String>,
     /// The carried surface's file (with `--surface carried` or `both`).
-    #[serde(default, skip_serializing_if = "Option::is_none", rename = "carried_mesh")]
+    #[serde(
+        default,
+        skip_serializing_if = "Option::is_none",
+        rename = "carried_mesh"
+    )]
     carried: Option<String>,
     #[serde(flatten)]
     stats: Option<FrameStats>,
