@@ -370,6 +370,50 @@ impl TriMesh {
         self.write_obj_with_uvs(path, &[], &[])
     }
 
+    /// Area-weighted vertex normals (unit length; zero for an unused vertex).
+    pub fn vertex_normals(&self) -> Vec<Vector3<f64>> {
+        let mut n = vec![Vector3::zeros(); self.vertices.len()];
+        for t in &self.triangles {
+            let [a, b, c] = self.corners(t);
+            let face = (b - a).cross(&(c - a));
+            for &v in t {
+                n[v as usize] += face;
+            }
+        }
+        n.iter()
+            .map(|v| v.try_normalize(1e-300).unwrap_or_else(Vector3::zeros))
+            .collect()
+    }
+
+    /// [`TriMesh::write_obj`] with a smooth normal per vertex (`vn`, faces `f a//a`).
+    pub fn write_obj_with_normals(&self, path: &Path) -> std::io::Result<()> {
+        if let Some(i) = self
+            .vertices
+            .iter()
+            .position(|v| !v.iter().all(|&c| (c as f32).is_finite()))
+        {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::InvalidData,
+                format!("vertex {} is not finite in 32-bit floats", i + 1),
+            ));
+        }
+        let normals = self.vertex_normals();
+        write_atomically(path, |w| {
+            writeln!(w, "# written by morph {}", env!("CARGO_PKG_VERSION"))?;
+            for v in &self.vertices {
+                writeln!(w, "v {} {} {}", v.x as f32, v.y as f32, v.z as f32)?;
+            }
+            for n in &normals {
+                writeln!(w, "vn {} {} {}", n.x as f32, n.y as f32, n.z as f32)?;
+            }
+            for t in &self.triangles {
+                let [a, b, c] = t.map(|i| i + 1);
+                writeln!(w, "f {a}//{a} {b}//{b} {c}//{c}")?;
+            }
+            Ok(())
+        })
+    }
+
     /// [`TriMesh::write_obj`] with texture coordinates: `uv_corners[t]` holds triangle `t`'s
     /// corners' indices into `uvs` (both empty: no `vt`).
     pub fn write_obj_with_uvs(

@@ -4,6 +4,7 @@
 
 pub mod assets;
 pub mod carried;
+pub mod cleanup;
 pub mod error;
 pub mod mesh;
 pub mod placement;

@@ -22,6 +22,7 @@ use super::{
     RunProgress, SegmentRecord, WorldFrame, checkpoint, run,
 };
 use crate::geometry::carried::{CarriedStats, CarriedSurface};
+use crate::geometry::cleanup::{CleanReport, SurfaceQuality, clean, quality as surface_quality};
 use crate::geometry::{Similarity, extract_surface};
 use crate::io::outdir::{self, Previous, Staging};
 use crate::io::{frames::write_points_ply, images, massgrid::MassGrid, sha256_file};
@@ -96,6 +97,10 @@ pub struct FrameStats {
     /// away from the body.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub carried: Option<CarriedStats>,
+    /// The rebuilt surface as extracted and as written (cleaned; see
+    /// [`crate::geometry::cleanup`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rebuilt: Option<RebuiltStats>,
     /// Volume inside the rebuilt surface (world units), when surfaces are written.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub surface_volume: Option<f64>,
@@ -103,6 +108,15 @@ pub struct FrameStats {
     /// target is scaled to it), so a surface that keeps the body's volume has 0.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub surface_volume_error: Option<f64>,
+}
+
+/// A frame's rebuilt surface: its shape as marching tetrahedra made it, as written, and what
+/// cleaning did.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RebuiltStats {
+    pub before: SurfaceQuality,
+    pub after: SurfaceQuality,
+    pub cleanup: CleanReport,
 }
 
 /// The worst of every frame's [`FrameStats`], for the manifest and the summary.
@@ -122,6 +136,10 @@ pub struct FramesSummary {
     /// The largest of the frames' `rms_jerk`.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub max_rms_jerk: Option<f64>,
+    /// The rebuilt surfaces over the frames: the most shells, the smallest angle, the most
+    /// voids and islands dropped.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rebuilt: Option<RebuiltSummary>,
     /// The carried surface's largest and smallest triangle stretch and most detached
     /// vertices over the frames.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -129,6 +147,19 @@ pub struct FramesSummary {
     /// Largest `|surface_volume_error|` over the frames (when surfaces are written).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub max_surface_volume_error: Option<f64>,
+}
+
+/// The rebuilt surfaces of a run, summed up (see [`FramesSummary::rebuilt`]).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RebuiltSummary {
+    pub max_shells_before: usize,
+    pub max_shells: usize,
+    pub min_angle_deg_before: f64,
+    pub min_angle_deg: f64,
+    /// Over all frames.
+    pub voids_dropped: usize,
+    pub islands_dropped: usize,
+    pub max_smoothing_volume_change: f64,
 }
 
 impl FramesSummary {
@@ -143,6 +174,7 @@ impl FramesSummary {
             max_kinetic_energy: 0.0,
             max_rms_jerk: None,
             carried: None,
+            rebuilt: None,
             max_surface_volume_error: None,
         };
         for f in stats {
@@ -152,6 +184,26 @@ impl FramesSummary {
             s.max_close_share = s.max_close_share.max(f.close_share);
             s.max_rms_speed = s.max_rms_speed.max(f.rms_speed);
             s.max_kinetic_energy = s.max_kinetic_energy.max(f.kinetic_energy);
+            if let Some(r) = f.rebuilt {
+                let w = s.rebuilt.get_or_insert(RebuiltSummary {
+                    max_shells_before: 0,
+                    max_shells: 0,
+                    min_angle_deg_before: 180.0,
+                    min_angle_deg: 180.0,
+                    voids_dropped: 0,
+                    islands_dropped: 0,
+                    max_smoothing_volume_change: 0.0,
+                });
+                w.max_shells_before = w.max_shells_before.max(r.before.shells);
+                w.max_shells = w.max_shells.max(r.after.shells);
+                w.min_angle_deg_before = w.min_angle_deg_before.min(r.before.min_angle_deg);
+                w.min_angle_deg = w.min_angle_deg.min(r.after.min_angle_deg);
+                w.voids_dropped += r.cleanup.voids;
+                w.islands_dropped += r.cleanup.islands;
+                w.max_smoothing_volume_change = w
+                    .max_smoothing_volume_change
+                    .max(r.cleanup.smoothing_volume_change.abs());
+            }
             if let Some(c) = f.carried {
                 let w = s.carried.get_or_insert(c);
                 w.max_stretch = w.max_stretch.max(c.max_stretch);
@@ -598,11 +650,12 @@ impl PlyObjSink {
         Ok(self.write_measured(frame)?.0)
     }
 
-    /// [`PlyObjSink::write`], also returning what the carried surface measures.
+    /// [`PlyObjSink::write`], also returning what the carried and the rebuilt surfaces
+    /// measure.
     pub fn write_measured(
         &mut self,
         frame: &Frame,
-    ) -> Result<(Option<f64>, Option<CarriedStats>), MorphError> {
+    ) -> Result<(Option<f64>, Option<CarriedStats>, Option<RebuiltStats>), MorphError> {
         let name = frame_name(frame.index, self.n_frames);
         let WorldFrame { x, v, j } = &frame.world;
         let points = self.dir.join("frames").join(format!("{name}.ply"));
@@ -619,17 +672,23 @@ impl PlyObjSink {
             None => None,
         };
         if !self.rebuilt {
-            return Ok((None, carried));
+            return Ok((None, carried, None));
         }
         let volumes: Vec<f64> = j.iter().map(|j| self.rest_volume * j.max(0.0)).collect();
-        let surface = extract_surface(&frame.state.x, &volumes, self.spacing)
+        let raw = extract_surface(&frame.state.x, &volumes, self.spacing)
             .map_err(|e| MorphError::Output(e.to_string()))?;
+        let (surface, cleanup) = clean(&raw, self.spacing);
         let path = self.dir.join("meshes").join(format!("{name}.obj"));
         let world = self.to_world.apply_mesh(&surface);
         world
-            .write_obj(&path)
+            .write_obj_with_normals(&path)
             .map_err(|e| out_err("surface", &path, e))?;
-        Ok((Some(world.signed_volume()), carried))
+        let rebuilt = RebuiltStats {
+            before: surface_quality(&raw),
+            after: surface_quality(&surface),
+            cleanup,
+        };
+        Ok((Some(world.signed_volume()), carried, Some(rebuilt)))
     }
 }
 
@@ -691,6 +750,7 @@ fn frame_stats(frame: &Frame, spacing: f64) -> FrameStats {
         kinetic_energy,
         rms_jerk: None,
         carried: None,
+        rebuilt: None,
         min_j: j.iter().copied().fold(f64::INFINITY, f64::min),
         mean_j: j.iter().sum::<f64>() / n,
         max_j: j.iter().copied().fold(f64::NEG_INFINITY, f64::max),
@@ -774,9 +834,10 @@ impl Observer for FolderWriter<'_> {
     }
 
     fn frame(&mut self, frame: &Frame) -> Result<(), MorphError> {
-        let (surface_volume, carried) = self.sink.write_measured(frame)?;
+        let (surface_volume, carried, rebuilt) = self.sink.write_measured(frame)?;
         let mut stats = frame_stats(frame, self.sink.spacing);
         stats.carried = carried;
+        stats.rebuilt = rebuilt;
         stats.surface_volume = surface_volume;
         stats.surface_volume_error = surface_volume.map(|v| v / self.body_volume - 1.0);
         let index = frame.index;
