@@ -13,9 +13,10 @@
 //!    flipped, where the two triangles are nearly coplanar (so the shape does not change) and
 //!    the flip makes no duplicate edge: marching tetrahedra's slivers become well-shaped
 //!    triangles.
-//! 4. **Collapses.** An edge shorter than [`COLLAPSE_SHARE`] of the lattice spacing joins its
-//!    two vertices, where that keeps the surface a closed manifold: the near-zero-area faces
-//!    of level-set points that land on a lattice node go.
+//! 4. **Collapses.** An edge shorter than [`COLLAPSE_SHARE`] of the lattice spacing, or the
+//!    short edge of a needle triangle, joins its two vertices where that keeps the surface a
+//!    closed manifold and turns no triangle over: the near-zero-area faces of level-set points
+//!    that land on a lattice node go. Collapses and flips alternate for a few rounds.
 //!
 //! [`quality`] measures a surface: shells, genus, angles, zero-area faces.
 
@@ -30,7 +31,16 @@ pub const SMOOTHING_STEPS: usize = 10;
 /// Edges shorter than this share of the lattice spacing are collapsed.
 pub const COLLAPSE_SHARE: f64 = 0.05;
 /// Largest angle between the normals of two triangles whose shared edge may be flipped.
-const FLIP_MAX_BEND_DEG: f64 = 15.0;
+const FLIP_MAX_BEND_DEG: f64 = 20.0;
+/// A triangle with an angle under this and one edge much shorter than the others is a needle:
+/// its short edge is collapsed.
+pub const NEEDLE_DEG: f64 = 10.0;
+/// Rounds of collapses and flips.
+const ROUNDS: usize = 5;
+/// A triangle with an angle under this is a sliver: its edge may be flipped across a bend of
+/// up to [`SLIVER_MAX_BEND_DEG`].
+const SLIVER_DEG: f64 = 5.0;
+const SLIVER_MAX_BEND_DEG: f64 = 60.0;
 
 /// What cleaning removed and changed.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize, serde::Deserialize)]
@@ -72,10 +82,17 @@ pub fn clean(mesh: &TriMesh, spacing: f64) -> (TriMesh, CleanReport) {
     let before = mesh.signed_volume();
     taubin(&mut mesh, SMOOTHING_STEPS);
     let after = mesh.signed_volume();
-    report.smoothing_volume_change = if before != 0.0 { after / before - 1.0 } else { 0.0 };
-    report.collapses = collapse_short_edges(&mut mesh, COLLAPSE_SHARE * spacing);
-    report.flips = flip_edges(&mut mesh);
-    (compact(&mesh), report)
+    report.smoothing_volume_change = if before != 0.0 {
+        after / before - 1.0
+    } else {
+        0.0
+    };
+    for _ in 0..ROUNDS {
+        report.collapses += collapse_short_edges(&mut mesh, COLLAPSE_SHARE * spacing);
+        mesh = compact(&mesh);
+        report.flips += flip_edges(&mut mesh);
+    }
+    (mesh, report)
 }
 
 /// Triangles grouped into connected shells (by shared vertices), in order of first triangle.
@@ -236,6 +253,7 @@ fn edge_map(mesh: &TriMesh) -> HashMap<(u32, u32), usize> {
 /// the flips made. Passes until none helps (at most 10).
 fn flip_edges(mesh: &mut TriMesh) -> usize {
     let cos_bend = FLIP_MAX_BEND_DEG.to_radians().cos();
+    let cos_sliver_bend = SLIVER_MAX_BEND_DEG.to_radians().cos();
     let mut flips = 0;
     for _ in 0..10 {
         let mut edges = edge_map(mesh);
@@ -251,17 +269,26 @@ fn flip_edges(mesh: &mut TriMesh) -> usize {
                     continue;
                 };
                 let u = mesh.triangles[other];
-                let d = u.into_iter().find(|&v| v != a && v != b).expect("a triangle");
+                let d = u
+                    .into_iter()
+                    .find(|&v| v != a && v != b)
+                    .expect("a triangle");
                 if c == d || undirected.contains(&(c.min(d), c.max(d))) {
                     continue;
                 }
                 let (n1, n2) = (normal(mesh, t), normal(mesh, u));
                 let (l1, l2) = (n1.norm(), n2.norm());
-                if l1 == 0.0 || l2 == 0.0 || n1.dot(&n2) < cos_bend * l1 * l2 {
+                let before = min_angle(mesh, t).min(min_angle(mesh, u));
+                // A sliver may bend the surface more to go.
+                let cos_allowed = if before < SLIVER_DEG.to_radians() {
+                    cos_sliver_bend
+                } else {
+                    cos_bend
+                };
+                if l1 == 0.0 || l2 == 0.0 || n1.dot(&n2) < cos_allowed * l1 * l2 {
                     continue;
                 }
                 let (new1, new2) = ([c, a, d], [d, b, c]);
-                let before = min_angle(mesh, t).min(min_angle(mesh, u));
                 let after = min_angle(mesh, new1).min(min_angle(mesh, new2));
                 // The new triangles must face the same way (no fold-over).
                 let (m1, m2) = (normal(mesh, new1), normal(mesh, new2));
@@ -293,9 +320,11 @@ fn flip_edges(mesh: &mut TriMesh) -> usize {
     flips
 }
 
-/// Collapses edges shorter than `min_length` into their midpoint where the two vertices share
-/// exactly two neighbours (the link condition: the surface stays a closed manifold); returns
-/// the collapses made.
+/// Collapses into its midpoint every edge shorter than `min_length`, and the short edge of
+/// every needle (a triangle with an angle under [`NEEDLE_DEG`] whose shortest edge is under
+/// half its next), where the two vertices share exactly two neighbours (the link condition:
+/// the surface stays a closed manifold) and no triangle around them turns over; returns the
+/// collapses made.
 fn collapse_short_edges(mesh: &mut TriMesh, min_length: f64) -> usize {
     let mut collapses = 0;
     let mut removed = vec![false; mesh.triangles.len()];
@@ -310,52 +339,81 @@ fn collapse_short_edges(mesh: &mut TriMesh, min_length: f64) -> usize {
             around[v as usize].push(k);
         }
     }
+    let length = |mesh: &TriMesh, a: u32, b: u32| {
+        (mesh.vertices[a as usize] - mesh.vertices[b as usize]).norm()
+    };
     for k in 0..mesh.triangles.len() {
         if removed[k] {
             continue;
         }
-        for e in 0..3 {
-            let t = mesh.triangles[k];
-            let (a, b) = (t[e], t[(e + 1) % 3]);
-            if (mesh.vertices[a as usize] - mesh.vertices[b as usize]).norm() >= min_length {
-                continue;
-            }
-            let shared = nb[a as usize].intersection(&nb[b as usize]).count();
-            if shared != 2 || nb[a as usize].len() <= 3 || nb[b as usize].len() <= 3 {
-                continue;
-            }
-            // Move a to the midpoint, send b's triangles to a, drop the two on the edge.
-            let mid = 0.5 * (mesh.vertices[a as usize] + mesh.vertices[b as usize]);
-            mesh.vertices[a as usize] = mid;
-            let b_tris = std::mem::take(&mut around[b as usize]);
-            for &j in &b_tris {
-                if removed[j] {
-                    continue;
-                }
-                let tri = &mut mesh.triangles[j];
-                if tri.contains(&a) {
-                    removed[j] = true;
-                    continue;
-                }
-                for v in tri.iter_mut() {
-                    if *v == b {
-                        *v = a;
-                    }
-                }
-                around[a as usize].push(j);
-            }
-            let b_nb: Vec<u32> = nb[b as usize].drain().collect();
-            for n in b_nb {
-                nb[n as usize].remove(&b);
-                if n != a {
-                    nb[n as usize].insert(a);
-                    nb[a as usize].insert(n);
-                }
-            }
-            nb[a as usize].remove(&b);
-            collapses += 1;
-            break;
+        let t = mesh.triangles[k];
+        let mut edges: Vec<(f64, u32, u32)> = (0..3)
+            .map(|e| (length(mesh, t[e], t[(e + 1) % 3]), t[e], t[(e + 1) % 3]))
+            .collect();
+        edges.sort_by(|x, y| x.0.total_cmp(&y.0));
+        let needle = min_angle(mesh, t) < NEEDLE_DEG.to_radians() && edges[0].0 < 0.5 * edges[1].0;
+        let (len, a, b) = edges[0];
+        if !(len < min_length || needle) {
+            continue;
         }
+        let shared = nb[a as usize].intersection(&nb[b as usize]).count();
+        if shared != 2 || nb[a as usize].len() <= 3 || nb[b as usize].len() <= 3 {
+            continue;
+        }
+        let mid = 0.5 * (mesh.vertices[a as usize] + mesh.vertices[b as usize]);
+        // No triangle that stays may turn over.
+        let turns_over = around[a as usize]
+            .iter()
+            .chain(&around[b as usize])
+            .filter(|&&j| !removed[j])
+            .any(|&j| {
+                let tri = mesh.triangles[j];
+                if tri.contains(&a) && tri.contains(&b) {
+                    return false;
+                }
+                let before = normal(mesh, tri);
+                let corners = tri.map(|v| {
+                    if v == a || v == b {
+                        mid
+                    } else {
+                        mesh.vertices[v as usize]
+                    }
+                });
+                let after = (corners[1] - corners[0]).cross(&(corners[2] - corners[0]));
+                after.dot(&before) <= 0.0
+            });
+        if turns_over {
+            continue;
+        }
+        // Move a to the midpoint, send b's triangles to a, drop the two on the edge.
+        mesh.vertices[a as usize] = mid;
+        let b_tris = std::mem::take(&mut around[b as usize]);
+        for &j in &b_tris {
+            if removed[j] {
+                continue;
+            }
+            let tri = &mut mesh.triangles[j];
+            if tri.contains(&a) {
+                removed[j] = true;
+                continue;
+            }
+            for v in tri.iter_mut() {
+                if *v == b {
+                    *v = a;
+                }
+            }
+            around[a as usize].push(j);
+        }
+        let b_nb: Vec<u32> = nb[b as usize].drain().collect();
+        for n in b_nb {
+            nb[n as usize].remove(&b);
+            if n != a {
+                nb[n as usize].insert(a);
+                nb[a as usize].insert(n);
+            }
+        }
+        nb[a as usize].remove(&b);
+        collapses += 1;
     }
     mesh.triangles = mesh
         .triangles
@@ -433,9 +491,16 @@ mod tests {
         let (clean, report) = clean(&raw, h);
         let after = quality(&clean);
         assert_eq!((report.voids, report.islands), (1, 1), "{report:?}");
-        assert_eq!((after.shells, after.void_shells, after.genus), (1, 0, Some(0)), "{after:?}");
+        assert_eq!(
+            (after.shells, after.void_shells, after.genus),
+            (1, 0, Some(0)),
+            "{after:?}"
+        );
         assert!(clean.topology().is_closed());
-        assert!(after.min_angle_deg > before.min_angle_deg, "{before:?} -> {after:?}");
+        assert!(
+            after.min_angle_deg > before.min_angle_deg,
+            "{before:?} -> {after:?}"
+        );
         assert_eq!(after.zero_area, 0);
         assert!(report.smoothing_volume_change.abs() < 0.03, "{report:?}");
     }
