@@ -126,12 +126,25 @@ def check_blender(out, manifest):
     bpy.ops.wm.obj_import(filepath=str(out / last["mesh"]))
     obj = bpy.context.selected_objects[0]
     check("blender rebuilt OBJ imports", len(obj.data.vertices) > 0, len(obj.data.vertices))
-    bpy.ops.wm.ply_import(filepath=str(out / last["points"]))
+    rebuilt_obj = obj
+    bpy.ops.wm.ply_import(filepath=str(out / last["points"]), forward_axis="NEGATIVE_Z", up_axis="Y")
     obj = bpy.context.selected_objects[0]
     names = [a.name for a in obj.data.attributes]
     check("blender PLY frame: points and vx vy vz J attributes",
           len(obj.data.vertices) == manifest["particles"] and all(k in names for k in ("vx", "vy", "vz", "J")),
           names)
+    header = open(out / last["points"], "rb").read(400).split(b"end_header")[0].decode()
+    # Blender 4.5's PLY importer drops a property named `id` (Houdini reads it); the file has it.
+    check("PLY frame: an int id property", "property int id" in header)
+
+    def centre(o):
+        pts = [o.matrix_world @ v.co for v in o.data.vertices]
+        return [sum(p[i] for p in pts) / len(pts) for i in range(3)]
+
+    a, b = centre(obj), centre(rebuilt_obj)
+    size = max(rebuilt_obj.dimensions)
+    check("blender PLY (forward -Z, up Y, as the README says) lines up with the OBJ surface",
+          max(abs(a[i] - b[i]) for i in range(3)) < 0.05 * size, (a, b))
 
 
 def main():

@@ -13,7 +13,8 @@ fn scratch(name: &str) -> PathBuf {
     scratch_in("morph-tests", name)
 }
 
-/// Floats of a frame PLY written by morph (7 float32 per particle after the header).
+/// Floats of a frame PLY written by morph (7 float32 per particle after the header, then the
+/// particle's id, an int32 equal to its index).
 fn ply_floats(path: &Path) -> (usize, Vec<f32>) {
     let bytes = std::fs::read(path).unwrap();
     let end = b"end_header\n";
@@ -30,7 +31,14 @@ fn ply_floats(path: &Path) -> (usize, Vec<f32>) {
         .chunks_exact(4)
         .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
         .collect();
-    assert_eq!(floats.len(), 7 * n);
+    assert_eq!(floats.len(), 8 * n);
+    for (p, row) in floats.chunks_exact(8).enumerate() {
+        assert_eq!(row[7].to_bits() as i32, p as i32, "id");
+    }
+    let floats: Vec<f32> = floats
+        .chunks_exact(8)
+        .flat_map(|row| row[..7].to_vec())
+        .collect();
     (n, floats)
 }
 

@@ -234,7 +234,7 @@ fn lowest_point(out: &Path, m: &serde_json::Value) -> (f64, f64) {
         .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
         .collect();
     let lowest = floats
-        .chunks_exact(7)
+        .chunks_exact(8)
         .map(|p| p[1] as f64)
         .fold(f64::INFINITY, f64::min);
     let scale = m["sim_to_world"]["scale"].as_f64().unwrap();

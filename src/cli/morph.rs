@@ -33,7 +33,7 @@ ground, colliders and any setting.";
 
 pub(super) const AFTER_LONG_HELP: &str = "\
 OUTPUT (folder -o, written in the locked OUT.partial and put in place when complete):
-  frames/frame_0001.ply ...  binary PLY points per frame: x y z vx vy vz J, source units
+  frames/frame_0001.ply ...  binary PLY points per frame: x y z vx vy vz J id, source units
   meshes/frame_0001.obj ...  closed surface per frame, source units
   final_mass.mgrid           final nodal mass grid; compare two with `morph compare`
   manifest.json              inputs with SHA-256, settings, placement, losses, timings, frames

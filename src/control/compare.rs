@@ -5,7 +5,7 @@
 //! ```text
 //! OUT/report.json                    per method: final_energy, compute_s, energy per step, ...
 //! OUT/energy.png                     KE against simulated time (3 runs) and compute time (2)
-//! OUT/frames/<method>/frame_NNNN.ply binary PLY points x y z vx vy vz J
+//! OUT/frames/<method>/frame_NNNN.ply binary PLY points x y z vx vy vz J id
 //! ```
 
 use super::gradient::{ControllerRun, GradientSettings, gradient_control};

@@ -35,16 +35,18 @@ pub fn write_points_ply(
     write_atomically(path, |w| {
         write!(
             w,
-            "ply\nformat binary_little_endian 1.0\ncomment morph {} particle frame\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\nproperty float vx\nproperty float vy\nproperty float vz\nproperty float J\nend_header\n",
+            "ply\nformat binary_little_endian 1.0\ncomment morph {} particle frame\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\nproperty float vx\nproperty float vy\nproperty float vz\nproperty float J\nproperty int id\nend_header\n",
             env!("CARGO_PKG_VERSION"),
             positions.len()
         )?;
-        let mut buf = Vec::with_capacity(positions.len() * 28);
+        let mut buf = Vec::with_capacity(positions.len() * 32);
         for p in 0..positions.len() {
             for c in positions[p].iter().chain(velocities[p].iter()) {
                 buf.extend_from_slice(&(*c as f32).to_le_bytes());
             }
             buf.extend_from_slice(&(volume_ratio[p] as f32).to_le_bytes());
+            // The particle's id: its index, the same on every frame.
+            buf.extend_from_slice(&(p as i32).to_le_bytes());
         }
         w.write_all(&buf)
     })

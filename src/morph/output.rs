@@ -1,7 +1,7 @@
 //! Runs a morph into an output folder (layout in `docs/morph.md`):
 //!
 //! ```text
-//! OUT/frames/frame_0001.ply ...   binary PLY points: x y z vx vy vz J (world units)
+//! OUT/frames/frame_0001.ply ...   binary PLY points: x y z vx vy vz J id (world units)
 //! OUT/meshes/frame_0001.obj ...   closed surface per frame (world units)
 //! OUT/final_mass.mgrid            final nodal mass grid (see io::massgrid)
 //! OUT/manifest.json               inputs + hashes, settings, placement, losses, timings, frames
@@ -627,7 +627,7 @@ fn sha256_hex(bytes: &[u8]) -> String {
         .collect()
 }
 
-/// The folder's frame format: binary PLY points (`x y z vx vy vz J`) in `frames/` and, when
+/// The folder's frame format: binary PLY points (`x y z vx vy vz J id`) in `frames/` and, when
 /// asked, a closed OBJ surface per frame in `meshes/`, all in world units.
 pub struct PlyObjSink {
     pub dir: PathBuf,
