@@ -251,28 +251,23 @@ fn save(path: &Path, img: &RgbImage) -> std::io::Result<()> {
     super::write_atomically(path, |w| std::io::Write::write_all(w, &bytes))
 }
 
-/// `preview.png`: the given frames side by side, each particle drawn as a small lit sphere
-/// (orthographic view from the front-right, slightly above; y up).
-pub fn write_preview(
-    path: &Path,
-    frames: &[(usize, Vec<Vector3<f64>>)],
-    particle_radius: f64,
-) -> std::io::Result<()> {
-    const TILE: u32 = 260;
-    let cols = frames.len().max(1) as u32;
-    let mut img = RgbImage::from_pixel(TILE * cols, TILE + 24, Rgb([30, 32, 36]));
+/// Side of a rendered frame's square tile, pixels.
+const TILE: u32 = 260;
+
+/// Each frame rendered as a `TILE`-square tile with a label, all at one scale: every particle
+/// a small lit sphere (orthographic view from the front-right, slightly above; y up).
+fn render_tiles(frames: &[(usize, Vec<Vector3<f64>>)], particle_radius: f64) -> Vec<RgbImage> {
     let view =
         Rotation3::from_euler_angles(0.35, 0.0, 0.0) * Rotation3::from_euler_angles(0.0, -0.6, 0.0);
     let projected: Vec<Vec<Vector3<f64>>> = frames
         .iter()
         .map(|(_, x)| x.iter().map(|p| view * p).collect())
         .collect();
-    let all = projected.iter().flatten();
     let (mut lo, mut hi) = (
         Vector3::repeat(f64::INFINITY),
         Vector3::repeat(f64::NEG_INFINITY),
     );
-    for p in all {
+    for p in projected.iter().flatten() {
         lo = lo.inf(p);
         hi = hi.sup(p);
     }
@@ -280,58 +275,106 @@ pub fn write_preview(
     let scale = (TILE as f64 - 20.0) / span;
     let r_px = (particle_radius * scale).max(1.0);
     let light = Vector3::new(-0.4, 0.6, 0.7).normalize();
-    for (tile, ((index, _), pts)) in frames.iter().zip(&projected).enumerate() {
-        let x0 = tile as f64 * TILE as f64;
-        let mut depth = vec![f64::NEG_INFINITY; (TILE * TILE) as usize];
-        let mut colour = vec![None; (TILE * TILE) as usize];
-        for p in pts {
-            let cx =
-                x0 + 10.0 + (p.x - lo.x) * scale + 0.5 * (TILE as f64 - 20.0 - (hi - lo).x * scale);
-            let cy = 10.0 + (hi.y - p.y) * scale + 0.5 * (TILE as f64 - 20.0 - (hi - lo).y * scale);
-            let r = r_px.ceil() as i64;
-            for dy in -r..=r {
-                for dx in -r..=r {
-                    let (u, v) = (dx as f64 / r_px, dy as f64 / r_px);
-                    let d2 = u * u + v * v;
-                    if d2 > 1.0 {
-                        continue;
-                    }
-                    let (px, py) = (cx.round() as i64 + dx, cy.round() as i64 + dy);
-                    let lx = px - x0 as i64;
-                    if lx < 0 || py < 0 || lx >= TILE as i64 || py >= TILE as i64 {
-                        continue;
-                    }
-                    let nz = (1.0 - d2).sqrt();
-                    let z = p.z + nz * particle_radius;
-                    let k = (py * TILE as i64 + lx) as usize;
-                    if z > depth[k] {
-                        depth[k] = z;
-                        let n = Vector3::new(u, -v, nz);
-                        let shade = 0.25 + 0.75 * n.dot(&light).max(0.0);
-                        colour[k] = Some(Rgb([
-                            (235.0 * shade) as u8,
-                            (150.0 * shade) as u8,
-                            (70.0 * shade) as u8,
-                        ]));
+    frames
+        .iter()
+        .zip(&projected)
+        .map(|((index, _), pts)| {
+            let mut img = RgbImage::from_pixel(TILE, TILE + 24, Rgb([30, 32, 36]));
+            let mut depth = vec![f64::NEG_INFINITY; (TILE * TILE) as usize];
+            for p in pts {
+                let cx =
+                    10.0 + (p.x - lo.x) * scale + 0.5 * (TILE as f64 - 20.0 - (hi - lo).x * scale);
+                let cy =
+                    10.0 + (hi.y - p.y) * scale + 0.5 * (TILE as f64 - 20.0 - (hi - lo).y * scale);
+                let r = r_px.ceil() as i64;
+                for dy in -r..=r {
+                    for dx in -r..=r {
+                        let (u, v) = (dx as f64 / r_px, dy as f64 / r_px);
+                        let d2 = u * u + v * v;
+                        if d2 > 1.0 {
+                            continue;
+                        }
+                        let (px, py) = (cx.round() as i64 + dx, cy.round() as i64 + dy);
+                        if px < 0 || py < 0 || px >= TILE as i64 || py >= TILE as i64 {
+                            continue;
+                        }
+                        let nz = (1.0 - d2).sqrt();
+                        let z = p.z + nz * particle_radius;
+                        let k = (py * TILE as i64 + px) as usize;
+                        if z > depth[k] {
+                            depth[k] = z;
+                            let n = Vector3::new(u, -v, nz);
+                            let shade = 0.25 + 0.75 * n.dot(&light).max(0.0);
+                            img.put_pixel(
+                                px as u32,
+                                py as u32,
+                                Rgb([
+                                    (235.0 * shade) as u8,
+                                    (150.0 * shade) as u8,
+                                    (70.0 * shade) as u8,
+                                ]),
+                            );
+                        }
                     }
                 }
             }
-        }
-        for (k, c) in colour.iter().enumerate() {
-            if let Some(c) = c {
-                img.put_pixel(x0 as u32 + (k as u32 % TILE), k as u32 / TILE, *c);
-            }
-        }
-        text(
-            &mut img,
-            x0 as i64 + 8,
-            TILE as i64 + 4,
-            &format!("F {index}"),
-            3,
-            Rgb([220, 220, 220]),
-        );
+            text(
+                &mut img,
+                8,
+                TILE as i64 + 4,
+                &format!("F {index}"),
+                3,
+                Rgb([220, 220, 220]),
+            );
+            img
+        })
+        .collect()
+}
+
+/// `preview.png`: the given frames side by side (see [`render_tiles`]).
+pub fn write_preview(
+    path: &Path,
+    frames: &[(usize, Vec<Vector3<f64>>)],
+    particle_radius: f64,
+) -> std::io::Result<()> {
+    let tiles = render_tiles(frames, particle_radius);
+    let mut img = RgbImage::from_pixel(
+        TILE * tiles.len().max(1) as u32,
+        TILE + 24,
+        Rgb([30, 32, 36]),
+    );
+    for (i, tile) in tiles.iter().enumerate() {
+        image::imageops::replace(&mut img, tile, i as i64 * TILE as i64, 0);
     }
     save(path, &img)
+}
+
+/// `preview.gif`: the frames as an animation at `fps` (looping), rendered as in
+/// [`write_preview`].
+pub fn write_preview_gif(
+    path: &Path,
+    frames: &[(usize, Vec<Vector3<f64>>)],
+    particle_radius: f64,
+    fps: f64,
+) -> std::io::Result<()> {
+    use image::codecs::gif::{GifEncoder, Repeat};
+    let tiles = render_tiles(frames, particle_radius);
+    let delay =
+        image::Delay::from_saturating_duration(std::time::Duration::from_secs_f64(1.0 / fps));
+    let mut bytes = Vec::new();
+    {
+        let mut encoder = GifEncoder::new_with_speed(&mut bytes, 10);
+        encoder
+            .set_repeat(Repeat::Infinite)
+            .map_err(std::io::Error::other)?;
+        for tile in tiles {
+            let rgba = image::DynamicImage::ImageRgb8(tile).to_rgba8();
+            encoder
+                .encode_frame(image::Frame::from_parts(rgba, 0, 0, delay))
+                .map_err(std::io::Error::other)?;
+        }
+    }
+    super::write_atomically(path, |w| std::io::Write::write_all(w, &bytes))
 }
 
 /// `study.png`: one dot per configuration, the judge's IoU with the target (y, linear from 0

@@ -468,6 +468,9 @@ pub struct OutputRequest<'a> {
     pub memory_limit: MemoryLimit,
 }
 
+/// Frames at most in `preview.gif`.
+const GIF_FRAMES: usize = 48;
+
 /// The name of frame `index` (0-based) when there are `count` frames: zero-padded to the
 /// width the count needs (at least 4), so names sort in frame order.
 pub fn frame_name(index: usize, count: usize) -> String {
@@ -1016,11 +1019,12 @@ fn write_run(
             .collect()
     };
     let usd_path = dir.join(crate::io::usd::FILE);
+    let fps = 1.0 / (prep.sim_frame_every() as f64 * prep.model().dt);
     crate::io::usd::write_usda(
         &usd_path,
         &crate::io::usd::UsdSequence {
             dir,
-            fps: 1.0 / (prep.sim_frame_every() as f64 * prep.model().dt),
+            fps,
             points: files("frames", "ply"),
             carried: settings.surfaces.carried().then(|| files("carried", "obj")),
             rebuilt: settings.surfaces.rebuilt().then(|| files("meshes", "obj")),
@@ -1057,6 +1061,28 @@ fn write_run(
     let preview_png = dir.join("preview.png");
     images::write_preview(&preview_png, &preview, 0.5 * spacing * s)
         .map_err(|e| out_err("preview", &preview_png, e))?;
+    // The animated preview: at most GIF_FRAMES frames evenly through the sequence, read back
+    // from the frames on disk, each shown for as long as the frames it stands for.
+    let every = n_frames.div_ceil(GIF_FRAMES).max(1);
+    let gif_frames = (0..n_frames)
+        .step_by(every)
+        .map(|i| {
+            let path = dir
+                .join("frames")
+                .join(format!("{}.ply", frame_name(i, n_frames)));
+            crate::io::usd::read_points_ply(&path)
+                .map(|p| (i + 1, p.x))
+                .map_err(|e| out_err("preview", &path, e))
+        })
+        .collect::<Result<Vec<_>, _>>()?;
+    let preview_gif = dir.join("preview.gif");
+    images::write_preview_gif(
+        &preview_gif,
+        &gif_frames,
+        0.5 * spacing * s,
+        fps / every as f64,
+    )
+    .map_err(|e| out_err("preview", &preview_gif, e))?;
 
     let frames: Vec<FrameEntry> = (0..n_frames)
         .map(|i| {
