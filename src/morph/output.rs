@@ -468,6 +468,10 @@ pub struct OutputRequest<'a> {
     pub memory_limit: MemoryLimit,
 }
 
+/// What a frame's surfaces measure: the volume the rebuilt one encloses (world units), the
+/// carried one's stats and the rebuilt one's.
+pub type SurfaceMeasures = (Option<f64>, Option<CarriedStats>, Option<RebuiltStats>);
+
 /// Frames at most in `preview.gif`.
 const GIF_FRAMES: usize = 48;
 
@@ -655,10 +659,7 @@ impl PlyObjSink {
 
     /// [`PlyObjSink::write`], also returning what the carried and the rebuilt surfaces
     /// measure.
-    pub fn write_measured(
-        &mut self,
-        frame: &Frame,
-    ) -> Result<(Option<f64>, Option<CarriedStats>, Option<RebuiltStats>), MorphError> {
+    pub fn write_measured(&mut self, frame: &Frame) -> Result<SurfaceMeasures, MorphError> {
         let name = frame_name(frame.index, self.n_frames);
         let WorldFrame { x, v, j } = &frame.world;
         let points = self.dir.join("frames").join(format!("{name}.ply"));
