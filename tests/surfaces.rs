@@ -65,3 +65,43 @@ fn the_carried_surface_keeps_the_source_topology_and_uvs() {
     let summary = &m["frames_summary"]["carried"];
     assert!(summary["max_stretch"].as_f64().unwrap() > 1.0, "{summary}");
 }
+
+/// The rebuilt surfaces come out clean: one shell (the body; no void walls, no islands),
+/// closed, and no triangle under the stated smallest angle; the manifest has the surfaces
+/// before cleaning too, which had voids.
+#[test]
+fn rebuilt_surfaces_have_one_shell_and_no_slivers() {
+    let out = scratch_in("surface-tests", "rebuilt");
+    ok(&morph(&[
+        "assets/sphere.obj",
+        "assets/two-lobes.obj",
+        "-o",
+        out.to_str().unwrap(),
+        "--preset",
+        "draft",
+        "--resolution",
+        "20",
+        "--surface",
+        "rebuilt",
+        "--quiet",
+    ]));
+    let m = manifest(&out);
+    let mut voids_before = 0;
+    for f in m["frames"].as_array().unwrap() {
+        let r = &f["rebuilt"];
+        let after = &r["after"];
+        assert_eq!(after["shells"].as_u64(), Some(1), "{r}");
+        assert_eq!(after["void_shells"].as_u64(), Some(0), "{r}");
+        assert!(after["min_angle_deg"].as_f64().unwrap() >= 0.25, "{r}");
+        assert_eq!(after["zero_area"].as_u64(), Some(0), "{r}");
+        voids_before += r["before"]["void_shells"].as_u64().unwrap();
+        let mesh = morph::geometry::load_mesh(&out.join(f["mesh"].as_str().unwrap()))
+            .unwrap()
+            .mesh;
+        assert!(mesh.topology().is_closed(), "{}", f["mesh"]);
+    }
+    assert!(
+        voids_before > 0,
+        "the extraction leaves void shells for cleaning to drop"
+    );
+}

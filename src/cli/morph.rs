@@ -34,12 +34,15 @@ ground, colliders and any setting.";
 pub(super) const AFTER_LONG_HELP: &str = "\
 OUTPUT (folder -o, written in the locked OUT.partial and put in place when complete):
   frames/frame_0001.ply ...  binary PLY points per frame: x y z vx vy vz J id, source units
-  meshes/frame_0001.obj ...  closed surface per frame, source units
+  meshes/frame_0001.obj ...  clean closed surface rebuilt per frame, source units
   final_mass.mgrid           final nodal mass grid; compare two with `morph compare`
   manifest.json              inputs with SHA-256, settings, placement, losses, timings, frames
   run.json                   what decides the result: tool version, input hashes, settings
   scene.toml                 the resolved scene: `morph --scene OUT/scene.toml` reruns it
   loss.png, preview.png      loss curves; a contact sheet of frames
+  preview.gif                the sequence animated at its fps
+  carried/frame_0001.obj ... the source mesh carried through the morph (--surface)
+  morph.usda                 the whole sequence in one USD file (points, both surfaces)
   -o is checked before any work; --overwrite replaces only an earlier morph output; a second
   run on the same -o fails at once. Each completed segment is checkpointed in OUT.partial.
 
