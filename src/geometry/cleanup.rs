@@ -32,6 +32,8 @@ pub const SMOOTHING_STEPS: usize = 10;
 pub const COLLAPSE_SHARE: f64 = 0.05;
 /// Largest angle between the normals of two triangles whose shared edge may be flipped.
 const FLIP_MAX_BEND_DEG: f64 = 20.0;
+/// Flips are tried on the edges of triangles with an angle under this.
+const FLIP_WORTH_DEG: f64 = 20.0;
 /// A triangle with an angle under this and one edge much shorter than the others is a needle:
 /// its short edge is collapsed.
 pub const NEEDLE_DEG: f64 = 10.0;
@@ -254,13 +256,22 @@ fn edge_map(mesh: &TriMesh) -> HashMap<(u32, u32), usize> {
 fn flip_edges(mesh: &mut TriMesh) -> usize {
     let cos_bend = FLIP_MAX_BEND_DEG.to_radians().cos();
     let cos_sliver_bend = SLIVER_MAX_BEND_DEG.to_radians().cos();
+    let worth = FLIP_WORTH_DEG.to_radians();
+    // Only an edge of a poor triangle is worth flipping: start from those.
+    let mut candidates: Vec<usize> = (0..mesh.triangles.len())
+        .filter(|&k| min_angle(mesh, mesh.triangles[k]) < worth)
+        .collect();
+    if candidates.is_empty() {
+        return 0;
+    }
+    let mut edges = edge_map(mesh);
+    let mut undirected: HashSet<(u32, u32)> =
+        edges.keys().map(|&(a, b)| (a.min(b), a.max(b))).collect();
     let mut flips = 0;
     for _ in 0..10 {
-        let mut edges = edge_map(mesh);
-        let mut undirected: HashSet<(u32, u32)> =
-            edges.keys().map(|&(a, b)| (a.min(b), a.max(b))).collect();
         let mut changed = 0;
-        for k in 0..mesh.triangles.len() {
+        let mut next = Vec::new();
+        for &k in &candidates {
             for e in 0..3 {
                 let t = mesh.triangles[k];
                 let (a, b) = (t[e], t[(e + 1) % 3]);
@@ -308,6 +319,9 @@ fn flip_edges(mesh: &mut TriMesh) -> usize {
                     for f in 0..3 {
                         edges.insert((tri[f], tri[(f + 1) % 3]), idx);
                     }
+                    if min_angle(mesh, tri) < worth {
+                        next.push(idx);
+                    }
                 }
                 changed += 1;
             }
@@ -316,6 +330,9 @@ fn flip_edges(mesh: &mut TriMesh) -> usize {
         if changed == 0 {
             break;
         }
+        next.sort_unstable();
+        next.dedup();
+        candidates = next;
     }
     flips
 }
@@ -326,6 +343,20 @@ fn flip_edges(mesh: &mut TriMesh) -> usize {
 /// the surface stays a closed manifold) and no triangle around them turns over; returns the
 /// collapses made.
 fn collapse_short_edges(mesh: &mut TriMesh, min_length: f64) -> usize {
+    let length = |mesh: &TriMesh, a: u32, b: u32| {
+        (mesh.vertices[a as usize] - mesh.vertices[b as usize]).norm()
+    };
+    let wanted = |mesh: &TriMesh, t: [u32; 3]| {
+        let mut edges: Vec<(f64, u32, u32)> = (0..3)
+            .map(|e| (length(mesh, t[e], t[(e + 1) % 3]), t[e], t[(e + 1) % 3]))
+            .collect();
+        edges.sort_by(|x, y| x.0.total_cmp(&y.0));
+        let needle = min_angle(mesh, t) < NEEDLE_DEG.to_radians() && edges[0].0 < 0.5 * edges[1].0;
+        (edges[0].0 < min_length || needle).then_some((edges[0].1, edges[0].2))
+    };
+    if !mesh.triangles.iter().any(|t| wanted(mesh, *t).is_some()) {
+        return 0;
+    }
     let mut collapses = 0;
     let mut removed = vec![false; mesh.triangles.len()];
     let mut nb: Vec<HashSet<u32>> = neighbours(mesh)
@@ -339,23 +370,13 @@ fn collapse_short_edges(mesh: &mut TriMesh, min_length: f64) -> usize {
             around[v as usize].push(k);
         }
     }
-    let length = |mesh: &TriMesh, a: u32, b: u32| {
-        (mesh.vertices[a as usize] - mesh.vertices[b as usize]).norm()
-    };
     for k in 0..mesh.triangles.len() {
         if removed[k] {
             continue;
         }
-        let t = mesh.triangles[k];
-        let mut edges: Vec<(f64, u32, u32)> = (0..3)
-            .map(|e| (length(mesh, t[e], t[(e + 1) % 3]), t[e], t[(e + 1) % 3]))
-            .collect();
-        edges.sort_by(|x, y| x.0.total_cmp(&y.0));
-        let needle = min_angle(mesh, t) < NEEDLE_DEG.to_radians() && edges[0].0 < 0.5 * edges[1].0;
-        let (len, a, b) = edges[0];
-        if !(len < min_length || needle) {
+        let Some((a, b)) = wanted(mesh, mesh.triangles[k]) else {
             continue;
-        }
+        };
         let shared = nb[a as usize].intersection(&nb[b as usize]).count();
         if shared != 2 || nb[a as usize].len() <= 3 || nb[b as usize].len() <= 3 {
             continue;
