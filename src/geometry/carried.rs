@@ -174,16 +174,7 @@ impl CarriedSurface {
     /// Writes the frame as the source's OBJ with new vertex positions and normals; a vertex
     /// that has not moved keeps its line as read.
     pub fn write_obj(&self, path: &Path, frame: &CarriedFrame) -> std::io::Result<()> {
-        if let Some(i) = frame
-            .positions
-            .iter()
-            .position(|v| !v.iter().all(|&c| (c as f32).is_finite()))
-        {
-            return Err(std::io::Error::new(
-                std::io::ErrorKind::InvalidData,
-                format!("carried vertex {} is not finite in 32-bit floats", i + 1),
-            ));
-        }
+        super::mesh::finite_in_f32(&frame.positions, "carried vertex")?;
         super::mesh::write_atomically(path, |w| {
             for line in &self.lines {
                 match line {

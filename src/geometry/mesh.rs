@@ -387,16 +387,7 @@ impl TriMesh {
 
     /// [`TriMesh::write_obj`] with a smooth normal per vertex (`vn`, faces `f a//a`).
     pub fn write_obj_with_normals(&self, path: &Path) -> std::io::Result<()> {
-        if let Some(i) = self
-            .vertices
-            .iter()
-            .position(|v| !v.iter().all(|&c| (c as f32).is_finite()))
-        {
-            return Err(std::io::Error::new(
-                std::io::ErrorKind::InvalidData,
-                format!("vertex {} is not finite in 32-bit floats", i + 1),
-            ));
-        }
+        finite_in_f32(&self.vertices, "vertex")?;
         let normals = self.vertex_normals();
         write_atomically(path, |w| {
             writeln!(w, "# written by morph {}", env!("CARGO_PKG_VERSION"))?;
@@ -429,16 +420,7 @@ impl TriMesh {
                 "one set of texture corners per triangle",
             ));
         }
-        if let Some(i) = self
-            .vertices
-            .iter()
-            .position(|v| !v.iter().all(|&c| (c as f32).is_finite()))
-        {
-            return Err(std::io::Error::new(
-                std::io::ErrorKind::InvalidData,
-                format!("vertex {} is not finite in 32-bit floats", i + 1),
-            ));
-        }
+        finite_in_f32(&self.vertices, "vertex")?;
         write_atomically(path, |w| {
             writeln!(w, "# written by morph {}", env!("CARGO_PKG_VERSION"))?;
             for v in &self.vertices {
@@ -466,6 +448,21 @@ impl TriMesh {
             }
             Ok(())
         })
+    }
+}
+
+/// Refuses points a 32-bit float file cannot hold (exit 0 means every written value is
+/// finite); `what` names them in the message.
+pub fn finite_in_f32(points: &[Vector3<f64>], what: &str) -> std::io::Result<()> {
+    match points
+        .iter()
+        .position(|v| !v.iter().all(|&c| (c as f32).is_finite()))
+    {
+        Some(i) => Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidData,
+            format!("{what} {} is not finite in 32-bit floats", i + 1),
+        )),
+        None => Ok(()),
     }
 }
 
