@@ -242,3 +242,52 @@ fn lowest_point(out: &Path, m: &serde_json::Value) -> (f64, f64) {
     let per_cell = m["settings"]["particles_per_cell"].as_f64().unwrap();
     (lowest, scale * dx / per_cell)
 }
+
+/// Bad scene values fail with one line and write nothing: a value of the wrong type names its
+/// key; a collider mesh that is not closed (the teapot) or is missing names the mesh.
+#[test]
+fn bad_scene_values_fail_with_one_line() {
+    let dir = scratch("bad-values");
+    std::fs::create_dir_all(&dir).unwrap();
+    let assets = root().join("assets");
+    let head = format!(
+        "source = \"{}\"\ntargets = [\"{}\"]\npreset = \"draft\"\nresolution = 16\n",
+        assets.join("sphere.obj").display(),
+        assets.join("cube.obj").display()
+    );
+    let teapot = root().join("../shared/meshes/teapot.obj");
+    for (name, body, code, says) in [
+        ("type", "frames = \"many\"\n".to_string(), 2, "in `frames`"),
+        (
+            "open-collider",
+            format!("[[colliders]]\nmesh = \"{}\"\n", teapot.display()),
+            1,
+            "is not closed",
+        ),
+        (
+            "missing-collider",
+            "[[colliders]]\nmesh = \"no-such-mesh.obj\"\n".to_string(),
+            1,
+            "no-such-mesh.obj",
+        ),
+    ] {
+        let scene = dir.join(format!("{name}.toml"));
+        std::fs::write(&scene, format!("{head}{body}")).unwrap();
+        let out = dir.join(format!("{name}-out"));
+        let r = morph(&[
+            "--scene",
+            scene.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+        ]);
+        let err = String::from_utf8_lossy(&r.stderr);
+        assert_eq!(r.status.code(), Some(code), "{name}: {err}");
+        assert_eq!(err.lines().count(), 1, "{name}: {err}");
+        assert!(
+            err.starts_with("morph: error: ") && err.contains(says),
+            "{name}: {err}"
+        );
+        assert!(!out.exists(), "{name}: nothing is written");
+        assert!(!dir.join(format!("{name}-out.partial")).exists(), "{name}");
+    }
+}
