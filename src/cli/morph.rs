@@ -198,7 +198,7 @@ pub struct MorphArgs {
     /// target order (--arrive for one target). The shape eases there along a smoothstep in
     /// time, then holds and settles; 1 aims at the target from the start [default: the last
     /// target at 80% of the frames, earlier ones evenly before it].
-    #[arg(long, visible_alias = "arrive", value_delimiter = ',', num_args = 1..)]
+    #[arg(long, visible_alias = "arrive", value_delimiter = ',')]
     at: Vec<usize>,
     #[arg(long, value_parser = choice(&Surfaces::ALL), help = format!("Surfaces per frame: carried (the source mesh itself, with its UVs and groups, following the body; carried/), rebuilt (a closed surface made from the particles, which follows any change of topology; meshes/), both, or none [default {}]", name(&defaults().surfaces)))]
     surface: Option<Surfaces>,
