@@ -461,6 +461,16 @@ fn more_effort_never_judges_worse_and_frames_keep_their_volume() {
     );
 }
 
+/// `morph bench morph` refuses an unknown case with one line, before any work.
+#[test]
+fn bench_morph_refuses_an_unknown_case() {
+    let r = morph(&["bench", "morph", "--only", "spot-default,nope"]);
+    assert_eq!(r.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(err.contains("no case 'nope'"), "{err}");
+}
+
 /// `--fps 24 --frames 48`: exactly 48 frames 1/24 s apart, the rest shape first; the chain is
 /// cut into segments of --steps steps with a shorter last one; 25 fps takes steps of 1/125 s,
 /// and `--seconds` gives the frames that fill it.

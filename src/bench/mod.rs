@@ -5,6 +5,7 @@
 
 pub mod geometry;
 pub mod hard_cases;
+pub mod morph;
 pub mod physics;
 
 use crate::integrator::{Engine, Integrator, IntegratorKind};

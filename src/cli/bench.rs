@@ -9,7 +9,10 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 #[derive(Args, Debug)]
+#[command(args_conflicts_with_subcommands = true)]
 pub struct BenchArgs {
+    #[command(subcommand)]
+    what: Option<BenchWhat>,
     /// Steps per run.
     #[arg(long, default_value_t = 30)]
     steps: usize,
@@ -29,7 +32,37 @@ pub struct BenchArgs {
     integrators: Vec<IntegratorKind>,
 }
 
+/// What `morph bench` measures besides the engine.
+#[derive(clap::Subcommand, Debug)]
+pub enum BenchWhat {
+    /// Whole morphs at fixed settings (sphere -> spot at the default preset, sphere ->
+    /// stanford-bunny at final), every output written: one JSON line each with wall time,
+    /// optimizer evaluations and the quality judge's IoU and fill. Minutes.
+    Morph(BenchMorphArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct BenchMorphArgs {
+    /// Folder of the shared test meshes.
+    #[arg(long, default_value = "../shared/meshes")]
+    meshes: PathBuf,
+    /// Only these cases, comma separated (spot-default, bunny-final).
+    #[arg(long, value_delimiter = ',')]
+    only: Vec<String>,
+}
+
 pub fn run(a: &BenchArgs) -> ExitCode {
+    if let Some(BenchWhat::Morph(m)) = &a.what {
+        let known: Vec<&str> = morph::bench::morph::CASES.iter().map(|c| c.name).collect();
+        if let Some(bad) = m.only.iter().find(|o| !known.contains(&o.as_str())) {
+            return fail(
+                false,
+                2,
+                &format!("--only: no case '{bad}' (the cases: {})", known.join(", ")),
+            );
+        }
+        return super::report(morph::bench::morph::run(&m.meshes, &m.only));
+    }
     if a.steps == 0 || a.repeats == 0 || a.thread_counts.contains(&0) {
         return fail(
             false,
