@@ -232,7 +232,7 @@ fn effect_costs(steps: usize, repeats: usize) -> anyhow::Result<()> {
     };
     let cube_path =
         std::env::temp_dir().join(format!("morph-bench-cube-{}.obj", std::process::id()));
-    crate::geometry::assets::cube(2.0, 8).write_obj(&cube_path)?;
+    // Written just before its case and removed right after.
     let cube = EffectConfig::Collider {
         shape: crate::scene::ColliderConfig::Mesh {
             path: cube_path.clone(),
@@ -258,6 +258,9 @@ fn effect_costs(steps: usize, repeats: usize) -> anyhow::Result<()> {
     ];
     let mut baseline = None;
     for (name, effects, controls) in cases {
+        if name == "mesh collider" {
+            crate::geometry::assets::cube(2.0, 8).write_obj(&cube_path)?;
+        }
         let w = workload(
             KernelKind::Cubic,
             IntegratorKind::Euler,
