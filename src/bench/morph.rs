@@ -43,6 +43,14 @@ pub fn run(meshes: &Path, only: &[String]) -> anyhow::Result<()> {
         let target = meshes.join(case.target);
         let out: PathBuf =
             std::env::temp_dir().join(format!("morph-bench-{}-{}", case.name, std::process::id()));
+        // The folder must be this run's own: it is removed afterwards.
+        if out.exists() || crate::io::outdir::partial_dir(&out).exists() {
+            anyhow::bail!(
+                "{}: '{}' exists; remove it or rerun (the benchmark deletes only what it made)",
+                case.name,
+                out.display()
+            );
+        }
         let settings = MorphSettings::preset(case.preset);
         let clock = Instant::now();
         let summary = morph_to_folder(
@@ -62,8 +70,9 @@ pub fn run(meshes: &Path, only: &[String]) -> anyhow::Result<()> {
         let manifest: Option<serde_json::Value> = std::fs::read(out.join("manifest.json"))
             .ok()
             .and_then(|b| serde_json::from_slice(&b).ok());
-        // This run made the folder: it is removed whatever happened.
+        // This run made the folder (and its staging folder): removed whatever happened.
         let _ = std::fs::remove_dir_all(&out);
+        let _ = std::fs::remove_dir_all(crate::io::outdir::partial_dir(&out));
         let summary = summary.map_err(|e| anyhow::anyhow!("{}: {e}", case.name))?;
         let evaluations: u64 = manifest
             .as_ref()
