@@ -7,6 +7,7 @@ pub mod geometry;
 pub mod hard_cases;
 pub mod morph;
 pub mod physics;
+pub mod roofline;
 
 use crate::integrator::{Engine, Integrator, IntegratorKind};
 use crate::loss::{MassLoss, MassLossKind};

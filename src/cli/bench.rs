@@ -39,6 +39,23 @@ pub enum BenchWhat {
     /// stanford-bunny at final), every output written: one JSON line each with wall time,
     /// optimizer evaluations and the quality judge's IoU and fill. Minutes.
     Morph(BenchMorphArgs),
+    /// Per-stage times of the Euler step and its reverse (cubic reference workload) at each
+    /// thread count, this machine's bandwidth and peak, and each stage against its roofline
+    /// bound: JSON lines on stdout, a markdown table on stderr.
+    Stages(BenchStagesArgs),
+}
+
+#[derive(Args, Debug)]
+pub struct BenchStagesArgs {
+    /// Steps per run.
+    #[arg(long, default_value_t = 30)]
+    steps: usize,
+    /// Runs timed per thread count (after one untimed run); stage times are their mean.
+    #[arg(long, default_value_t = 3)]
+    repeats: usize,
+    /// Thread counts to measure, comma separated.
+    #[arg(long, value_delimiter = ',', default_values_t = [1usize, 2])]
+    thread_counts: Vec<usize>,
 }
 
 #[derive(Args, Debug)]
@@ -62,6 +79,20 @@ pub fn run(a: &BenchArgs) -> ExitCode {
             );
         }
         return super::report(morph::bench::morph::run(&m.meshes, &m.only));
+    }
+    if let Some(BenchWhat::Stages(st)) = &a.what {
+        if st.steps == 0 || st.repeats == 0 || st.thread_counts.contains(&0) {
+            return fail(
+                false,
+                2,
+                "--steps, --repeats and --thread-counts must be positive",
+            );
+        }
+        return super::report(morph::bench::roofline::run(
+            st.steps,
+            st.repeats,
+            &st.thread_counts,
+        ));
     }
     if a.steps == 0 || a.repeats == 0 || a.thread_counts.contains(&0) {
         return fail(

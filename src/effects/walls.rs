@@ -28,7 +28,12 @@ impl Walls {
     fn sides(&self, ctx: &GridContext, node: usize) -> [i8; 3] {
         let n = ctx.spec.nodes();
         let s = ctx.spec.strides();
-        let idx = [node / s[0], (node / s[1]) % n[1], node % n[2]];
+        self.sides_at(n, [node / s[0], (node / s[1]) % n[1], node % n[2]])
+    }
+
+    /// [`Walls::sides`] of the node with indices `idx` on a grid of `n` nodes per axis.
+    #[inline]
+    fn sides_at(&self, n: [usize; 3], idx: [usize; 3]) -> [i8; 3] {
         let t = self.thickness;
         let mut out = [0i8; 3];
         for a in 0..3 {
@@ -44,7 +49,12 @@ impl Walls {
     /// Per-axis mask (1 keep, 0 zero) that the wall applies to velocity `v` at `node`.
     #[inline]
     fn mask(&self, ctx: &GridContext, node: usize, v: &Vector3<f64>) -> Option<[bool; 3]> {
-        let sides = self.sides(ctx, node);
+        self.mask_at(self.sides(ctx, node), v)
+    }
+
+    /// [`Walls::mask`] given the node's sides.
+    #[inline]
+    fn mask_at(&self, sides: [i8; 3], v: &Vector3<f64>) -> Option<[bool; 3]> {
         if sides == [0, 0, 0] {
             return None;
         }
@@ -53,6 +63,27 @@ impl Walls {
             // Moving into the wall means v . outward normal > 0 on that face.
             WallMode::Slip => [0, 1, 2].map(|a| !(sides[a] != 0 && v[a] * sides[a] as f64 > 0.0)),
         })
+    }
+
+    /// Zeroes the components of `out` the wall removes at each node, deciding from `v`
+    /// (the velocity the wall sees). Walks the grid row by row: no division per node.
+    fn zero_masked(&self, ctx: &GridContext, v: Option<&[Vector3<f64>]>, out: &mut [Vector3<f64>]) {
+        let n = ctx.spec.nodes();
+        out.par_chunks_mut(n[2])
+            .enumerate()
+            .for_each(|(row, outs)| {
+                let (i, j) = (row / n[1], row % n[1]);
+                for (k, o) in outs.iter_mut().enumerate() {
+                    let seen = v.map_or(*o, |v| v[row * n[2] + k]);
+                    if let Some(keep) = self.mask_at(self.sides_at(n, [i, j, k]), &seen) {
+                        for a in 0..3 {
+                            if !keep[a] {
+                                o[a] = 0.0;
+                            }
+                        }
+                    }
+                }
+            });
     }
 }
 
@@ -66,15 +97,7 @@ impl Effect for Walls {
     }
 
     fn apply_grid(&self, ctx: &GridContext, v: &mut [Vector3<f64>]) {
-        v.par_iter_mut().enumerate().for_each(|(node, v)| {
-            if let Some(keep) = self.mask(ctx, node, v) {
-                for a in 0..3 {
-                    if !keep[a] {
-                        v[a] = 0.0;
-                    }
-                }
-            }
-        });
+        self.zero_masked(ctx, None, v);
     }
 
     fn acts_on_rates(&self) -> bool {
@@ -125,14 +148,6 @@ impl Effect for Walls {
         grad_v: &mut [Vector3<f64>],
         _grad_params: &mut [f64],
     ) {
-        grad_v.par_iter_mut().enumerate().for_each(|(node, g)| {
-            if let Some(keep) = self.mask(ctx, node, &v_in[node]) {
-                for a in 0..3 {
-                    if !keep[a] {
-                        g[a] = 0.0;
-                    }
-                }
-            }
-        });
+        self.zero_masked(ctx, Some(v_in), grad_v);
     }
 }

@@ -274,12 +274,12 @@ fn binding(
 /// Points hashed into cubic cells, for radius queries.
 struct CellHash {
     cell: f64,
-    cells: std::collections::HashMap<[i64; 3], Vec<u32>>,
+    cells: rustc_hash::FxHashMap<[i64; 3], Vec<u32>>,
 }
 
 impl CellHash {
     fn new(points: &[Vector3<f64>], cell: f64) -> CellHash {
-        let mut cells: std::collections::HashMap<[i64; 3], Vec<u32>> = Default::default();
+        let mut cells: rustc_hash::FxHashMap<[i64; 3], Vec<u32>> = Default::default();
         for (i, p) in points.iter().enumerate() {
             cells.entry(Self::key(p, cell)).or_default().push(i as u32);
         }

@@ -22,7 +22,7 @@
 
 use super::mesh::TriMesh;
 use nalgebra::Vector3;
-use std::collections::{HashMap, HashSet};
+use rustc_hash::{FxHashMap, FxHashSet};
 
 /// Shells enclosing less than this share of the largest shell's volume are islands.
 pub const ISLAND_SHARE: f64 = 0.005;
@@ -117,7 +117,7 @@ fn shells(mesh: &TriMesh) -> Vec<Vec<usize>> {
             }
         }
     }
-    let mut index: HashMap<usize, usize> = HashMap::new();
+    let mut index: FxHashMap<usize, usize> = FxHashMap::default();
     let mut out: Vec<Vec<usize>> = Vec::new();
     for (k, t) in mesh.triangles.iter().enumerate() {
         let root = find(&mut parent, t[0] as usize);
@@ -161,7 +161,7 @@ fn keep_outer_shells(mesh: &TriMesh, report: &mut CleanReport) -> TriMesh {
 
 /// Only the vertices some triangle uses, renumbered in order of first use.
 fn compact(mesh: &TriMesh) -> TriMesh {
-    let mut index: HashMap<u32, u32> = HashMap::new();
+    let mut index: FxHashMap<u32, u32> = FxHashMap::default();
     let mut out = TriMesh::default();
     for t in &mesh.triangles {
         let tri = t.map(|v| {
@@ -241,8 +241,8 @@ fn normal(mesh: &TriMesh, t: [u32; 3]) -> Vector3<f64> {
 }
 
 /// Directed edge -> the triangle holding it.
-fn edge_map(mesh: &TriMesh) -> HashMap<(u32, u32), usize> {
-    let mut m = HashMap::with_capacity(3 * mesh.triangles.len());
+fn edge_map(mesh: &TriMesh) -> FxHashMap<(u32, u32), usize> {
+    let mut m = FxHashMap::with_capacity_and_hasher(3 * mesh.triangles.len(), Default::default());
     for (k, t) in mesh.triangles.iter().enumerate() {
         for e in 0..3 {
             m.insert((t[e], t[(e + 1) % 3]), k);
@@ -265,7 +265,7 @@ fn flip_edges(mesh: &mut TriMesh) -> usize {
         return 0;
     }
     let mut edges = edge_map(mesh);
-    let mut undirected: HashSet<(u32, u32)> =
+    let mut undirected: FxHashSet<(u32, u32)> =
         edges.keys().map(|&(a, b)| (a.min(b), a.max(b))).collect();
     let mut flips = 0;
     for _ in 0..10 {
@@ -359,7 +359,7 @@ fn collapse_short_edges(mesh: &mut TriMesh, min_length: f64) -> usize {
     }
     let mut collapses = 0;
     let mut removed = vec![false; mesh.triangles.len()];
-    let mut nb: Vec<HashSet<u32>> = neighbours(mesh)
+    let mut nb: Vec<FxHashSet<u32>> = neighbours(mesh)
         .into_iter()
         .map(|l| l.into_iter().collect())
         .collect();

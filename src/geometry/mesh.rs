@@ -3,7 +3,7 @@
 
 use super::error::MeshError;
 use nalgebra::Vector3;
-use std::collections::HashMap;
+use rustc_hash::FxHashMap;
 use std::io::Write;
 use std::path::Path;
 
@@ -129,8 +129,8 @@ impl TriMesh {
     /// Counts boundary, non-manifold and misoriented edges.
     pub fn topology(&self) -> Topology {
         // Per unordered edge: (uses in the lo->hi direction, uses in the hi->lo direction).
-        let mut uses: HashMap<(u32, u32), (u32, u32)> =
-            HashMap::with_capacity(self.triangles.len() * 2);
+        let mut uses: FxHashMap<(u32, u32), (u32, u32)> =
+            FxHashMap::with_capacity_and_hasher(self.triangles.len() * 2, Default::default());
         for t in &self.triangles {
             for e in 0..3 {
                 let (a, b) = (t[e], t[(e + 1) % 3]);
@@ -171,7 +171,8 @@ impl TriMesh {
         }
         let origin = self.bounds().min;
         let key = |v: &Vector3<f64>| ((v - origin) / tolerance).map(|c| c.floor() as i64);
-        let mut cells: HashMap<[i64; 3], Vec<u32>> = HashMap::with_capacity(self.vertices.len());
+        let mut cells: FxHashMap<[i64; 3], Vec<u32>> =
+            FxHashMap::with_capacity_and_hasher(self.vertices.len(), Default::default());
         let mut remap = Vec::with_capacity(self.vertices.len());
         let mut kept: Vec<Vector3<f64>> = Vec::with_capacity(self.vertices.len());
         for v in &self.vertices {
@@ -232,14 +233,14 @@ impl TriMesh {
             }
         }
         // Parts numbered in order of their first triangle.
-        let mut part_of_root: HashMap<u32, usize> = HashMap::new();
+        let mut part_of_root: FxHashMap<u32, usize> = FxHashMap::default();
         let mut parts: Vec<TriMesh> = Vec::new();
-        let mut local: Vec<HashMap<u32, u32>> = Vec::new();
+        let mut local: Vec<FxHashMap<u32, u32>> = Vec::new();
         for t in &self.triangles {
             let root = find(&mut parent, t[0]);
             let p = *part_of_root.entry(root).or_insert_with(|| {
                 parts.push(TriMesh::default());
-                local.push(HashMap::new());
+                local.push(FxHashMap::default());
                 parts.len() - 1
             });
             let (mesh, map) = (&mut parts[p], &mut local[p]);
@@ -274,7 +275,8 @@ impl TriMesh {
     /// Returns how many triangles were flipped.
     pub fn repair_orientation(&mut self) -> usize {
         let n = self.triangles.len();
-        let mut by_edge: HashMap<(u32, u32), Vec<u32>> = HashMap::with_capacity(n * 2);
+        let mut by_edge: FxHashMap<(u32, u32), Vec<u32>> =
+            FxHashMap::with_capacity_and_hasher(n * 2, Default::default());
         for (ti, t) in self.triangles.iter().enumerate() {
             for e in 0..3 {
                 let (a, b) = (t[e], t[(e + 1) % 3]);

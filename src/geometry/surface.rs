@@ -13,7 +13,7 @@
 use super::mesh::{Aabb, TriMesh};
 use nalgebra::Vector3;
 use rayon::prelude::*;
-use std::collections::HashMap;
+use rustc_hash::FxHashMap;
 
 /// Fill fraction at the surface.
 const ISO: f64 = 0.5;
@@ -157,7 +157,7 @@ impl FillField {
                 tris
             })
             .collect();
-        let mut index: HashMap<u64, u32> = HashMap::new();
+        let mut index: FxHashMap<u64, u32> = FxHashMap::default();
         let mut mesh = TriMesh::default();
         for tris in slabs {
             for key_tri in tris {

@@ -2,7 +2,7 @@
 //! `Psi = mu sum_k (sigma_k - 1)^2 + lambda/2 (J - 1)^2`,
 //! `P = 2 mu (F - R) + lambda (J - 1) cof F`, with `cof F = J F^-T`.
 
-use super::svd::{svd3, svd3_x4};
+use super::svd::{Svd3, svd3, svd3_x4};
 use super::{ConstitutiveModel, cofactor, cofactor_differential};
 use nalgebra::Matrix3;
 use serde::{Deserialize, Serialize};
@@ -31,6 +31,43 @@ impl FixedCorotated {
 }
 
 impl FixedCorotated {
+    /// `(P(F), dP(F)[dF])` given the SVD of `F`.
+    #[inline]
+    fn stress_and_differential_with(
+        &self,
+        f: &Matrix3<f64>,
+        s: &Svd3,
+        df: &Matrix3<f64>,
+    ) -> (Matrix3<f64>, Matrix3<f64>) {
+        let r = s.rotation();
+        let cof = cofactor(f);
+        let j = f.column(0).dot(&cof.column(0));
+        let p = 2.0 * self.mu * (f - r) + self.lambda * (j - 1.0) * cof;
+
+        // dR = U W V^T with W skew: W_ij = (G_ij - G_ji) / (sigma_i + sigma_j), G = U^T dF V.
+        // This follows from F = R S: R^T dF - dF^T R = W' S + S W' (W' = R^T dR skew), solved in
+        // the singular basis. It stays finite at repeated singular values (F near a rotation,
+        // where the naive SVD derivative divides by sigma_i - sigma_j = 0).
+        let g = s.u.transpose() * df * s.v;
+        let mut w = Matrix3::zeros();
+        for (i, jj) in [(0usize, 1usize), (0, 2), (1, 2)] {
+            let sum = s.sigma[i] + s.sigma[jj];
+            let denom = if sum.abs() < MIN_SIGMA_SUM {
+                MIN_SIGMA_SUM.copysign(sum)
+            } else {
+                sum
+            };
+            let wij = (g[(i, jj)] - g[(jj, i)]) / denom;
+            w[(i, jj)] = wij;
+            w[(jj, i)] = -wij;
+        }
+        let dr = s.u * w * s.v.transpose();
+        let dj = cof.component_mul(df).sum();
+        let dp = 2.0 * self.mu * (df - dr)
+            + self.lambda * (dj * cof + (j - 1.0) * cofactor_differential(f, df));
+        (p, dp)
+    }
+
     /// `P` given the polar rotation `R` of `F`.
     #[inline]
     fn stress_with_rotation(&self, f: &Matrix3<f64>, r: &Matrix3<f64>) -> Matrix3<f64> {
@@ -71,34 +108,29 @@ impl ConstitutiveModel for FixedCorotated {
         f: &Matrix3<f64>,
         df: &Matrix3<f64>,
     ) -> (Matrix3<f64>, Matrix3<f64>) {
-        let s = svd3(f);
-        let r = s.rotation();
-        let cof = cofactor(f);
-        let j = f.column(0).dot(&cof.column(0));
-        let p = 2.0 * self.mu * (f - r) + self.lambda * (j - 1.0) * cof;
+        self.stress_and_differential_with(f, &svd3(f), df)
+    }
 
-        // dR = U W V^T with W skew: W_ij = (G_ij - G_ji) / (sigma_i + sigma_j), G = U^T dF V.
-        // This follows from F = R S: R^T dF - dF^T R = W' S + S W' (W' = R^T dR skew), solved in
-        // the singular basis. It stays finite at repeated singular values (F near a rotation,
-        // where the naive SVD derivative divides by sigma_i - sigma_j = 0).
-        let g = s.u.transpose() * df * s.v;
-        let mut w = Matrix3::zeros();
-        for (i, jj) in [(0usize, 1usize), (0, 2), (1, 2)] {
-            let sum = s.sigma[i] + s.sigma[jj];
-            let denom = if sum.abs() < MIN_SIGMA_SUM {
-                MIN_SIGMA_SUM.copysign(sum)
-            } else {
-                sum
-            };
-            let wij = (g[(i, jj)] - g[(jj, i)]) / denom;
-            w[(i, jj)] = wij;
-            w[(jj, i)] = -wij;
+    fn stress_and_differential_batch(
+        &self,
+        f: &[Matrix3<f64>],
+        df: &[Matrix3<f64>],
+        p: &mut [Matrix3<f64>],
+        dp: &mut [Matrix3<f64>],
+    ) {
+        let n = f.len();
+        let whole = n - n % 4;
+        for i in (0..whole).step_by(4) {
+            let f4: &[Matrix3<f64>; 4] = f[i..i + 4].try_into().expect("chunk of 4");
+            let svd = svd3_x4(f4);
+            for l in 0..4 {
+                (p[i + l], dp[i + l]) =
+                    self.stress_and_differential_with(&f4[l], &svd[l], &df[i + l]);
+            }
         }
-        let dr = s.u * w * s.v.transpose();
-        let dj = cof.component_mul(df).sum();
-        let dp = 2.0 * self.mu * (df - dr)
-            + self.lambda * (dj * cof + (j - 1.0) * cofactor_differential(f, df));
-        (p, dp)
+        for i in whole..n {
+            (p[i], dp[i]) = self.stress_and_differential(&f[i], &df[i]);
+        }
     }
 
     fn wave_modulus(&self) -> f64 {
@@ -189,6 +221,21 @@ mod tests {
         m.stress_batch(&fe, &mut out);
         for (f, p) in fe.iter().zip(&out) {
             assert_eq!(*p, m.stress(f));
+        }
+    }
+
+    #[test]
+    fn batched_differential_equals_single() {
+        let m = model();
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(22);
+        let f: Vec<Matrix3<f64>> = (0..11)
+            .map(|_| Matrix3::identity() + random_matrix(&mut rng, 0.5))
+            .collect();
+        let df: Vec<Matrix3<f64>> = (0..11).map(|_| random_matrix(&mut rng, 1.0)).collect();
+        let (mut p, mut dp) = (vec![Matrix3::zeros(); 11], vec![Matrix3::zeros(); 11]);
+        m.stress_and_differential_batch(&f, &df, &mut p, &mut dp);
+        for i in 0..11 {
+            assert_eq!((p[i], dp[i]), m.stress_and_differential(&f[i], &df[i]));
         }
     }
 

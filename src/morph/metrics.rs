@@ -9,8 +9,8 @@
 
 use crate::mpm::GridSpec;
 use nalgebra::Vector3;
+use rustc_hash::FxHashSet;
 use serde::{Deserialize, Serialize};
-use std::collections::HashSet;
 
 #[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq)]
 pub struct FillMetrics {
@@ -34,8 +34,8 @@ pub fn fill_metrics(
         let g = (x - origin) / h;
         [g.x.floor() as i64, g.y.floor() as i64, g.z.floor() as i64]
     };
-    let target_cells: HashSet<[i64; 3]> = target.iter().map(|x| cell_of(x, grid.dx)).collect();
-    let source_cells: HashSet<[i64; 3]> = particles.iter().map(|x| cell_of(x, grid.dx)).collect();
+    let target_cells: FxHashSet<[i64; 3]> = target.iter().map(|x| cell_of(x, grid.dx)).collect();
+    let source_cells: FxHashSet<[i64; 3]> = particles.iter().map(|x| cell_of(x, grid.dx)).collect();
     let filled = target_cells.intersection(&source_cells).count();
     let far_from_target = far_from(&origin, spacing, target, particles);
     let far_from_source = far_from(&origin, spacing, source_start, particles);
@@ -65,7 +65,7 @@ fn far_from(
         let g = (x - origin) / spacing;
         [g.x.floor() as i64, g.y.floor() as i64, g.z.floor() as i64]
     };
-    let occupied: HashSet<[i64; 3]> = lattice.iter().map(cell).collect();
+    let occupied: FxHashSet<[i64; 3]> = lattice.iter().map(cell).collect();
     let reach = 2.5 * spacing;
     particles
         .iter()

@@ -26,10 +26,12 @@ use crate::geometry::cleanup::{CleanReport, SurfaceQuality, clean, quality as su
 use crate::geometry::{Similarity, extract_surface};
 use crate::io::outdir::{self, Previous, Staging};
 use crate::io::{frames::write_points_ply, images, massgrid::MassGrid, sha256_file};
+use crate::mpm::State;
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::mpsc::{Receiver, Sender, SyncSender, channel, sync_channel};
 use std::time::Instant;
 
 /// The file that marks a folder as a morph output (and lets `--overwrite` replace it).
@@ -660,18 +662,29 @@ impl PlyObjSink {
     /// [`PlyObjSink::write`], also returning what the carried and the rebuilt surfaces
     /// measure.
     pub fn write_measured(&mut self, frame: &Frame) -> Result<SurfaceMeasures, MorphError> {
-        let name = frame_name(frame.index, self.n_frames);
-        let WorldFrame { x, v, j } = &frame.world;
+        self.write_parts(frame.index, &frame.world, frame.state)
+    }
+
+    /// [`PlyObjSink::write_measured`] from a frame's parts: its index, world data and
+    /// simulation state.
+    fn write_parts(
+        &mut self,
+        index: usize,
+        world: &WorldFrame,
+        state: &State,
+    ) -> Result<SurfaceMeasures, MorphError> {
+        let name = frame_name(index, self.n_frames);
+        let WorldFrame { x, v, j } = world;
         let points = self.dir.join("frames").join(format!("{name}.ply"));
         write_points_ply(&points, x, v, j).map_err(|e| out_err("frame", &points, e))?;
         let carried = match &self.carried {
             Some((surface, rest)) => {
-                let on_frame = surface.carry(rest, &frame.state.x, &frame.state.f);
+                let on_frame = surface.carry(rest, &state.x, &state.f);
                 let path = self.dir.join("carried").join(format!("{name}.obj"));
                 surface
                     .write_obj(&path, &on_frame)
                     .map_err(|e| out_err("carried surface", &path, e))?;
-                Some(surface.stats(&on_frame, &frame.state.x, self.spacing))
+                Some(surface.stats(&on_frame, &state.x, self.spacing))
             }
             None => None,
         };
@@ -679,7 +692,7 @@ impl PlyObjSink {
             return Ok((None, carried, None));
         }
         let volumes: Vec<f64> = j.iter().map(|j| self.rest_volume * j.max(0.0)).collect();
-        let raw = extract_surface(&frame.state.x, &volumes, self.spacing)
+        let raw = extract_surface(&state.x, &volumes, self.spacing)
             .map_err(|e| MorphError::Output(e.to_string()))?;
         let (surface, cleanup) = clean(&raw, self.spacing);
         let path = self.dir.join("meshes").join(format!("{name}.obj"));
@@ -734,9 +747,9 @@ pub struct JudgedFrame {
     pub iou: f64,
 }
 
-/// The particles' side of a frame's [`FrameStats`]; `spacing` is the initial particle
-/// spacing in simulation units.
-fn frame_stats(frame: &Frame, spacing: f64) -> FrameStats {
+/// The particles' side of a frame's [`FrameStats`], but for the close-neighbour share, which
+/// the writer thread measures.
+fn frame_stats(frame: &Frame) -> FrameStats {
     let j = &frame.world.j;
     let n = j.len().max(1) as f64;
     // Particle masses in world units: density times the world volume each stands for.
@@ -759,7 +772,8 @@ fn frame_stats(frame: &Frame, spacing: f64) -> FrameStats {
         mean_j: j.iter().sum::<f64>() / n,
         max_j: j.iter().copied().fold(f64::NEG_INFINITY, f64::max),
         inverted: j.iter().filter(|j| **j <= 0.0).count(),
-        close_share: super::quality::close_neighbour_share(&frame.state.x, spacing),
+        // Measured on the writer thread with the surfaces (see `FrameWork`).
+        close_share: 0.0,
         rms_speed: (frame.world.v.iter().map(|v| v.norm_squared()).sum::<f64>() / n).sqrt(),
         surface_volume: None,
         surface_volume_error: None,
@@ -770,7 +784,11 @@ fn frame_stats(frame: &Frame, spacing: f64) -> FrameStats {
 /// segments, and passes on events and stop requests.
 struct FolderWriter<'a> {
     dir: &'a Path,
-    sink: PlyObjSink,
+    /// The writer thread's queue, and its answers (see [`FrameWork`]).
+    work: SyncSender<FrameWork>,
+    done: Receiver<FrameDone>,
+    /// Frames sent to the writer thread and not yet answered.
+    pending: usize,
     /// Each written frame's measurements, in frame order.
     stats: Vec<FrameStats>,
     /// The velocities (world units) of the last two frames written, with their indices: the
@@ -787,7 +805,81 @@ struct FolderWriter<'a> {
     on_event: &'a mut dyn FnMut(&MorphEvent),
 }
 
+/// One frame for the writer thread: the files (points, carried and rebuilt surfaces) and the
+/// measurements that come with them, the costliest part of a frame. It runs while the
+/// optimizer goes on with the next segment; the order of frames on disk and in the manifest
+/// is that of their indices whatever the timing.
+struct FrameWork {
+    index: usize,
+    world: WorldFrame,
+    state: State,
+}
+
+/// The writer thread's answer for one frame: what the surfaces measured and the
+/// close-neighbour share, or why the frame could not be written.
+struct FrameDone {
+    index: usize,
+    result: Result<(SurfaceMeasures, f64), MorphError>,
+}
+
+/// The writer thread: writes and measures the frames it is sent, in order, until the queue
+/// closes. After a failure it writes nothing more (the run stops on the error).
+fn write_frames(mut sink: PlyObjSink, work: Receiver<FrameWork>, done: Sender<FrameDone>) {
+    let mut failed = false;
+    for job in work {
+        if failed {
+            continue;
+        }
+        let result = sink
+            .write_parts(job.index, &job.world, &job.state)
+            .map(|m| {
+                let close = super::quality::close_neighbour_share(&job.state.x, sink.spacing);
+                (m, close)
+            });
+        failed = result.is_err();
+        if done
+            .send(FrameDone {
+                index: job.index,
+                result,
+            })
+            .is_err()
+        {
+            return;
+        }
+    }
+}
+
+/// Frames the writer thread may hold queued before the optimizer waits for it.
+const WRITE_QUEUE: usize = 4;
+
 impl FolderWriter<'_> {
+    /// Takes in the writer thread's answers: every one still owed when `all`, else those
+    /// ready now. The first failed frame's error is returned.
+    fn collect(&mut self, all: bool) -> Result<(), MorphError> {
+        while self.pending > 0 {
+            let done = if all {
+                self.done.recv().ok()
+            } else {
+                self.done.try_recv().ok()
+            };
+            let Some(FrameDone { index, result }) = done else {
+                if all {
+                    return Err(MorphError::Output("the frame writer stopped".into()));
+                }
+                return Ok(());
+            };
+            self.pending -= 1;
+            let ((surface_volume, carried, rebuilt), close) = result?;
+            let stats = &mut self.stats[index];
+            stats.carried = carried;
+            stats.rebuilt = rebuilt;
+            stats.surface_volume = surface_volume;
+            stats.surface_volume_error = surface_volume.map(|v| v / self.body_volume - 1.0);
+            stats.close_share = close;
+        }
+        Ok(())
+    }
+
     fn preview_path(&self, index: usize) -> PathBuf {
         self.dir
             .join(checkpoint::FOLDER)
@@ -838,13 +930,13 @@ impl Observer for FolderWriter<'_> {
     }
 
     fn frame(&mut self, frame: &Frame) -> Result<(), MorphError> {
-        let (surface_volume, carried, rebuilt) = self.sink.write_measured(frame)?;
-        let mut stats = frame_stats(frame, self.sink.spacing);
-        stats.carried = carried;
-        stats.rebuilt = rebuilt;
-        stats.surface_volume = surface_volume;
-        stats.surface_volume_error = surface_volume.map(|v| v / self.body_volume - 1.0);
+        self.collect(false)?;
         let index = frame.index;
+        // A frame written again (a later pass) waits for the writer's earlier answers on it.
+        if index < self.stats.len() {
+            self.collect(true)?;
+        }
+        let mut stats = frame_stats(frame);
         self.recent.retain(|(i, _)| *i + 2 >= index && *i < index);
         if let [(a, older), (b, previous)] = self.recent.as_slice()
             && *a + 2 == index
@@ -863,6 +955,14 @@ impl Observer for FolderWriter<'_> {
         self.recent.push((index, frame.world.v.clone()));
         self.stats.truncate(index);
         self.stats.push(stats);
+        self.work
+            .send(FrameWork {
+                index,
+                world: frame.world.clone(),
+                state: frame.state.clone(),
+            })
+            .map_err(|_| MorphError::Output("the frame writer stopped".into()))?;
+        self.pending += 1;
         for (f, t) in judged_frames(frame.prep) {
             if f == index + 1 {
                 self.judged.retain(|j| (j.0, j.1) != (f, t));
@@ -881,6 +981,8 @@ impl Observer for FolderWriter<'_> {
     }
 
     fn segment_done(&mut self, progress: &RunProgress, segment: usize) -> Result<(), MorphError> {
+        // A checkpoint counts only frames that are on disk.
+        self.collect(true)?;
         let path = self.stats_path();
         let json =
             serde_json::to_vec(&self.stats).map_err(|e| MorphError::Output(e.to_string()))?;
@@ -952,9 +1054,13 @@ fn write_run(
         rest_volume: prep.geometry.source.volume,
         to_world,
     };
+    let (work, queue) = sync_channel(WRITE_QUEUE);
+    let (answers, done) = channel();
     let mut writer = FolderWriter {
         dir,
-        sink,
+        work,
+        done,
+        pending: 0,
         stats: Vec::new(),
         recent: Vec::new(),
         body_volume: prep.geometry.source_solid.volume,
@@ -971,7 +1077,20 @@ fn write_run(
         writer.restore_preview(p.frames)?;
         writer.restore_stats(p.frames)?;
     }
-    let result = run(prep, resume, &mut writer)?;
+    let result = std::thread::scope(|scope| {
+        let thread = scope.spawn(move || write_frames(sink, queue, answers));
+        let result = run(prep, resume, &mut writer).and_then(|r| {
+            writer.collect(true)?;
+            Ok(r)
+        });
+        // Closing the queue ends the thread once it has written what it holds.
+        let (closed, _) = sync_channel(0);
+        drop(std::mem::replace(&mut writer.work, closed));
+        if thread.join().is_err() {
+            return Err(MorphError::Output("the frame writer panicked".into()));
+        }
+        result
+    })?;
     let preview = std::mem::take(&mut writer.preview);
     let frame_stats = std::mem::take(&mut writer.stats);
     let frames_summary = FramesSummary::of(&frame_stats);

@@ -19,8 +19,8 @@
 use crate::geometry::{Lattice, TriMesh, voxelize};
 use nalgebra::Vector3;
 use rayon::prelude::*;
+use rustc_hash::FxHashMap;
 use serde::{Deserialize, Serialize};
-use std::collections::HashMap;
 
 /// Judge points along the longest side of the target's box.
 pub const JUDGE_ACROSS: usize = 96;
@@ -73,12 +73,12 @@ pub struct Quality {
 struct PointGrid<'a> {
     points: &'a [Vector3<f64>],
     cell: f64,
-    buckets: HashMap<[i64; 3], Vec<u32>>,
+    buckets: FxHashMap<[i64; 3], Vec<u32>>,
 }
 
 impl<'a> PointGrid<'a> {
     fn new(points: &'a [Vector3<f64>], cell: f64) -> Self {
-        let mut buckets: HashMap<[i64; 3], Vec<u32>> = HashMap::new();
+        let mut buckets: FxHashMap<[i64; 3], Vec<u32>> = FxHashMap::default();
         for (i, p) in points.iter().enumerate() {
             buckets
                 .entry(Self::key(p, cell))

@@ -119,9 +119,9 @@ impl Bins {
         let base_of = |x: f64, a: usize| -> f64 {
             let xg = (x - origin[a]) * inv_dx;
             if support == 3 {
-                (xg - 0.5).floor()
+                super::kernel::floor(xg - 0.5)
             } else {
-                xg.floor() - 1.0
+                super::kernel::floor(xg) - 1.0
             }
         };
         let block_of: Vec<u32> = positions

@@ -46,6 +46,19 @@ impl KernelKind {
     }
 }
 
+/// `v.floor()` without the library call: the default x86-64 target has no rounding
+/// instruction, and `floor` was 2% of a step. Equal to `v.floor()` for every finite `v` (and
+/// NaN for NaN), up to the sign of a zero, which no caller sees.
+#[inline(always)]
+pub fn floor(v: f64) -> f64 {
+    if v.abs() < 4.0e15 {
+        let t = v as i64 as f64;
+        if t > v { t - 1.0 } else { t }
+    } else {
+        v.floor()
+    }
+}
+
 /// Weights of one particle on its `N^3` stencil, per axis.
 #[derive(Clone, Copy, Debug)]
 pub struct Stencil<const N: usize> {
@@ -103,9 +116,9 @@ impl<const N: usize> Stencil<N> {
             // Quadratic: fx in [0.5, 1.5); cubic: fx in [1, 2). In that range each node's
             // distance falls in a known piece of the B-spline, so the weights need no branches.
             let b = if N == 3 {
-                (xg - 0.5).floor()
+                floor(xg - 0.5)
             } else {
-                xg.floor() - 1.0
+                floor(xg) - 1.0
             };
             let fx = xg - b;
             base[a] = b as i64;
@@ -218,6 +231,34 @@ mod tests {
                     }
                 }
             }
+        }
+    }
+
+    #[test]
+    fn fast_floor_equals_floor() {
+        for v in [
+            0.0,
+            0.3,
+            1.0,
+            1.5,
+            -0.2,
+            -1.0,
+            -1.5,
+            2.999999999,
+            1e10 + 0.5,
+            -1e10 - 0.5,
+            5e15,
+            -5e15,
+            1e300,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+        ] {
+            assert_eq!(floor(v), v.floor(), "{v}");
+        }
+        assert!(floor(f64::NAN).is_nan());
+        for i in 0..10_000 {
+            let v = (i as f64 - 5000.0) * 0.0137;
+            assert_eq!(floor(v), v.floor(), "{v}");
         }
     }
 

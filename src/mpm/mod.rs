@@ -12,6 +12,7 @@ pub mod grid;
 pub mod grid_update;
 pub mod kernel;
 pub mod model;
+pub mod profile;
 pub mod state;
 pub mod step;
 pub mod stress;

@@ -6,6 +6,7 @@ use super::grid::{Bins, SharedMut};
 use super::grid_update::{grid_velocity, grid_velocity_reverse};
 use super::kernel::{KernelKind, Stencil};
 use super::model::Model;
+use super::profile::{Laps, Stage, StageClock};
 use super::state::{State, StateGrad};
 use super::stress::StressInputs;
 use super::transfer::{self, Affine, Node};
@@ -13,11 +14,14 @@ use crate::effects::GridContext;
 use crate::ode::ControlParams;
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
+use std::sync::Arc;
 
 /// The symplectic-Euler MLS-MPM integrator over a [`Model`] (which it dereferences to).
 #[derive(Debug)]
 pub struct Simulator {
     pub model: Model,
+    /// Per-stage timings, when attached (`morph bench`); `None` takes none.
+    pub clock: Option<Arc<StageClock>>,
 }
 
 impl std::ops::Deref for Simulator {
@@ -35,7 +39,7 @@ impl std::ops::DerefMut for Simulator {
 
 impl From<Model> for Simulator {
     fn from(model: Model) -> Self {
-        Simulator { model }
+        Simulator { model, clock: None }
     }
 }
 
@@ -48,6 +52,20 @@ pub struct Workspace {
     fe: Vec<Matrix3<f64>>,
     affine: Vec<Matrix3<f64>>,
 }
+
+/// Scratch buffers of the reverse pass, reused across its steps.
+#[derive(Default)]
+struct ReverseWorkspace {
+    fe: Vec<Matrix3<f64>>,
+    grad_fe: Vec<Matrix3<f64>>,
+    grid_v: Vec<Vector3<f64>>,
+    effect_inputs: Vec<Vec<Vector3<f64>>>,
+    grad_grid_v: Vec<Vector3<f64>>,
+    grad_nodes: Vec<Node<1>>,
+}
+
+/// Particles per batch of the stress stages (a multiple of the SVD's four lanes).
+const CHUNK: usize = 64;
 
 /// What the reverse pass needs from one forward step.
 #[derive(Clone, Debug)]
@@ -223,30 +241,33 @@ impl Simulator {
         let strides = self.grid.strides();
         let origin = self.grid.origin_vec();
         let dx = self.grid.dx;
+        let mut laps = Laps::start(self.clock.as_deref());
         ws.bins = Bins::build(&self.grid, &state.x, N, step)?;
+        laps.lap(Stage::Bins);
 
         // P1: elastic gradient, stress (batched across particles) and affine momentum.
         ws.fe.resize(n, Matrix3::zeros());
         ws.affine.resize(n, Matrix3::zeros());
         let form = self.control_form;
-        ws.fe.par_iter_mut().enumerate().for_each(|(p, fe)| {
-            *fe = match fc {
-                Some(fc) => form.apply(&state.f[p], &fc[p]),
-                None => state.f[p],
-            };
-        });
-        const CHUNK: usize = 64;
         ws.affine
             .par_chunks_mut(CHUNK)
-            .zip(ws.fe.par_chunks(CHUNK))
+            .zip(ws.fe.par_chunks_mut(CHUNK))
             .enumerate()
             .for_each(|(k, (a, fe))| {
+                for (i, fe) in fe.iter_mut().enumerate() {
+                    let p = k * CHUNK + i;
+                    *fe = match fc {
+                        Some(fc) => form.apply(&state.f[p], &fc[p]),
+                        None => state.f[p],
+                    };
+                }
                 self.material.stress_batch(fe, a);
-                for (i, (a, fe)) in a.iter_mut().zip(fe).enumerate() {
+                for (i, (a, fe)) in a.iter_mut().zip(fe.iter()).enumerate() {
                     let p = k * CHUNK + i;
                     *a = self.stress_inputs(p).affine_from_stress(&state.c[p], fe, a);
                 }
             });
+        laps.lap(Stage::Stress);
 
         // P2G (coloured scatter).
         ws.nodes.clear();
@@ -265,6 +286,7 @@ impl Simulator {
                 transfer::scatter(&s, &strides, mass[p], &[momentum], &nodes);
             });
         }
+        laps.lap(Stage::P2g);
 
         // G: grid velocity, then effects.
         ws.grid_v.resize(self.grid.node_count(), Vector3::zeros());
@@ -300,6 +322,7 @@ impl Simulator {
                 ws.grid_v[i] = vals[e];
             }
         }
+        laps.lap(Stage::Grid);
         if let Some(tape) = tape {
             tape.push(StepTape {
                 pre: state.clone(),
@@ -309,6 +332,7 @@ impl Simulator {
                 grid_v: grid_v_pre,
                 step,
             });
+            laps.lap(Stage::Tape);
         }
 
         // G2P and P2 (per-particle gather, in place).
@@ -332,6 +356,7 @@ impl Simulator {
                 *c = cn;
                 *f = fnew;
             });
+        laps.lap(Stage::G2p);
         self.check_finite_and_cfl(state.first_non_finite(), &state.v, step)
     }
 
@@ -365,6 +390,7 @@ impl Simulator {
             Some(_) => self.controls.zero_params(),
             None => Vec::new(),
         };
+        let mut rws = ReverseWorkspace::default();
         for s in (0..tape.steps.len()).rev() {
             let post = if s + 1 < tape.steps.len() {
                 &tape.steps[s + 1].pre
@@ -377,12 +403,24 @@ impl Simulator {
             let values = params.map(|p| self.control_values(p, step.step, CONTROL_THETA));
             let values = values.as_deref();
             let (g, g_values) = match self.kernel {
-                KernelKind::Quadratic => {
-                    self.reverse_impl::<3>(step, post, fc, values, &mut adj, &mut effect_params)
-                }
-                KernelKind::Cubic => {
-                    self.reverse_impl::<4>(step, post, fc, values, &mut adj, &mut effect_params)
-                }
+                KernelKind::Quadratic => self.reverse_impl::<3>(
+                    step,
+                    post,
+                    fc,
+                    values,
+                    &mut adj,
+                    &mut effect_params,
+                    &mut rws,
+                ),
+                KernelKind::Cubic => self.reverse_impl::<4>(
+                    step,
+                    post,
+                    fc,
+                    values,
+                    &mut adj,
+                    &mut effect_params,
+                    &mut rws,
+                ),
             };
             if fc.is_some() {
                 grad_controls[s] = Some(g);
@@ -445,6 +483,7 @@ impl Simulator {
 
     /// Reverse of one step: turns `adj` from dL/d(post) into dL/d(pre) and returns dL/dFc.
     /// Also returns dL/d(control values) when `values` (the forward pass's) are given.
+    #[allow(clippy::too_many_arguments)]
     fn reverse_impl<const N: usize>(
         &self,
         tape: &StepTape,
@@ -453,22 +492,26 @@ impl Simulator {
         values: Option<&[Vector3<f64>]>,
         adj: &mut StateGrad,
         effect_params: &mut [Vec<f64>],
+        rws: &mut ReverseWorkspace,
     ) -> (Vec<Matrix3<f64>>, Vec<Vector3<f64>>) {
+        let mut laps = Laps::start(self.clock.as_deref());
         let pre = &tape.pre;
         let n = pre.len();
+        let nodes = self.grid.node_count();
         let dt = self.dt;
         let inv_d = self.inv_d();
         let strides = self.grid.strides();
         let origin = self.grid.origin_vec();
         let dx = self.grid.dx;
         let form = self.control_form;
-        let fe: Vec<Matrix3<f64>> = (0..n)
-            .into_par_iter()
-            .map(|p| match fc {
+        rws.fe.resize(n, Matrix3::zeros());
+        rws.fe.par_iter_mut().enumerate().for_each(|(p, fe)| {
+            *fe = match fc {
                 Some(fc) => form.apply(&pre.f[p], &fc[p]),
                 None => pre.f[p],
-            })
-            .collect();
+            }
+        });
+        let fe = &rws.fe;
 
         // Replay the grid effects to recover each one's input velocity.
         let ctx = GridContext {
@@ -481,83 +524,70 @@ impl Simulator {
         let grid_effects: Vec<usize> = (0..self.effects.len())
             .filter(|&e| self.effects[e].acts_on_grid())
             .collect();
-        let mut effect_inputs = Vec::with_capacity(grid_effects.len());
-        let mut grid_v = tape.grid_v.clone();
-        for &e in &grid_effects {
-            effect_inputs.push(grid_v.clone());
-            self.effects[e].apply_grid(&ctx, &mut grid_v);
+        rws.effect_inputs.resize_with(grid_effects.len(), Vec::new);
+        rws.grid_v.clone_from(&tape.grid_v);
+        for (k, &e) in grid_effects.iter().enumerate() {
+            rws.effect_inputs[k].clone_from(&rws.grid_v);
+            self.effects[e].apply_grid(&ctx, &mut rws.grid_v);
         }
         let clamp_nodes = match values {
             Some(vals) => {
                 let nodes = self.clamp_nodes::<N>(&pre.x);
                 for &(i, e) in &nodes {
-                    grid_v[i] = vals[e];
+                    rws.grid_v[i] = vals[e];
                 }
                 nodes
             }
             None => Vec::new(),
         };
+        let grid_v = &rws.grid_v;
+        laps.lap(Stage::RevSetup);
 
-        // P2 reverse. A clamped particle's velocity is its prescribed one: its adjoint goes to
-        // the control (`grad_u`), not to the gather.
+        // P2 reverse and G2P reverse, fused per particle (coloured: it scatters into the grid
+        // velocity adjoint). A clamped particle's velocity is its prescribed one: its adjoint
+        // goes to the control (`grad_u`), not to the gather.
         let clamped = |p: usize| values.is_some() && self.is_clamped(p);
-        let mut grad_fe = vec![Matrix3::zeros(); n];
-        let mut grad_vel = vec![Vector3::zeros(); n];
-        let mut grad_cn = vec![Matrix3::zeros(); n];
         let mut grad_u = vec![Vector3::zeros(); if values.is_some() { n } else { 0 }];
-        (
-            grad_fe.par_iter_mut(),
-            grad_vel.par_iter_mut(),
-            grad_cn.par_iter_mut(),
-        )
-            .into_par_iter()
-            .enumerate()
-            .for_each(|(p, (gfe, gv, gc))| {
-                let g = advance_reverse(
-                    &fe[p], &post.c[p], dt, &adj.x[p], &adj.v[p], &adj.c[p], &adj.f[p],
-                );
-                *gfe = g.fe;
-                *gv = if clamped(p) { Vector3::zeros() } else { g.vel };
-                *gc = g.c;
-            });
-        if values.is_some() {
-            grad_u.par_iter_mut().enumerate().for_each(|(p, gu)| {
-                if self.is_clamped(p) {
-                    *gu = adj.v[p] + dt * adj.x[p];
-                }
-            });
-        }
-
-        // G2P reverse (coloured scatter into the grid velocity adjoint).
-        let mut grad_grid_v = vec![Vector3::zeros(); self.grid.node_count()];
+        rws.grad_fe.resize(n, Matrix3::zeros());
+        rws.grad_grid_v.clear();
+        rws.grad_grid_v.resize(nodes, Vector3::zeros());
+        let StateGrad {
+            x: ax,
+            v: av,
+            c: ac,
+            f: af,
+        } = adj;
         {
-            let ggv = SharedMut::new(&mut grad_grid_v);
-            let gx = SharedMut::new(&mut adj.x);
+            let ggv = SharedMut::new(&mut rws.grad_grid_v);
+            let gx = SharedMut::new(ax);
+            let gfe = SharedMut::new(&mut rws.grad_fe);
+            let gu = SharedMut::new(&mut grad_u);
+            let (av, ac, af) = (&*av, &*ac, &*af);
             tape.bins.for_each_coloured(|p| {
+                // SAFETY: each particle is visited exactly once.
+                let (x_adj, fe_adj) = unsafe { (gx.get(p), gfe.get(p)) };
+                let g = advance_reverse(&fe[p], &post.c[p], dt, x_adj, &av[p], &ac[p], &af[p]);
+                *fe_adj = g.fe;
                 let s = Stencil::<N>::new(&pre.x[p], &origin, dx);
                 // The gather's own velocity (a clamped particle's state holds the prescribed
                 // one instead).
-                let gathered = if clamped(p) {
-                    transfer::gather_affine(&s, &strides, &grid_v, inv_d).0
+                let (grad_vel, gathered) = if clamped(p) {
+                    // SAFETY: as above.
+                    unsafe { *gu.get(p) = av[p] + dt * *x_adj };
+                    let v = transfer::gather_affine(&s, &strides, grid_v, inv_d).0;
+                    (Vector3::zeros(), v)
                 } else {
-                    post.v[p]
+                    (g.vel, post.v[p])
                 };
-                let d = transfer::gather_affine_reverse(
-                    &s,
-                    &strides,
-                    &grid_v,
-                    inv_d,
-                    &grad_vel[p],
-                    &grad_cn[p],
-                    &gathered,
-                    &ggv,
+                *x_adj += transfer::gather_affine_reverse(
+                    &s, &strides, grid_v, inv_d, &grad_vel, &g.c, &gathered, &ggv,
                 );
-                // SAFETY: each particle is visited exactly once.
-                unsafe { *gx.get(p) += d };
             });
         }
+        laps.lap(Stage::RevG2p);
 
         // The clamped nodes' velocities are the controls' values.
+        let grad_grid_v = &mut rws.grad_grid_v;
         let mut grad_clamp = vec![Vector3::zeros(); self.controls.effects.len()];
         for &(i, e) in &clamp_nodes {
             grad_clamp[e] += grad_grid_v[i];
@@ -568,64 +598,91 @@ impl Simulator {
         for (k, &e) in grid_effects.iter().enumerate().rev() {
             self.effects[e].reverse_grid(
                 &ctx,
-                &effect_inputs[k],
-                &mut grad_grid_v,
+                &rws.effect_inputs[k],
+                grad_grid_v,
                 &mut effect_params[e],
             );
         }
-        let mut grad_nodes = vec![Node::ZERO; self.grid.node_count()];
-        grid_velocity_reverse(&tape.grid_mass, &tape.grid_v, &grad_grid_v, &mut grad_nodes);
+        rws.grad_nodes.resize(nodes, Node::ZERO);
+        grid_velocity_reverse(
+            &tape.grid_mass,
+            &tape.grid_v,
+            grad_grid_v,
+            &mut rws.grad_nodes,
+        );
+        laps.lap(Stage::RevGrid);
 
-        // P2G reverse (gather) and P1 reverse.
+        // P2G reverse (gather) and P1 reverse, in batches whose stress differentials share
+        // interleaved SVDs.
         let retention = self.momentum_retention();
         let body = values.map(|v| self.body_accelerations(v));
         let mut grad_fc = vec![Matrix3::zeros(); n];
         // dL/d(scattered momentum) per particle, for the controls.
         let mut grad_mom = vec![Vector3::zeros(); if values.is_some() { n } else { 0 }];
         let gm = SharedMut::new(&mut grad_mom);
-        let StateGrad {
-            x: ax,
-            v: av,
-            c: ac,
-            f: af,
-        } = adj;
+        let (grad_nodes, grad_fe) = (&rws.grad_nodes, &rws.grad_fe);
         (
-            ax.par_iter_mut(),
-            av.par_iter_mut(),
-            ac.par_iter_mut(),
-            af.par_iter_mut(),
-            grad_fc.par_iter_mut(),
+            ax.par_chunks_mut(CHUNK),
+            av.par_chunks_mut(CHUNK),
+            ac.par_chunks_mut(CHUNK),
+            af.par_chunks_mut(CHUNK),
+            grad_fc.par_chunks_mut(CHUNK),
         )
             .into_par_iter()
             .enumerate()
-            .for_each(|(p, (gx, gv, gc, gf, gfc))| {
-                let inputs = self.stress_inputs(p);
-                let affine = tape.affine[p];
-                let s = Stencil::<N>::new(&pre.x[p], &origin, dx);
-                let m = self.mass[p];
-                let momentum = Affine {
-                    value: self.particle_momentum(pre, values, body.as_deref(), retention, p),
-                    slope: affine,
-                };
-                let g = transfer::scatter_reverse(&s, &strides, m, &[momentum], &grad_nodes);
-                let (g_c, g_fe) = inputs.affine_momentum_reverse(&fe[p], &g.slope[0]);
-                *gx += g.x;
-                *gv = if clamped(p) {
-                    Vector3::zeros()
-                } else {
-                    (retention * m) * g.value[0]
-                };
-                if values.is_some() {
-                    // SAFETY: each particle is visited exactly once.
-                    unsafe { *gm.get(p) = g.value[0] };
+            .for_each(|(k, (gx, gv, gc, gf, gfc))| {
+                let p0 = k * CHUNK;
+                let len = gx.len();
+                let mut grad_a = [Matrix3::zeros(); CHUNK];
+                let mut grad_p = [Matrix3::zeros(); CHUNK];
+                for i in 0..len {
+                    let p = p0 + i;
+                    let s = Stencil::<N>::new(&pre.x[p], &origin, dx);
+                    let m = self.mass[p];
+                    let momentum = Affine {
+                        value: self.particle_momentum(pre, values, body.as_deref(), retention, p),
+                        slope: tape.affine[p],
+                    };
+                    let g = transfer::scatter_reverse(&s, &strides, m, &[momentum], grad_nodes);
+                    gx[i] += g.x;
+                    gv[i] = if clamped(p) {
+                        Vector3::zeros()
+                    } else {
+                        (retention * m) * g.value[0]
+                    };
+                    if values.is_some() {
+                        // SAFETY: each particle is visited exactly once.
+                        unsafe { *gm.get(p) = g.value[0] };
+                    }
+                    grad_a[i] = g.slope[0];
+                    grad_p[i] = self.stress_inputs(p).stress_adjoint(&fe[p], &grad_a[i]);
                 }
-                *gc = g_c;
-                let total_fe = grad_fe[p] + g_fe;
-                match fc {
-                    Some(fc) => (*gf, *gfc) = form.apply_reverse(&pre.f[p], &fc[p], &total_fe),
-                    None => *gf = total_fe,
+                let mut stress = [Matrix3::zeros(); CHUNK];
+                let mut d_stress = [Matrix3::zeros(); CHUNK];
+                self.material.stress_and_differential_batch(
+                    &fe[p0..p0 + len],
+                    &grad_p[..len],
+                    &mut stress[..len],
+                    &mut d_stress[..len],
+                );
+                for i in 0..len {
+                    let p = p0 + i;
+                    let (g_c, g_fe) = self.stress_inputs(p).affine_momentum_reverse_with(
+                        &grad_a[i],
+                        &stress[i],
+                        &d_stress[i],
+                    );
+                    gc[i] = g_c;
+                    let total_fe = grad_fe[p] + g_fe;
+                    match fc {
+                        Some(fc) => {
+                            (gf[i], gfc[i]) = form.apply_reverse(&pre.f[p], &fc[p], &total_fe)
+                        }
+                        None => gf[i] = total_fe,
+                    }
                 }
             });
+        laps.lap(Stage::RevP2gStress);
         let grad_values = match values {
             None => Vec::new(),
             Some(_) => {

@@ -43,9 +43,27 @@ impl StressInputs<'_> {
         fe: &Matrix3<f64>,
         grad_a: &Matrix3<f64>,
     ) -> (Matrix3<f64>, Matrix3<f64>) {
-        let k = self.k();
-        let grad_p = k * grad_a * fe;
-        let (p, dp) = self.model.stress_and_differential(fe, &grad_p);
-        (self.mass * grad_a, k * grad_a.transpose() * p + dp)
+        let (p, dp) = self
+            .model
+            .stress_and_differential(fe, &self.stress_adjoint(fe, grad_a));
+        self.affine_momentum_reverse_with(grad_a, &p, &dp)
+    }
+
+    /// The first half of [`Self::affine_momentum_reverse`]: dL/dP = `k gA Fe`, the direction
+    /// in which the stress differential is taken (batched across particles by the caller).
+    #[inline]
+    pub fn stress_adjoint(&self, fe: &Matrix3<f64>, grad_a: &Matrix3<f64>) -> Matrix3<f64> {
+        self.k() * grad_a * fe
+    }
+
+    /// The second half: (dL/dC, dL/dFe) from dL/dA, `P(Fe)` and `dP(Fe)[dL/dP]`.
+    #[inline]
+    pub fn affine_momentum_reverse_with(
+        &self,
+        grad_a: &Matrix3<f64>,
+        p: &Matrix3<f64>,
+        dp: &Matrix3<f64>,
+    ) -> (Matrix3<f64>, Matrix3<f64>) {
+        (self.mass * grad_a, self.k() * grad_a.transpose() * p + dp)
     }
 }
