@@ -180,7 +180,11 @@ impl Integrator for Simulator {
     }
 
     fn tape_bytes_per_step(&self, particles: usize) -> usize {
-        crate::mpm::StepTape::bytes_for(particles, self.grid.node_count())
+        crate::mpm::StepTape::bytes_for(
+            particles,
+            self.grid.node_count(),
+            self.material.kept_per_particle(),
+        )
     }
 
     fn backward_seeded(

@@ -28,6 +28,9 @@ pub struct StageCost {
 /// Flops of one 3x3 SVD (`material/svd.rs`): `F^T F` 45, about 9 Jacobi rotations of about 40
 /// each near F = I, `F V` 45 and three Givens rotations of about 30.
 const SVD_FLOPS: f64 = 540.0;
+/// Flops of an SVD from the eigen-decomposition the forward pass kept: `F V` 45, sorting and
+/// three Givens rotations.
+const SVD_FROM_KEPT_FLOPS: f64 = 145.0;
 /// Flops of the stencil weights of one particle (cubic): per axis 4 weights, 4 derivatives,
 /// 4 offsets.
 const STENCIL_FLOPS: f64 = 105.0;
@@ -45,9 +48,10 @@ pub fn stage_costs(nodes_per_particle: f64) -> Vec<StageCost> {
     vec![
         // Reads x (24), writes and re-reads the block of each particle (12), writes the order (4).
         c(Stage::Bins, 12.0, 40.0),
-        // Reads F, C (72 each), mass and volume; writes Fe and A (72 each). SVD, R = U V^T
-        // (45), cofactor and J (32), P (36), A = m C + k P Fe^T (72).
-        c(Stage::Stress, SVD_FLOPS + 185.0, 304.0),
+        // Reads F, C (72 each), mass and volume; writes Fe and A (72 each) and, taped, the
+        // eigen-decomposition behind the SVD (96). SVD, R = U V^T (45), cofactor and J (32),
+        // P (36), A = m C + k P Fe^T (72).
+        c(Stage::Stress, SVD_FLOPS + 185.0, 400.0),
         // Reads x, v, A, m (128); zeroes and writes the nodes (2 x 32 a node). Per node 15
         // flops (weight, mass, affine momentum), per row and column 6-7.
         c(
@@ -71,21 +75,28 @@ pub fn stage_costs(nodes_per_particle: f64) -> Vec<StageCost> {
         c(Stage::RevSetup, 0.0, 144.0 + 48.0 * npp),
         // Reads Fe, C', the four state adjoints, x, v' (480 with the writes of dFe and dx);
         // zeroes and scatters the velocity adjoint (48 a node), reads v (24 a node). P2
-        // reverse 132 flops, per node 31.
+        // reverse 132 flops; per node 22, per row 13, per plane 12 (sums taken axis by axis).
         c(
             Stage::RevG2p,
-            132.0 + STENCIL_FLOPS + 64.0 * 31.0 + 160.0,
+            132.0 + STENCIL_FLOPS + 64.0 * 22.0 + 16.0 * 13.0 + 66.0,
             480.0 + 72.0 * npp,
         ),
         // Per node: mass, v, dv read (56), node adjoint written (32); 10 flops.
         c(Stage::RevGrid, 10.0 * npp, 88.0 * npp),
-        // Reads x, v, m, A, Fe, dFe, dx (320 with dx written), writes dv, dC, dF, dFc (240);
-        // reads the node adjoints (32 a node). Per node 52 flops, then the stress differential
-        // (an SVD and about 420) and the affine reverse (126).
+        // Reads x, v, m, A, Fe, dFe, dx (320 with dx written) and the kept eigen-decomposition
+        // (96); writes dv, dC, dF, dFc (240); reads the node adjoints (32 a node). Per node 29
+        // flops, per row 31, per plane 30; then the SVD finished from what was kept, the
+        // stress differential (about 420) and the affine reverse (126).
         c(
             Stage::RevP2gStress,
-            STENCIL_FLOPS + 64.0 * 52.0 + 136.0 + SVD_FLOPS + 420.0 + 126.0,
-            560.0 + 32.0 * npp,
+            STENCIL_FLOPS
+                + 64.0 * 29.0
+                + 16.0 * 31.0
+                + 4.0 * 30.0
+                + SVD_FROM_KEPT_FLOPS
+                + 420.0
+                + 126.0,
+            656.0 + 32.0 * npp,
         ),
     ]
 }
@@ -140,12 +151,20 @@ pub fn machine_limits(threads: usize, repeats: usize) -> (f64, f64) {
     (bandwidth, peak)
 }
 
+/// Seconds per step of each stage, in [`Stage::ALL`] order.
+type StageTimes = Vec<(Stage, f64)>;
+
+/// One thread count's measurements: threads, bandwidth (bytes/s), peak (flops/s), stages.
+struct Measured {
+    threads: usize,
+    bandwidth: f64,
+    peak: f64,
+    stages: StageTimes,
+}
+
 /// Seconds per step of each stage over `repeats` forward + reverse runs of `steps` steps on
 /// the current thread pool (after one untimed run).
-fn stage_seconds(
-    steps: usize,
-    repeats: usize,
-) -> Result<(usize, usize, Vec<(Stage, f64)>), SimError> {
+fn stage_seconds(steps: usize, repeats: usize) -> Result<(usize, usize, StageTimes), SimError> {
     let mut w = reference_workload(KernelKind::Cubic, IntegratorKind::Euler, steps)?;
     let clock = Arc::new(StageClock::default());
     let Engine::Euler(sim) = &mut w.engine else {
@@ -170,7 +189,7 @@ fn stage_seconds(
 /// Runs the stage timings and roofline at each thread count: JSON lines on stdout, a
 /// markdown table on stderr.
 pub fn run(steps: usize, repeats: usize, threads: &[usize]) -> anyhow::Result<()> {
-    let mut table: Vec<(usize, f64, f64, Vec<(Stage, f64)>)> = Vec::new();
+    let mut table: Vec<Measured> = Vec::new();
     let mut sizes = (0, 0);
     for &t in threads {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build()?;
@@ -198,7 +217,12 @@ pub fn run(steps: usize, repeats: usize, threads: &[usize]) -> anyhow::Result<()
                 })
             );
         }
-        table.push((t, bandwidth, peak, secs));
+        table.push(Measured {
+            threads: t,
+            bandwidth,
+            peak,
+            stages: secs,
+        });
     }
     // The human-readable table: every thread count side by side.
     let (particles, nodes) = sizes;
@@ -207,12 +231,12 @@ pub fn run(steps: usize, repeats: usize, threads: &[usize]) -> anyhow::Result<()
     let mut out = String::new();
     let head: Vec<String> = table
         .iter()
-        .map(|(t, ..)| format!("ms ({t} thr)"))
+        .map(|m| format!("ms ({} thr)", m.threads))
         .collect();
     out += &format!(
         "| stage | flops/p | bytes/p | {} | bound ms ({} thr) | of bound |\n",
         head.join(" | "),
-        table.last().map_or(1, |r| r.0)
+        table.last().map_or(1, |m| m.threads)
     );
     out += &format!("|{}\n", "---|".repeat(5 + table.len()));
     let mut totals = vec![0.0; table.len()];
@@ -221,13 +245,13 @@ pub fn run(steps: usize, repeats: usize, threads: &[usize]) -> anyhow::Result<()
         let times: Vec<String> = table
             .iter()
             .enumerate()
-            .map(|(i, (_, _, _, secs))| {
-                totals[i] += secs[k].1;
-                format!("{:.2}", secs[k].1 * 1e3)
+            .map(|(i, m)| {
+                totals[i] += m.stages[k].1;
+                format!("{:.2}", m.stages[k].1 * 1e3)
             })
             .collect();
-        let (_, bw, peak, secs) = table.last().expect("a thread count");
-        let bound = (cost.bytes * n / bw).max(cost.flops * n / peak);
+        let last = table.last().expect("a thread count");
+        let bound = (cost.bytes * n / last.bandwidth).max(cost.flops * n / last.peak);
         total_bound += bound;
         out += &format!(
             "| {} | {:.0} | {:.0} | {} | {:.3} | {:.0}% |\n",
@@ -236,7 +260,7 @@ pub fn run(steps: usize, repeats: usize, threads: &[usize]) -> anyhow::Result<()
             cost.bytes,
             times.join(" | "),
             bound * 1e3,
-            100.0 * bound / secs[k].1
+            100.0 * bound / last.stages[k].1
         );
     }
     let totals: Vec<String> = totals.iter().map(|s| format!("{:.2}", s * 1e3)).collect();

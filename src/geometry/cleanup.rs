@@ -16,7 +16,9 @@
 //! 4. **Collapses.** An edge shorter than [`COLLAPSE_SHARE`] of the lattice spacing, or the
 //!    short edge of a needle triangle, joins its two vertices where that keeps the surface a
 //!    closed manifold and turns no triangle over: the near-zero-area faces of level-set points
-//!    that land on a lattice node go. Collapses and flips alternate for a few rounds.
+//!    that land on a lattice node go, and so does a cap (an angle under [`CAP_DEG`], the
+//!    other near 180 degrees) that no flip could take. Collapses and flips alternate for a
+//!    few rounds.
 //!
 //! [`quality`] measures a surface: shells, genus, angles, zero-area faces.
 
@@ -37,6 +39,9 @@ const FLIP_WORTH_DEG: f64 = 20.0;
 /// A triangle with an angle under this and one edge much shorter than the others is a needle:
 /// its short edge is collapsed.
 pub const NEEDLE_DEG: f64 = 10.0;
+/// A triangle with an angle under this that the flips left (a cap) has its shortest edge
+/// collapsed.
+pub const CAP_DEG: f64 = 1.0;
 /// Rounds of collapses and flips.
 const ROUNDS: usize = 5;
 /// A triangle with an angle under this is a sliver: its edge may be flipped across a bend of
@@ -351,8 +356,12 @@ fn collapse_short_edges(mesh: &mut TriMesh, min_length: f64) -> usize {
             .map(|e| (length(mesh, t[e], t[(e + 1) % 3]), t[e], t[(e + 1) % 3]))
             .collect();
         edges.sort_by(|x, y| x.0.total_cmp(&y.0));
-        let needle = min_angle(mesh, t) < NEEDLE_DEG.to_radians() && edges[0].0 < 0.5 * edges[1].0;
-        (edges[0].0 < min_length || needle).then_some((edges[0].1, edges[0].2))
+        let smallest = min_angle(mesh, t);
+        let needle = smallest < NEEDLE_DEG.to_radians() && edges[0].0 < 0.5 * edges[1].0;
+        // A cap (one angle near 180 degrees) has two short edges of about equal length: no
+        // needle, and a flip cannot always take it (its neighbour bends away). It goes too.
+        let cap = smallest < CAP_DEG.to_radians();
+        (edges[0].0 < min_length || needle || cap).then_some((edges[0].1, edges[0].2))
     };
     if !mesh.triangles.iter().any(|t| wanted(mesh, *t).is_some()) {
         return 0;

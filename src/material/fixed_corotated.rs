@@ -2,9 +2,9 @@
 //! `Psi = mu sum_k (sigma_k - 1)^2 + lambda/2 (J - 1)^2`,
 //! `P = 2 mu (F - R) + lambda (J - 1) cof F`, with `cof F = J F^-T`.
 
-use super::svd::{Svd3, svd3, svd3_x4};
+use super::svd::{Svd3, eigen, eigen_x4, svd3, svd3_from_eigen, svd3_x4};
 use super::{ConstitutiveModel, cofactor, cofactor_differential};
-use nalgebra::Matrix3;
+use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 
 #[derive(Clone, Copy, Debug, Serialize, Deserialize, PartialEq)]
@@ -12,6 +12,9 @@ pub struct FixedCorotated {
     pub mu: f64,
     pub lambda: f64,
 }
+
+/// Numbers kept per particle for the reverse pass: the eigenvalues of `F^T F` and `V`.
+const KEPT: usize = 12;
 
 /// Smallest |sigma_i + sigma_j| allowed in the rotation differential. The sum only vanishes for
 /// an inverted F with two singular values of opposite sign and equal size, a measure-zero set
@@ -133,6 +136,53 @@ impl ConstitutiveModel for FixedCorotated {
         }
     }
 
+    fn kept_per_particle(&self) -> usize {
+        KEPT
+    }
+
+    fn stress_batch_keeping(
+        &self,
+        fe: &[Matrix3<f64>],
+        out: &mut [Matrix3<f64>],
+        kept: &mut [f64],
+    ) {
+        let n = fe.len();
+        let whole = n - n % 4;
+        let mut keep = |i: usize, (eig, v): (Vector3<f64>, Matrix3<f64>)| {
+            let k = &mut kept[i * KEPT..(i + 1) * KEPT];
+            k[..3].copy_from_slice(eig.as_slice());
+            k[3..].copy_from_slice(v.as_slice());
+            svd3_from_eigen(&fe[i], eig, v)
+        };
+        for i in (0..whole).step_by(4) {
+            let f4: &[Matrix3<f64>; 4] = fe[i..i + 4].try_into().expect("chunk of 4");
+            for (l, e) in eigen_x4(f4).into_iter().enumerate() {
+                let svd = keep(i + l, e);
+                out[i + l] = self.stress_with_rotation(&f4[l], &svd.rotation());
+            }
+        }
+        for i in whole..n {
+            let svd = keep(i, eigen(&fe[i]));
+            out[i] = self.stress_with_rotation(&fe[i], &svd.rotation());
+        }
+    }
+
+    fn stress_and_differential_batch_kept(
+        &self,
+        f: &[Matrix3<f64>],
+        kept: &[f64],
+        df: &[Matrix3<f64>],
+        p: &mut [Matrix3<f64>],
+        dp: &mut [Matrix3<f64>],
+    ) {
+        for (i, k) in kept.chunks_exact(KEPT).enumerate() {
+            let eig = Vector3::from_column_slice(&k[..3]);
+            let v = Matrix3::from_column_slice(&k[3..]);
+            let svd = svd3_from_eigen(&f[i], eig, v);
+            (p[i], dp[i]) = self.stress_and_differential_with(&f[i], &svd, &df[i]);
+        }
+    }
+
     fn wave_modulus(&self) -> f64 {
         self.lambda + 2.0 * self.mu
     }
@@ -236,6 +286,24 @@ mod tests {
         m.stress_and_differential_batch(&f, &df, &mut p, &mut dp);
         for i in 0..11 {
             assert_eq!((p[i], dp[i]), m.stress_and_differential(&f[i], &df[i]));
+        }
+    }
+
+    #[test]
+    fn kept_decompositions_give_the_same_bits() {
+        let m = model();
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(23);
+        let f: Vec<Matrix3<f64>> = (0..11)
+            .map(|_| Matrix3::identity() + random_matrix(&mut rng, 0.5))
+            .collect();
+        let df: Vec<Matrix3<f64>> = (0..11).map(|_| random_matrix(&mut rng, 1.0)).collect();
+        let (mut p, mut kept) = (vec![Matrix3::zeros(); 11], vec![0.0; 11 * KEPT]);
+        m.stress_batch_keeping(&f, &mut p, &mut kept);
+        let (mut pk, mut dpk) = (vec![Matrix3::zeros(); 11], vec![Matrix3::zeros(); 11]);
+        m.stress_and_differential_batch_kept(&f, &kept, &df, &mut pk, &mut dpk);
+        for i in 0..11 {
+            assert_eq!(p[i], m.stress(&f[i]));
+            assert_eq!((pk[i], dpk[i]), m.stress_and_differential(&f[i], &df[i]));
         }
     }
 

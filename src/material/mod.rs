@@ -117,6 +117,36 @@ pub trait ConstitutiveModel: Send + Sync + std::fmt::Debug {
             (*p, *dp) = self.stress_and_differential(f, df);
         }
     }
+    /// Numbers per particle the stress stage can keep for the reverse pass, so that the
+    /// reverse need not redo its costliest part (fixed-corotated: the eigen-decomposition
+    /// behind its SVD, 12 numbers). 0: nothing is kept.
+    fn kept_per_particle(&self) -> usize {
+        0
+    }
+    /// [`Self::stress_batch`], also writing `kept` ([`Self::kept_per_particle`] numbers a
+    /// particle).
+    fn stress_batch_keeping(
+        &self,
+        fe: &[Matrix3<f64>],
+        out: &mut [Matrix3<f64>],
+        kept: &mut [f64],
+    ) {
+        debug_assert!(kept.is_empty());
+        self.stress_batch(fe, out)
+    }
+    /// [`Self::stress_and_differential_batch`] from what [`Self::stress_batch_keeping`] kept for
+    /// the same `f`: the same results, bit for bit.
+    fn stress_and_differential_batch_kept(
+        &self,
+        f: &[Matrix3<f64>],
+        kept: &[f64],
+        df: &[Matrix3<f64>],
+        p: &mut [Matrix3<f64>],
+        dp: &mut [Matrix3<f64>],
+    ) {
+        debug_assert!(kept.is_empty());
+        self.stress_and_differential_batch(f, df, p, dp)
+    }
     /// The differential `dP(F)[dF]` alone.
     fn stress_differential(&self, f: &Matrix3<f64>, df: &Matrix3<f64>) -> Matrix3<f64> {
         self.stress_and_differential(f, df).1

@@ -135,6 +135,24 @@ pub fn svd3_x4(f: &[Matrix3<f64>; 4]) -> [Svd3; 4] {
     std::array::from_fn(|l| finish(&f[l], eig[l].0, eig[l].1))
 }
 
+/// The eigen-decomposition of `F^T F` behind [`svd3_x4`]: `(eigenvalues, V)` per lane, as the
+/// Jacobi sweeps leave them. [`svd3_from_eigen`] turns one into the SVD, bitwise what
+/// [`svd3`] gives; the reverse pass keeps it rather than sweeping again.
+pub fn eigen_x4(f: &[Matrix3<f64>; 4]) -> [(Vector3<f64>, Matrix3<f64>); 4] {
+    symmetric_eigen_lanes(&f.map(|m| m.transpose() * m))
+}
+
+/// [`eigen_x4`] of one matrix.
+pub fn eigen(f: &Matrix3<f64>) -> (Vector3<f64>, Matrix3<f64>) {
+    let [e] = symmetric_eigen_lanes(&[f.transpose() * f]);
+    e
+}
+
+/// The SVD of `f` from the eigen-decomposition of `F^T F` ([`eigen_x4`], [`eigen`]).
+pub fn svd3_from_eigen(f: &Matrix3<f64>, eig: Vector3<f64>, v: Matrix3<f64>) -> Svd3 {
+    finish(f, eig, v)
+}
+
 /// From the eigen-decomposition of `F^T F` to the SVD: sort, then Givens QR of `F V`.
 fn finish(f: &Matrix3<f64>, eig: Vector3<f64>, mut v: Matrix3<f64>) -> Svd3 {
     // Sort eigenvalues in descending order; each column swap flips det V, so negate the

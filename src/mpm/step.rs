@@ -51,6 +51,7 @@ pub struct Workspace {
     grid_v: Vec<Vector3<f64>>,
     fe: Vec<Matrix3<f64>>,
     affine: Vec<Matrix3<f64>>,
+    kept: Vec<f64>,
 }
 
 /// Scratch buffers of the reverse pass, reused across its steps.
@@ -75,6 +76,9 @@ pub struct StepTape {
     bins: Bins,
     /// Affine momentum `A` of each particle (saves recomputing the stress in reverse).
     affine: Vec<Matrix3<f64>>,
+    /// What the stress stage kept for the reverse pass, per particle (fixed-corotated: the
+    /// eigen-decomposition behind its SVD; see `ConstitutiveModel::kept_per_particle`).
+    kept: Vec<f64>,
     grid_mass: Vec<f64>,
     /// Grid velocity `p / m`, before grid effects.
     grid_v: Vec<Vector3<f64>>,
@@ -84,10 +88,11 @@ pub struct StepTape {
 }
 
 impl StepTape {
-    /// Bytes one step's tape holds for `particles` particles on a grid of `nodes` nodes.
-    pub fn bytes_for(particles: usize, nodes: usize) -> usize {
+    /// Bytes one step's tape holds for `particles` particles on a grid of `nodes` nodes, with
+    /// a material that keeps `kept` numbers a particle.
+    pub fn bytes_for(particles: usize, nodes: usize, kept: usize) -> usize {
         State::bytes_for(particles)
-            + particles * (size_of::<u32>() + size_of::<Matrix3<f64>>())
+            + particles * (size_of::<u32>() + size_of::<Matrix3<f64>>() + kept * size_of::<f64>())
             + nodes * (size_of::<f64>() + size_of::<Vector3<f64>>())
     }
 
@@ -97,6 +102,7 @@ impl StepTape {
         self.pre.bytes()
             + self.bins.order.len() * size_of::<u32>()
             + self.affine.len() * size_of::<Matrix3<f64>>()
+            + self.kept.len() * size_of::<f64>()
             + self.grid_mass.len() * size_of::<f64>()
             + self.grid_v.len() * size_of::<Vector3<f64>>()
     }
@@ -248,12 +254,17 @@ impl Simulator {
         // P1: elastic gradient, stress (batched across particles) and affine momentum.
         ws.fe.resize(n, Matrix3::zeros());
         ws.affine.resize(n, Matrix3::zeros());
+        // With a tape, the stress stage keeps what spares the reverse pass recomputing it.
+        let keep = if tape.is_some() {
+            self.material.kept_per_particle()
+        } else {
+            0
+        };
+        ws.kept.resize(n * keep, 0.0);
         let form = self.control_form;
-        ws.affine
-            .par_chunks_mut(CHUNK)
-            .zip(ws.fe.par_chunks_mut(CHUNK))
-            .enumerate()
-            .for_each(|(k, (a, fe))| {
+        // One batch of CHUNK particles: elastic gradients, stresses, affine momenta.
+        let batch =
+            |k: usize, a: &mut [Matrix3<f64>], fe: &mut [Matrix3<f64>], kept: &mut [f64]| {
                 for (i, fe) in fe.iter_mut().enumerate() {
                     let p = k * CHUNK + i;
                     *fe = match fc {
@@ -261,12 +272,30 @@ impl Simulator {
                         None => state.f[p],
                     };
                 }
-                self.material.stress_batch(fe, a);
+                if keep > 0 {
+                    self.material.stress_batch_keeping(fe, a, kept);
+                } else {
+                    self.material.stress_batch(fe, a);
+                }
                 for (i, (a, fe)) in a.iter_mut().zip(fe.iter()).enumerate() {
                     let p = k * CHUNK + i;
                     *a = self.stress_inputs(p).affine_from_stress(&state.c[p], fe, a);
                 }
-            });
+            };
+        let batches = ws
+            .affine
+            .par_chunks_mut(CHUNK)
+            .zip(ws.fe.par_chunks_mut(CHUNK));
+        if keep > 0 {
+            batches
+                .zip(ws.kept.par_chunks_mut(CHUNK * keep))
+                .enumerate()
+                .for_each(|(k, ((a, fe), kept))| batch(k, a, fe, kept));
+        } else {
+            batches
+                .enumerate()
+                .for_each(|(k, (a, fe))| batch(k, a, fe, &mut []));
+        }
         laps.lap(Stage::Stress);
 
         // P2G (coloured scatter).
@@ -328,6 +357,7 @@ impl Simulator {
                 pre: state.clone(),
                 bins: ws.bins.clone(),
                 affine: ws.affine.clone(),
+                kept: std::mem::take(&mut ws.kept),
                 grid_mass,
                 grid_v: grid_v_pre,
                 step,
@@ -659,12 +689,23 @@ impl Simulator {
                 }
                 let mut stress = [Matrix3::zeros(); CHUNK];
                 let mut d_stress = [Matrix3::zeros(); CHUNK];
-                self.material.stress_and_differential_batch(
-                    &fe[p0..p0 + len],
-                    &grad_p[..len],
-                    &mut stress[..len],
-                    &mut d_stress[..len],
-                );
+                let keep = self.material.kept_per_particle();
+                if tape.kept.is_empty() {
+                    self.material.stress_and_differential_batch(
+                        &fe[p0..p0 + len],
+                        &grad_p[..len],
+                        &mut stress[..len],
+                        &mut d_stress[..len],
+                    );
+                } else {
+                    self.material.stress_and_differential_batch_kept(
+                        &fe[p0..p0 + len],
+                        &tape.kept[p0 * keep..(p0 + len) * keep],
+                        &grad_p[..len],
+                        &mut stress[..len],
+                        &mut d_stress[..len],
+                    );
+                }
                 for i in 0..len {
                     let p = p0 + i;
                     let (g_c, g_fe) = self.stress_inputs(p).affine_momentum_reverse_with(

@@ -99,6 +99,11 @@ pub struct ScatterGrad<const K: usize> {
 }
 
 /// Reverse of [`scatter`]: gathers the node adjoints `grad_nodes` (dL/dm_i, dL/dq_ik).
+///
+/// Every sum over the stencil is taken one axis at a time, as in [`gather_affine`]: the
+/// weight `w_a w_b w_c`, its gradient and the offset `x_i - x_p` are products of per-axis
+/// factors, so the innermost loop adds each node's adjoint into a few per-row sums and the
+/// per-axis factors are applied once per row and plane.
 #[inline]
 pub fn scatter_reverse<const N: usize, const K: usize>(
     s: &Stencil<N>,
@@ -108,34 +113,64 @@ pub fn scatter_reverse<const N: usize, const K: usize>(
     grad_nodes: &[Node<K>],
 ) -> ScatterGrad<K> {
     let i0 = s.base_index(strides);
-    let mut out = ScatterGrad {
-        value: [Vector3::zeros(); K],
-        slope: [Matrix3::zeros(); K],
-        x: Vector3::zeros(),
-    };
+    let zero = [Vector3::zeros(); K];
+    let mut value = zero;
+    // Columns of dL/d(slope_k): sum w g (x_i - x_p)_j.
+    let mut col = [zero; 3];
+    // dL/dx through the weights, per axis: sum (d w / d x_j) e_i.
+    let mut gx = [0.0; 3];
+    let w2d2: [f64; N] = std::array::from_fn(|c| s.w[2][c] * s.dpos[2][c]);
     for a in 0..N {
         let qa: [Vector3<f64>; K] =
             std::array::from_fn(|k| fields[k].value + fields[k].slope.column(0) * s.dpos[0][a]);
+        // Sums over the plane a: sum_b w_b (row sums), sum_b w_b d_b (.), and the e sums.
+        let (mut sb, mut sb_d1, mut sb_z) = (zero, zero, zero);
+        let (mut e_w, mut e_dw1, mut e_dw2) = (0.0, 0.0, 0.0);
         for b in 0..N {
             let qab: [Vector3<f64>; K] =
                 std::array::from_fn(|k| qa[k] + fields[k].slope.column(1) * s.dpos[1][b]);
             let row = i0 + a * strides[0] + b * strides[1];
+            // Row sums over c: sum w_c g, sum w_c d_c g, sum w_c e, sum w_c' e.
+            let (mut sc, mut sc_z) = (zero, zero);
+            let (mut ec, mut ec_d) = (0.0, 0.0);
             for c in 0..N {
                 let g = &grad_nodes[row + c];
-                let w = s.w[0][a] * s.w[1][b] * s.w[2][c];
-                let d = Vector3::new(s.dpos[0][a], s.dpos[1][b], s.dpos[2][c]);
                 let mut e = mass * g.mass;
                 for k in 0..K {
                     let q = qab[k] + fields[k].slope.column(2) * s.dpos[2][c];
-                    let wg = w * g.fields[k];
-                    out.value[k] += wg;
-                    out.slope[k] += wg * d.transpose();
                     e += g.fields[k].dot(&q);
+                    sc[k] += s.w[2][c] * g.fields[k];
+                    sc_z[k] += w2d2[c] * g.fields[k];
                 }
-                out.x += grad_w(s, a, b, c) * e;
+                ec += s.w[2][c] * e;
+                ec_d += s.dw[2][c] * e;
             }
+            let (wb, db) = (s.w[1][b], s.w[1][b] * s.dpos[1][b]);
+            for k in 0..K {
+                sb[k] += wb * sc[k];
+                sb_d1[k] += db * sc[k];
+                sb_z[k] += wb * sc_z[k];
+            }
+            e_w += wb * ec;
+            e_dw1 += s.dw[1][b] * ec;
+            e_dw2 += wb * ec_d;
         }
+        let (wa, da) = (s.w[0][a], s.w[0][a] * s.dpos[0][a]);
+        for k in 0..K {
+            value[k] += wa * sb[k];
+            col[0][k] += da * sb[k];
+            col[1][k] += wa * sb_d1[k];
+            col[2][k] += wa * sb_z[k];
+        }
+        gx[0] += s.dw[0][a] * e_w;
+        gx[1] += wa * e_dw1;
+        gx[2] += wa * e_dw2;
     }
+    let mut out = ScatterGrad {
+        value,
+        slope: std::array::from_fn(|k| Matrix3::from_columns(&[col[0][k], col[1][k], col[2][k]])),
+        x: Vector3::new(gx[0], gx[1], gx[2]),
+    };
     // The offsets x_i - x_p move with the particle (derivative -I).
     for (field, value) in fields.iter().zip(&out.value) {
         out.x -= field.slope.transpose() * value;
@@ -213,6 +248,7 @@ pub fn gather_affine<const N: usize>(
 /// Reverse of [`gather_affine`]: given dL/dv_p and dL/dC_p (and the forward `v_p`), scatters
 /// dL/dv_i into `grad_grid_v` (under the colouring) and returns this gather's part of dL/dx_p:
 /// `sum_i grad w_ip (v_i . u_i) - D^-1 gC^T v_p` with `u_i = gv + D^-1 gC (x_i - x_p)`.
+/// The weight gradient's sum is taken one axis at a time (see [`scatter_reverse`]).
 #[inline]
 #[allow(clippy::too_many_arguments)]
 pub fn gather_affine_reverse<const N: usize>(
@@ -228,30 +264,33 @@ pub fn gather_affine_reverse<const N: usize>(
     let i0 = s.base_index(strides);
     let gc = inv_d * grad_c;
     let (gx_col, gy_col, gz_col) = (gc.column(0), gc.column(1), gc.column(2));
-    let mut grad_x = Vector3::zeros();
+    let mut gx = [0.0; 3];
     for a in 0..N {
         let ua = grad_vel + gx_col * s.dpos[0][a];
+        let (mut e_w, mut e_dw1, mut e_dw2) = (0.0, 0.0, 0.0);
         for b in 0..N {
             let uab = ua + gy_col * s.dpos[1][b];
             let wab = s.w[0][a] * s.w[1][b];
             let row = i0 + a * strides[0] + b * strides[1];
+            let (mut ec, mut ec_d) = (0.0, 0.0);
             for c in 0..N {
                 let u = uab + gz_col * s.dpos[2][c];
-                let w = wab * s.w[2][c];
                 let node = row + c;
                 let vu = grid_v[node].dot(&u);
-                grad_x += vu
-                    * Vector3::new(
-                        s.dw[0][a] * s.w[1][b] * s.w[2][c],
-                        s.w[0][a] * s.dw[1][b] * s.w[2][c],
-                        wab * s.dw[2][c],
-                    );
+                ec += s.w[2][c] * vu;
+                ec_d += s.dw[2][c] * vu;
                 // SAFETY: exclusive stencil access under the colouring.
-                unsafe { *grad_grid_v.get(node) += w * u };
+                unsafe { *grad_grid_v.get(node) += (wab * s.w[2][c]) * u };
             }
+            e_w += s.w[1][b] * ec;
+            e_dw1 += s.dw[1][b] * ec;
+            e_dw2 += s.w[1][b] * ec_d;
         }
+        gx[0] += s.dw[0][a] * e_w;
+        gx[1] += s.w[0][a] * e_dw1;
+        gx[2] += s.w[0][a] * e_dw2;
     }
-    grad_x - gc.transpose() * vel
+    Vector3::new(gx[0], gx[1], gx[2]) - gc.transpose() * vel
 }
 
 /// Forward gather of a grid field's value alone: `sum w a_i`.
