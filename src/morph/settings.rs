@@ -53,9 +53,9 @@ impl Preset {
     /// wall time, for sphere -> spot on 2 cores (docs/morph.md, "Effort pays").
     pub fn measured(self) -> &'static str {
         match self {
-            Preset::Draft => "sphere -> spot: IoU 0.85, fill 0.94, 19 s",
-            Preset::Default => "sphere -> spot: IoU 0.87, fill 0.95, 62 s",
-            Preset::Final => "sphere -> spot: IoU 0.86, fill 0.94, 2.1 min",
+            Preset::Draft => "sphere -> spot: IoU 0.85, fill 0.94, 16 s",
+            Preset::Default => "sphere -> spot: IoU 0.87, fill 0.95, 49 s",
+            Preset::Final => "sphere -> spot: IoU 0.86, fill 0.94, 1.6 min",
         }
     }
 }
