@@ -13,15 +13,8 @@ use std::process::ExitCode;
 pub struct BenchArgs {
     #[command(subcommand)]
     what: Option<BenchWhat>,
-    /// Steps per run.
-    #[arg(long, default_value_t = 30)]
-    steps: usize,
-    /// Runs per configuration; the fastest is reported.
-    #[arg(long, default_value_t = 3)]
-    repeats: usize,
-    /// Thread counts to measure, comma separated.
-    #[arg(long, value_delimiter = ',', default_values_t = [1usize, 2])]
-    thread_counts: Vec<usize>,
+    #[command(flatten)]
+    run: EngineRuns,
     /// Kernels to measure, comma separated.
     #[arg(long, value_delimiter = ',', value_parser = super::choice(&KernelKind::ALL),
           default_values = KernelKind::ALL.map(|k| super::name(&k)))]
@@ -45,17 +38,38 @@ pub enum BenchWhat {
     Stages(BenchStagesArgs),
 }
 
+/// How the engine benchmarks run the reference workload.
 #[derive(Args, Debug)]
-pub struct BenchStagesArgs {
+pub struct EngineRuns {
     /// Steps per run.
     #[arg(long, default_value_t = 30)]
     steps: usize,
-    /// Runs timed per thread count (after one untimed run); stage times are their mean.
+    /// Runs per configuration: `morph bench` reports the fastest, `morph bench stages` the
+    /// mean stage times (after one untimed run).
     #[arg(long, default_value_t = 3)]
     repeats: usize,
     /// Thread counts to measure, comma separated.
     #[arg(long, value_delimiter = ',', default_values_t = [1usize, 2])]
     thread_counts: Vec<usize>,
+}
+
+impl EngineRuns {
+    /// The one-line refusal of a zero count.
+    fn invalid(&self) -> Option<ExitCode> {
+        (self.steps == 0 || self.repeats == 0 || self.thread_counts.contains(&0)).then(|| {
+            fail(
+                false,
+                2,
+                "--steps, --repeats and --thread-counts must be positive",
+            )
+        })
+    }
+}
+
+#[derive(Args, Debug)]
+pub struct BenchStagesArgs {
+    #[command(flatten)]
+    run: EngineRuns,
 }
 
 #[derive(Args, Debug)]
@@ -81,30 +95,24 @@ pub fn run(a: &BenchArgs) -> ExitCode {
         return super::report(morph::bench::morph::run(&m.meshes, &m.only));
     }
     if let Some(BenchWhat::Stages(st)) = &a.what {
-        if st.steps == 0 || st.repeats == 0 || st.thread_counts.contains(&0) {
-            return fail(
-                false,
-                2,
-                "--steps, --repeats and --thread-counts must be positive",
-            );
+        let r = &st.run;
+        if let Some(code) = r.invalid() {
+            return code;
         }
         return super::report(morph::bench::roofline::run(
-            st.steps,
-            st.repeats,
-            &st.thread_counts,
+            r.steps,
+            r.repeats,
+            &r.thread_counts,
         ));
     }
-    if a.steps == 0 || a.repeats == 0 || a.thread_counts.contains(&0) {
-        return fail(
-            false,
-            2,
-            "--steps, --repeats and --thread-counts must be positive",
-        );
+    let r = &a.run;
+    if let Some(code) = r.invalid() {
+        return code;
     }
     super::report(morph::bench::run(
-        a.steps,
-        a.repeats,
-        &a.thread_counts,
+        r.steps,
+        r.repeats,
+        &r.thread_counts,
         &a.kernels,
         &a.integrators,
     ))
