@@ -471,6 +471,52 @@ fn bench_morph_refuses_an_unknown_case() {
     assert!(err.contains("no case 'nope'"), "{err}");
 }
 
+/// `morph bench stages` times every stage of the step and its reverse and sets each against
+/// the machine's measured limits: one JSON line per stage with a positive time and bound, and
+/// the table on stderr.
+#[test]
+fn bench_stages_times_every_stage() {
+    let r = morph(&[
+        "bench",
+        "stages",
+        "--steps",
+        "2",
+        "--repeats",
+        "1",
+        "--thread-counts",
+        "1",
+    ]);
+    assert_eq!(
+        r.status.code(),
+        Some(0),
+        "{}",
+        String::from_utf8_lossy(&r.stderr)
+    );
+    let lines: Vec<serde_json::Value> = String::from_utf8_lossy(&r.stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect();
+    let kind = |k: &str| lines.iter().filter(|l| l["bench"] == k).count();
+    assert_eq!(
+        (kind("colours"), kind("machine"), kind("stage")),
+        (1, 1, 10)
+    );
+    let machine = lines.iter().find(|l| l["bench"] == "machine").unwrap();
+    assert!(machine["stream_triad_gb_s"].as_f64().unwrap() > 0.1);
+    assert!(machine["peak_gflops"].as_f64().unwrap() > 0.1);
+    for stage in lines.iter().filter(|l| l["bench"] == "stage") {
+        for key in ["ms_per_step", "roofline_ms", "of_roofline"] {
+            let v = stage[key].as_f64().unwrap();
+            assert!(v.is_finite() && v > 0.0, "{key}: {stage}");
+        }
+    }
+    let table = String::from_utf8_lossy(&r.stderr);
+    assert!(
+        table.contains("| rev_p2g_stress |") && table.contains("| all |"),
+        "{table}"
+    );
+}
+
 /// `--fps 24 --frames 48`: exactly 48 frames 1/24 s apart, the rest shape first; the chain is
 /// cut into segments of --steps steps with a shorter last one; 25 fps takes steps of 1/125 s,
 /// and `--seconds` gives the frames that fill it.

@@ -586,6 +586,7 @@ fn one_error_style() {
         vec![&s, &t, "--preset", "huge"],
         vec!["compare", "a.mgrid", "b.mgrid", "--rtol", "-1"],
         vec!["bench", "--steps", "0"],
+        vec!["bench", "stages", "--repeats", "0"],
         vec!["bench-geometry", "--resolutions", "4"],
         vec!["rope", "--steps", "-5"],
         vec!["assets", "--nope"],
