@@ -65,6 +65,18 @@ struct ReverseWorkspace {
     grad_nodes: Vec<Node<1>>,
 }
 
+/// One step of the reverse pass for the model's kernel ([`Simulator::reverse_impl`]).
+type ReverseStep = fn(
+    &Simulator,
+    &StepTape,
+    &State,
+    Option<&[Matrix3<f64>]>,
+    Option<&[Vector3<f64>]>,
+    &mut StateGrad,
+    &mut [Vec<f64>],
+    &mut ReverseWorkspace,
+) -> (Vec<Matrix3<f64>>, Vec<Vector3<f64>>);
+
 /// Particles per batch of the stress stages (a multiple of the SVD's four lanes).
 const CHUNK: usize = 64;
 
@@ -421,6 +433,10 @@ impl Simulator {
             None => Vec::new(),
         };
         let mut rws = ReverseWorkspace::default();
+        let reverse: ReverseStep = match self.kernel {
+            KernelKind::Quadratic => Self::reverse_impl::<3>,
+            KernelKind::Cubic => Self::reverse_impl::<4>,
+        };
         for s in (0..tape.steps.len()).rev() {
             let post = if s + 1 < tape.steps.len() {
                 &tape.steps[s + 1].pre
@@ -432,26 +448,16 @@ impl Simulator {
             let fc = control_at(controls, s);
             let values = params.map(|p| self.control_values(p, step.step, CONTROL_THETA));
             let values = values.as_deref();
-            let (g, g_values) = match self.kernel {
-                KernelKind::Quadratic => self.reverse_impl::<3>(
-                    step,
-                    post,
-                    fc,
-                    values,
-                    &mut adj,
-                    &mut effect_params,
-                    &mut rws,
-                ),
-                KernelKind::Cubic => self.reverse_impl::<4>(
-                    step,
-                    post,
-                    fc,
-                    values,
-                    &mut adj,
-                    &mut effect_params,
-                    &mut rws,
-                ),
-            };
+            let (g, g_values) = reverse(
+                self,
+                step,
+                post,
+                fc,
+                values,
+                &mut adj,
+                &mut effect_params,
+                &mut rws,
+            );
             if fc.is_some() {
                 grad_controls[s] = Some(g);
             }
