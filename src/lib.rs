@@ -31,6 +31,7 @@
 pub mod bench;
 pub mod control;
 pub mod effects;
+pub mod files;
 pub mod geometry;
 pub mod integrator;
 pub mod io;

@@ -292,6 +292,8 @@ fn settings_parser() {
     });
 }
 
+/// Checkpoint files with flipped bits, truncations and every other mutation: each is refused
+/// (naming the file), or reads back exactly what was saved; never a different result.
 #[test]
 fn checkpoint_reader() {
     use morph::morph::checkpoint;
@@ -303,6 +305,7 @@ fn checkpoint_reader() {
     let dir = std::env::temp_dir().join(format!("morph-fuzz-ck-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
+    let run_id = "ab".repeat(32);
     let layers: Layers = vec![vec![Matrix3::identity() * 0.01; 3]; 2];
     let progress = RunProgress {
         pass: 0,
@@ -314,18 +317,47 @@ fn checkpoint_reader() {
         frames: 0,
         elapsed_s: 1.5,
     };
-    checkpoint::save(&dir, &progress, 0).unwrap();
-    let progress_path = dir.join(checkpoint::FOLDER).join("progress.json");
-    let seed = std::fs::read(&progress_path).unwrap();
-    let loaded = checkpoint::load(&dir, 3, &[2, 2]).unwrap().unwrap();
+    checkpoint::save(&dir, &run_id, &progress, 0).unwrap();
+    let folder = dir.join(checkpoint::FOLDER);
+    let load = || checkpoint::load(&dir, &run_id, 3, &[2, 2]);
+    let loaded = load().unwrap().unwrap();
     assert_eq!(loaded.state, progress.state);
     assert_eq!(loaded.controls, progress.controls);
-    fuzz("checkpoint", vec![seed], |bytes| {
-        std::fs::write(&progress_path, bytes).unwrap();
-        checkpoint::load(&dir, 3, &[2, 2])
-            .map(|_| ())
-            .map_err(|e| e.to_string())
-    });
+    // Another run's identity is refused, by file name.
+    let other = checkpoint::load(&dir, &"cd".repeat(32), 3, &[2, 2]).unwrap_err();
+    assert!(other.to_string().contains("progress.json"), "{other}");
+    let mut names: Vec<String> = std::fs::read_dir(&folder)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    names.sort();
+    assert_eq!(names.len(), 3, "{names:?}");
+    for name in names {
+        let path = folder.join(&name);
+        let seed = std::fs::read(&path).unwrap();
+        // Every single flipped bit and every truncation of the file is refused by name.
+        for bit in (0..seed.len() * 8).step_by(7) {
+            let mut b = seed.clone();
+            b[bit / 8] ^= 1 << (bit % 8);
+            std::fs::write(&path, &b).unwrap();
+            let e = load().err().unwrap_or_else(|| panic!("{name}: bit {bit} flipped was read"));
+            assert!(e.to_string().contains(&name), "{e}");
+        }
+        for len in (0..seed.len()).step_by(13) {
+            std::fs::write(&path, &seed[..len]).unwrap();
+            assert!(load().is_err(), "{name} truncated to {len} bytes was read");
+        }
+        fuzz(&format!("checkpoint {name}"), vec![seed.clone()], |bytes| {
+            std::fs::write(&path, bytes).unwrap();
+            match load() {
+                Ok(Some(p)) if p.state == progress.state && p.controls == progress.controls
+                    && p.segments_done == progress.segments_done && p.pass == progress.pass => Ok(()),
+                Ok(_) => panic!("{name}: a mutated checkpoint read as a different one"),
+                Err(e) => Err(e.to_string()),
+            }
+        });
+        std::fs::write(&path, &seed).unwrap();
+    }
     let _ = std::fs::remove_dir_all(&dir);
 }
 

@@ -63,6 +63,7 @@ pub fn run(meshes: &Path, only: &[String]) -> anyhow::Result<()> {
                 resume: false,
                 stop: None,
                 memory_limit: MemoryLimit::Auto,
+                scene: None,
             },
             |_| {},
         );

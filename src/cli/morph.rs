@@ -382,13 +382,19 @@ impl MorphArgs {
     }
 }
 
-/// SIGINT and SIGTERM set `stop` to the signal's number: the run stops at its next
-/// evaluation and keeps its checkpoint. A second signal while stopping exits at once.
+/// SIGINT, SIGTERM and SIGHUP (a closed terminal or SSH session) set `stop` to the signal's
+/// number: the run stops at its next evaluation and keeps its checkpoint. A second signal
+/// while stopping exits at once. SIGPIPE is ignored so that a closed stdout (a log reader
+/// that went away) is seen as a failed write, which stops the run the same way.
 fn stop_on_signals() -> std::io::Result<Arc<AtomicUsize>> {
-    use signal_hook::consts::{SIGINT, SIGTERM};
+    use signal_hook::consts::{SIGHUP, SIGINT, SIGTERM};
+    // SAFETY: setting one signal's disposition to "ignore" is async-signal-safe.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_IGN);
+    }
     let stop = Arc::new(AtomicUsize::new(0));
     let stopping = Arc::new(std::sync::atomic::AtomicBool::new(false));
-    for sig in [SIGINT, SIGTERM] {
+    for sig in [SIGINT, SIGTERM, SIGHUP] {
         signal_hook::flag::register_conditional_shutdown(sig, 128 + sig, Arc::clone(&stopping))?;
         signal_hook::flag::register(sig, Arc::clone(&stopping))?;
         signal_hook::flag::register_usize(sig, Arc::clone(&stop), sig as usize)?;
@@ -400,6 +406,8 @@ fn signal_name(signal: usize) -> &'static str {
     match signal as i32 {
         signal_hook::consts::SIGINT => "SIGINT",
         signal_hook::consts::SIGTERM => "SIGTERM",
+        signal_hook::consts::SIGHUP => "SIGHUP (the terminal closed)",
+        libc::SIGPIPE => "SIGPIPE (stdout was closed)",
         _ => "a signal",
     }
 }
@@ -421,7 +429,12 @@ pub fn run(args: &MorphArgs) -> ExitCode {
     let mut last_loss = f64::NAN;
     let on_event = |e: &MorphEvent| {
         if args.json {
-            println!("{}", serde_json::to_string(e).expect("plain event"));
+            use std::io::Write;
+            let line = serde_json::to_string(e).expect("plain event");
+            if writeln!(std::io::stdout(), "{line}").is_err() {
+                // Nobody reads the events any more: stop as for a signal, keeping the work.
+                stop.store(libc::SIGPIPE as usize, std::sync::atomic::Ordering::Relaxed);
+            }
             return;
         }
         match e {
@@ -480,6 +493,7 @@ pub fn run(args: &MorphArgs) -> ExitCode {
         resume: args.resume,
         stop: Some(&stop),
         memory_limit: args.memory_limit,
+        scene: args.scene.as_deref(),
     };
     let result =
         morph::morph::output::morph_to_folder(&settings, &source, &targets, &request, on_event);

@@ -113,6 +113,11 @@ pub struct Ratios {
 pub struct RopeReport {
     pub tool: &'static str,
     pub version: &'static str,
+    /// SHA-256 of the tool version and settings: what decides the run.
+    pub run_id: String,
+    /// Every other file of the output folder (relative, with `/`): what `--overwrite` may
+    /// replace (see [`crate::io::outdir::check_owned`]); filled in when the folder is written.
+    pub files: Vec<String>,
     pub integrator: IntegratorKind,
     pub material: MaterialModel,
     pub settings: RopeSettings,
@@ -235,9 +240,41 @@ fn method_report<S: Controlled>(
     ))
 }
 
+/// The most any count of a rope run may be (steps, samples, horizons, iterations...): far
+/// beyond any useful run (the default is a few hundred steps), and small enough that what
+/// is sized by it fits in memory. `cells_along` has its own, smaller bound.
+pub const MAX_ROPE_COUNT: usize = 100_000;
+/// The most cells along the rope.
+pub const MAX_ROPE_CELLS: usize = 1_000;
+
 impl RopeSettings {
     /// Checks every setting (scene, both controllers) and builds the scene.
     pub fn validate(&self) -> Result<Rope, RopeError> {
+        let counts = [
+            ("steps", self.rope.steps),
+            ("control-interval", self.rope.control_interval),
+            ("batch", self.gradient.batch_steps),
+            ("iterations", self.gradient.iterations),
+            ("lookahead", self.gradient.lookahead_steps),
+            ("samples", self.mppi.samples),
+            ("mppi-horizon", self.mppi.horizon_steps),
+            ("replan", self.mppi.replan_steps),
+            ("refinements", self.mppi.refinements),
+            ("frame-every", self.frame_every),
+        ];
+        for (name, v) in counts {
+            if v > MAX_ROPE_COUNT {
+                return Err(RopeError::Settings(format!(
+                    "--{name} must be at most {MAX_ROPE_COUNT}, got {v}"
+                )));
+            }
+        }
+        if self.rope.cells_along > MAX_ROPE_CELLS {
+            return Err(RopeError::Settings(format!(
+                "--cells-along must be at most {MAX_ROPE_CELLS}, got {}",
+                self.rope.cells_along
+            )));
+        }
         let bad = |e: SimError| {
             RopeError::Settings(match e {
                 SimError::InvalidScene(m) => m,
@@ -316,6 +353,16 @@ fn compare_methods<S: Controlled>(
     let report = RopeReport {
         tool: "morph rope",
         version: env!("CARGO_PKG_VERSION"),
+        run_id: {
+            use sha2::{Digest, Sha256};
+            let decisive = serde_json::to_vec(&("morph rope", env!("CARGO_PKG_VERSION"), settings))
+                .expect("plain data");
+            Sha256::digest(&decisive)
+                .iter()
+                .map(|b| format!("{b:02x}"))
+                .collect()
+        },
+        files: Vec::new(),
         integrator: rope.engine.kind(),
         material: settings.rope.material,
         settings: settings.clone(),
@@ -345,6 +392,8 @@ fn out_err(what: &str, path: &Path, e: impl std::fmt::Display) -> RopeError {
 
 /// Marks a staging folder as a rope run's (a morph's holds `run.json` and is never cleared).
 const ROPE_MARKER: &str = "rope.json";
+/// The names a rope run writes at the top of its folder.
+const ROPE_NAMES: &[&str] = &["frames", "energy.png", "report.json"];
 
 /// Runs [`run_rope`] and writes the folder `out`, guarded like a morph's
 /// ([`crate::io::outdir`]): `-o` is checked before the run, an existing folder is replaced
@@ -359,7 +408,7 @@ pub fn rope_to_folder(
 ) -> Result<RopeReport, RopeError> {
     settings.validate()?;
     let plan = outdir::plan(out, &[], overwrite, "report.json").map_err(RopeError::Settings)?;
-    let mut staging = outdir::Staging::take(&plan, ROPE_MARKER).map_err(RopeError::Output)?;
+    let mut staging = outdir::Staging::take(&plan, ROPE_MARKER, ROPE_NAMES).map_err(RopeError::Output)?;
     staging.clear().map_err(RopeError::Output)?;
     let marker = staging.dir.join(ROPE_MARKER);
     write_atomically(&marker, |w| w.write_all(b"{\"tool\": \"morph rope\"}\n"))
@@ -442,6 +491,8 @@ fn write_folder(result: &mut RopeResult, dir: &Path) -> Result<(), RopeError> {
     )
     .map_err(|e| out_err("plot", &png, e))?;
     let json = dir.join("report.json");
+    report.files = crate::io::outdir::list_files(dir, &["report.json", ROPE_MARKER])
+        .map_err(|e| out_err("folder listing", dir, e))?;
     let text = serde_json::to_string_pretty(report).map_err(|e| out_err("report", &json, e))?;
     write_atomically(&json, |w| std::io::Write::write_all(w, text.as_bytes()))
         .map_err(|e| out_err("report", &json, e))?;

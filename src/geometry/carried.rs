@@ -98,7 +98,10 @@ impl CarriedSurface {
             .extension()
             .is_some_and(|e| e.eq_ignore_ascii_case("obj"));
         let mut surface = if is_obj {
-            parse_obj(source, &std::fs::read_to_string(source)?)
+            parse_obj(
+                source,
+                &crate::files::read_to_string(source, crate::files::MESH_BYTES)?,
+            )
         } else {
             from_mesh(fallback)
         };
@@ -323,15 +326,29 @@ fn parse_obj(source: &Path, text: &str) -> CarriedSurface {
                     .filter_map(|w| w.parse().ok())
                     .collect();
                 if xyz.len() == 3 {
+                    let mut v = Vector3::new(xyz[0], xyz[1], xyz[2]);
                     let rest: Vec<&str> = words.collect();
+                    // `v x y z w`: a homogeneous position, read as (x, y, z) / w as the mesh
+                    // loader reads it, and written without w (Blender ignores w). Three more
+                    // values are a vertex colour, kept.
+                    let (rest, text) = match rest.as_slice() {
+                        [w] if w.parse::<f64>().is_ok_and(|w| w != 0.0 && w != 1.0) => {
+                            v /= w.parse::<f64>().expect("checked");
+                            (Vec::new(), format!("v {} {} {}", v.x, v.y, v.z))
+                        }
+                        [w] if w.parse::<f64>().is_ok() => {
+                            (Vec::new(), format!("v {} {} {}", v.x, v.y, v.z))
+                        }
+                        _ => (rest, line.to_string()),
+                    };
                     let tail = if rest.is_empty() {
                         String::new()
                     } else {
                         format!(" {}", rest.join(" "))
                     };
                     surface.lines.push(Line::Vertex(surface.rest.len(), tail));
-                    surface.rest.push(Vector3::new(xyz[0], xyz[1], xyz[2]));
-                    surface.vertex_text.push(line.to_string());
+                    surface.rest.push(v);
+                    surface.vertex_text.push(text);
                     continue;
                 }
             }

@@ -528,7 +528,7 @@ impl MeshFormat {
 /// finite, indices are in range, and the mesh is not flat. Polygons are fan-triangulated and
 /// the orientation is made consistent and outward (a warning says when faces were flipped).
 pub fn load_mesh(path: &Path) -> Result<LoadedMesh, MeshError> {
-    let bytes = std::fs::read(path).map_err(|e| MeshError::Unreadable {
+    let bytes = crate::files::read(path, crate::files::MESH_BYTES).map_err(|e| MeshError::Unreadable {
         path: path.into(),
         reason: e.to_string(),
     })?;
@@ -673,7 +673,10 @@ fn parse_obj(path: &Path, bytes: &[u8]) -> Result<(TriMesh, Vec<String>), MeshEr
             ),
         });
     }
-    let mut reader = std::io::Cursor::new(bytes);
+    // tobj parses `l` (polyline) and `p` (point) lines as faces when they have three or more
+    // indices; they are not surface, so they are blanked first (line numbers stay the same).
+    let cleaned = without_lines_and_points(bytes);
+    let mut reader = std::io::Cursor::new(cleaned.as_deref().unwrap_or(bytes));
     let (models, _materials) = tobj::load_obj_buf(&mut reader, &options, |mtl| {
         // Materials are not used; a missing library is only worth a warning.
         let full = folder.join(mtl);
@@ -707,6 +710,28 @@ fn parse_obj(path: &Path, bytes: &[u8]) -> Result<(TriMesh, Vec<String>), MeshEr
         );
     }
     Ok((mesh, warnings.into_inner()))
+}
+
+/// The OBJ text with every `l` and `p` line emptied, or `None` when it has none.
+fn without_lines_and_points(bytes: &[u8]) -> Option<Vec<u8>> {
+    let is_element = |line: &[u8]| {
+        let t = line.trim_ascii_start();
+        (t.starts_with(b"l") || t.starts_with(b"p"))
+            && t.get(1).is_none_or(|c| c.is_ascii_whitespace())
+    };
+    if !bytes.split(|&b| b == b'\n').any(is_element) {
+        return None;
+    }
+    let mut out = Vec::with_capacity(bytes.len());
+    for (i, line) in bytes.split(|&b| b == b'\n').enumerate() {
+        if i > 0 {
+            out.push(b'\n');
+        }
+        if !is_element(line) {
+            out.extend_from_slice(line);
+        }
+    }
+    Some(out)
 }
 
 fn parse_ply(path: &Path, bytes: &[u8]) -> Result<TriMesh, MeshError> {
@@ -779,6 +804,33 @@ fn parse_ply(path: &Path, bytes: &[u8]) -> Result<TriMesh, MeshError> {
         for k in 1..list.len().saturating_sub(1) {
             mesh.triangles
                 .push([list[0] as u32, list[k] as u32, list[k + 1] as u32]);
+        }
+    }
+    // Triangle strips (Stanford's scans): each list holds strips separated by -1; triangle k
+    // of a strip is (s[k], s[k+1], s[k+2]), every second one reversed to keep the strip's
+    // orientation; triangles with a repeated corner only join strips and are skipped.
+    let strips = ply.payload.get("tristrips").map(Vec::as_slice).unwrap_or(&[]);
+    for (si, f) in strips.iter().enumerate() {
+        let list = f
+            .get("vertex_indices")
+            .or_else(|| f.get("vertex_index"))
+            .and_then(index_list)
+            .ok_or_else(|| malformed(format!("tristrips {} has no vertex index list", si + 1)))?;
+        if let Some(&bad) = list.iter().find(|&&i| i < -1 || i >= nv) {
+            return Err(malformed(format!(
+                "tristrips {} refers to vertex {bad}, but there are {nv}",
+                si + 1
+            )));
+        }
+        for strip in list.split(|&i| i == -1) {
+            for k in 0..strip.len().saturating_sub(2) {
+                let (a, b, c) = (strip[k] as u32, strip[k + 1] as u32, strip[k + 2] as u32);
+                if a == b || b == c || a == c {
+                    continue;
+                }
+                mesh.triangles
+                    .push(if k % 2 == 0 { [a, b, c] } else { [b, a, c] });
+            }
         }
     }
     Ok(mesh)

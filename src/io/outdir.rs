@@ -2,16 +2,20 @@
 //!
 //! 1. [`plan`] checks `-o` before any work: trailing slashes are normalised; `.`, `..`, `/`,
 //!    the home folder, the working folder or one of its parents, a folder that is or contains
-//!    an input file, a symbolic link and an existing non-folder are refused. An existing
-//!    non-empty folder may be replaced only when it holds the run's marker file (a morph
-//!    manifest); anything else is refused whatever the flags.
+//!    an input file, a symbolic link, a mount point, a name too long to stage beside and an
+//!    existing non-folder are refused. An existing non-empty folder may be replaced only when
+//!    morph provably made it ([`check_owned`]): its marker file (a morph manifest) parses as
+//!    morph's, with tool, version and run id, and the folder holds nothing but the files that
+//!    marker lists. Anything else is refused whatever the flags, naming the first foreign file.
 //! 2. [`Staging::take`] creates `OUT.partial` beside it and takes an exclusive lock on
 //!    `OUT.partial/.lock` (the operating system's advisory file lock, through `std::fs::File`,
 //!    released by the kernel when the process dies, so a killed run never leaves a stale
 //!    lock). The lock file holds the owner's process id, which a second run names when it
-//!    refuses.
+//!    refuses. A staging folder holding a name morph does not write is refused.
 //! 3. [`Staging::commit`] puts the complete folder in place atomically: the old folder is
-//!    moved aside, the new one renamed into place, and only then is the old one deleted.
+//!    checked again, moved aside, the new one renamed into place, and only then is the old
+//!    one deleted, its marker last, so that a cleanup killed halfway leaves a folder that is
+//!    still provably morph's; later runs remove such leftovers of dead processes.
 
 use std::fs::{self, File, OpenOptions};
 use std::io::{Read, Write};
@@ -20,6 +24,232 @@ use std::path::{Component, Path, PathBuf};
 /// The lock file inside the staging folder.
 pub const LOCK_FILE: &str = ".lock";
 
+/// The longest output folder name: the file system's 255 bytes, less what the staging
+/// (`.partial`) and replaced (`.` + `.replaced-` + a process id) names add to it.
+pub const MAX_NAME: usize = 255 - 21;
+
+/// The fields by which a marker file (a manifest) proves that morph made its folder: every
+/// marker morph writes has them, and lists every other file of the folder (relative paths
+/// with `/`, the marker itself and the lock file excepted).
+#[derive(serde::Deserialize)]
+struct Marker {
+    tool: String,
+    version: String,
+    run_id: String,
+    files: Vec<String>,
+}
+
+/// A folder morph made: the files its marker lists, and those of them that are missing.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Owned {
+    pub files: Vec<String>,
+    pub missing: Vec<String>,
+}
+
+/// Whether `dir` is provably a folder morph made: `marker` parses as morph's (tool, version,
+/// run id, file list) and the folder holds no file it does not list (folders may be empty).
+/// The error says why not, naming the first foreign file.
+pub fn check_owned(dir: &Path, marker: &str) -> Result<Owned, String> {
+    let path = dir.join(marker);
+    let bytes = match crate::files::read(&path, crate::files::MANIFEST_BYTES) {
+        Ok(b) => b,
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            return Err(format!("it has no {marker}"));
+        }
+        Err(e) => return Err(format!("cannot read its {marker}: {e}")),
+    };
+    let m: Marker = serde_json::from_slice(&bytes).map_err(|e| {
+        format!("its {marker} is not one morph wrote: {e}")
+    })?;
+    let plain = |f: &str| {
+        !f.is_empty()
+            && !f.starts_with('/')
+            && f.split('/').all(|c| !c.is_empty() && c != "." && c != "..")
+    };
+    if !m.tool.starts_with("morph")
+        || m.version.is_empty()
+        || m.run_id.len() != 64
+        || !m.run_id.bytes().all(|b| b.is_ascii_hexdigit())
+    {
+        return Err(format!(
+            "its {marker} does not carry morph's tool, version and run id"
+        ));
+    }
+    if let Some(bad) = m.files.iter().find(|f| !plain(f)) {
+        return Err(format!("its {marker} lists '{bad}', which is not a file inside it"));
+    }
+    let listed: std::collections::HashSet<&str> = m.files.iter().map(String::as_str).collect();
+    let mut present = std::collections::HashSet::new();
+    let mut stack = vec![(dir.to_path_buf(), String::new())];
+    while let Some((folder, prefix)) = stack.pop() {
+        let mut entries: Vec<_> = fs::read_dir(&folder)
+            .map_err(|e| format!("cannot read '{}': {e}", folder.display()))?
+            .filter_map(|e| e.ok())
+            .collect();
+        entries.sort_by_key(|e| e.file_name());
+        for e in entries {
+            let name = e.file_name().to_string_lossy().into_owned();
+            let rel = format!("{prefix}{name}");
+            let t = e
+                .file_type()
+                .map_err(|err| format!("cannot read '{}': {err}", e.path().display()))?;
+            if t.is_dir() {
+                stack.push((e.path(), format!("{rel}/")));
+            } else if !t.is_file() {
+                return Err(format!("it holds '{rel}', which is not a regular file"));
+            } else if prefix.is_empty() && (name == marker || name == LOCK_FILE) {
+                continue;
+            } else if listed.contains(rel.as_str()) {
+                present.insert(rel);
+            } else {
+                return Err(format!("it holds '{rel}', which its {marker} does not list"));
+            }
+        }
+    }
+    let missing = m
+        .files
+        .iter()
+        .filter(|f| !present.contains(*f))
+        .cloned()
+        .collect();
+    Ok(Owned {
+        files: m.files,
+        missing,
+    })
+}
+
+/// Every file under `dir`, as relative paths with `/`, sorted; top-level entries named in
+/// `skip` are left out (what a marker file lists, see [`check_owned`]).
+pub fn list_files(dir: &Path, skip: &[&str]) -> std::io::Result<Vec<String>> {
+    let mut out = Vec::new();
+    let mut stack = vec![(dir.to_path_buf(), String::new())];
+    while let Some((folder, prefix)) = stack.pop() {
+        for e in fs::read_dir(&folder)? {
+            let e = e?;
+            let name = e.file_name().to_string_lossy().into_owned();
+            if prefix.is_empty() && (skip.contains(&name.as_str()) || name == LOCK_FILE) {
+                continue;
+            }
+            let rel = format!("{prefix}{name}");
+            if e.file_type()?.is_dir() {
+                stack.push((e.path(), format!("{rel}/")));
+            } else {
+                out.push(rel);
+            }
+        }
+    }
+    out.sort();
+    Ok(out)
+}
+
+/// Whether `dir` holds nothing but (possibly nested) empty folders.
+fn only_empty_folders(dir: &Path) -> bool {
+    fs::read_dir(dir).is_ok_and(|entries| {
+        entries.filter_map(|e| e.ok()).all(|e| {
+            e.file_type().is_ok_and(|t| t.is_dir()) && only_empty_folders(&e.path())
+        })
+    })
+}
+
+/// Deletes a folder morph provably made ([`check_owned`]), or one left holding only empty
+/// folders: the listed files first, the marker last, then the folders, each removed only
+/// when empty. A deletion stopped at any point leaves a folder that is still provably
+/// morph's.
+fn remove_owned(dir: &Path, marker: &str) -> std::io::Result<()> {
+    if !only_empty_folders(dir) {
+        let owned = check_owned(dir, marker).map_err(std::io::Error::other)?;
+        for f in owned.files.iter().filter(|f| !owned.missing.contains(f)) {
+            fs::remove_file(dir.join(f))?;
+        }
+        match fs::remove_file(dir.join(LOCK_FILE)) {
+            Err(e) if e.kind() != std::io::ErrorKind::NotFound => return Err(e),
+            _ => {}
+        }
+        fs::remove_file(dir.join(marker))?;
+    }
+    remove_empty_folders(dir)
+}
+
+fn remove_empty_folders(dir: &Path) -> std::io::Result<()> {
+    for e in fs::read_dir(dir)? {
+        let e = e?;
+        if e.file_type()?.is_dir() {
+            remove_empty_folders(&e.path())?;
+        }
+    }
+    fs::remove_dir(dir)
+}
+
+/// Whether `path` (an existing folder) is a mount point: on another device than its parent,
+/// or listed as one by the kernel (a bind mount of the same file system).
+pub fn is_mount_point(path: &Path) -> bool {
+    use std::os::unix::fs::MetadataExt;
+    let Ok(abs) = path.canonicalize() else {
+        return false;
+    };
+    let Some(parent) = abs.parent() else {
+        return true;
+    };
+    if let (Ok(a), Ok(p)) = (fs::metadata(&abs), fs::metadata(parent))
+        && a.dev() != p.dev()
+    {
+        return true;
+    }
+    let Ok(info) = crate::files::read_to_string(
+        Path::new("/proc/self/mountinfo"),
+        crate::files::SMALL_FILE_BYTES,
+    ) else {
+        return false;
+    };
+    // Field 5 is the mount point, with spaces and the like escaped as octal (`\040`).
+    let unescape = |s: &str| {
+        let mut out = Vec::new();
+        let b = s.as_bytes();
+        let mut i = 0;
+        while i < b.len() {
+            if b[i] == b'\\'
+                && i + 3 < b.len()
+                && let Ok(v) = u8::from_str_radix(&s[i + 1..i + 4], 8)
+            {
+                out.push(v);
+                i += 4;
+            } else {
+                out.push(b[i]);
+                i += 1;
+            }
+        }
+        PathBuf::from(std::ffi::OsString::from(String::from_utf8_lossy(&out).into_owned()))
+    };
+    info.lines()
+        .filter_map(|l| l.split(' ').nth(4))
+        .any(|m| unescape(m) == abs)
+}
+
+/// Removes the `.NAME.replaced-PID` folders beside `out` that a replacing run whose process
+/// has died left behind, when each is still provably morph's (see [`remove_owned`]).
+fn remove_stale_asides(out: &Path, marker: &str) {
+    let Some(name) = out.file_name() else { return };
+    let prefix = format!(".{}.replaced-", name.to_string_lossy());
+    let parent = match out.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    let Ok(entries) = fs::read_dir(&parent) else { return };
+    for e in entries.filter_map(|e| e.ok()) {
+        let n = e.file_name().to_string_lossy().into_owned();
+        let Some(pid) = n.strip_prefix(&prefix).and_then(|p| p.parse::<i32>().ok()) else {
+            continue;
+        };
+        // SAFETY: signal 0 only asks whether the process exists.
+        let alive = pid as u32 == std::process::id()
+            || unsafe { libc::kill(pid, 0) } == 0
+            || std::io::Error::last_os_error().raw_os_error() == Some(libc::EPERM);
+        if !alive && e.file_type().is_ok_and(|t| t.is_dir()) {
+            let _ = remove_owned(&e.path(), marker);
+        }
+    }
+}
+
 /// What `-o` names today.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Existing {
@@ -27,7 +257,7 @@ pub enum Existing {
     Absent,
     /// An empty folder.
     Empty,
-    /// A folder holding the marker file: an earlier output of this tool.
+    /// A folder morph provably made (see [`check_owned`]).
     Ours,
 }
 
@@ -106,6 +336,13 @@ pub fn plan(
         }
         Some(_) => return Err(format!("output folder '{shown}' is a filesystem root")),
     }
+    let name_len = given.file_name().map_or(0, |n| n.len());
+    if name_len > MAX_NAME {
+        return Err(format!(
+            "output folder name '{}' is {name_len} bytes long; morph stages its work in '<name>.partial' and keeps the old folder as '.<name>.replaced-<pid>' while replacing it, so the name may be at most {MAX_NAME} bytes",
+            given.file_name().unwrap_or_default().to_string_lossy()
+        ));
+    }
     let resolved = resolve(&given)?;
     let staging = partial_dir(&given);
     if let Some(home) = std::env::var_os("HOME").map(PathBuf::from)
@@ -143,16 +380,23 @@ pub fn plan(
             ));
         }
         Ok(_) => {
+            if is_mount_point(&given) {
+                return Err(format!(
+                    "output folder '{shown}' is a mount point (another filesystem); morph writes beside the output and renames its result into place, which cannot replace a mount point: give a folder inside it, e.g. -o {}/morph-out",
+                    given.display()
+                ));
+            }
             let mut entries =
                 fs::read_dir(&given).map_err(|e| format!("cannot read '{shown}': {e}"))?;
             if entries.next().is_none() {
                 Existing::Empty
-            } else if given.join(marker).is_file() {
-                Existing::Ours
             } else {
-                return Err(format!(
-                    "output folder '{shown}' exists and is not a morph output (it has no {marker}); morph will not replace it: choose another -o"
-                ));
+                check_owned(&given, marker).map_err(|why| {
+                    format!(
+                        "output folder '{shown}' is not provably a morph output ({why}); morph will not replace it: choose another -o"
+                    )
+                })?;
+                Existing::Ours
             }
         }
     };
@@ -189,8 +433,10 @@ pub struct Staging {
 
 impl Staging {
     /// Creates (or opens) the staging folder and locks it. `identity` is the file by which a
-    /// run marks the staging folder as its own; a folder holding anything else is refused.
-    pub fn take(plan: &OutputPlan, identity: &str) -> Result<Staging, String> {
+    /// run marks the staging folder as its own, and `known` the names a run writes at its
+    /// top (with `.tmp` for a file being written); a folder without the identity, or holding
+    /// any other name, is refused.
+    pub fn take(plan: &OutputPlan, identity: &str, known: &[&str]) -> Result<Staging, String> {
         let dir = &plan.staging;
         let shown = dir.display();
         if let Ok(m) = fs::symlink_metadata(dir)
@@ -242,6 +488,15 @@ impl Staging {
         let previous = if others.is_empty() {
             Previous::Nothing
         } else if others.iter().any(|n| n == identity) {
+            let ours = |n: &str| n == identity || known.contains(&n);
+            if let Some(foreign) = others
+                .iter()
+                .find(|n| !ours(n) && !n.strip_suffix(".tmp").is_some_and(ours))
+            {
+                return Err(format!(
+                    "'{shown}' holds '{foreign}', which morph does not write; move it away"
+                ));
+            }
             Previous::Run
         } else {
             return Err(format!(
@@ -288,12 +543,16 @@ impl Staging {
             Err(_) => None,
             Ok(m) => {
                 // Check again: the folder may have changed while the run was computing.
-                let ours = m.is_dir()
-                    && (out.join(plan.marker).is_file()
-                        || fs::read_dir(out).is_ok_and(|mut d| d.next().is_none()));
-                if !ours {
+                let why = if !m.is_dir() {
+                    Some("it is no longer a folder".to_string())
+                } else if fs::read_dir(out).is_ok_and(|mut d| d.next().is_none()) {
+                    None
+                } else {
+                    check_owned(out, plan.marker).err()
+                };
+                if let Some(why) = why {
                     return Err(format!(
-                        "'{shown}' changed during the run and is no longer a morph output; the result is kept in '{}'",
+                        "'{shown}' changed during the run and is not provably a morph output any more ({why}); the result is kept in '{}'",
                         self.dir.display()
                     ));
                 }
@@ -316,8 +575,9 @@ impl Staging {
             ));
         }
         let _ = fs::remove_file(out.join(LOCK_FILE));
+        remove_stale_asides(out, plan.marker);
         if let Some(aside) = aside {
-            fs::remove_dir_all(&aside).map_err(|e| {
+            remove_owned(&aside, plan.marker).map_err(|e| {
                 format!(
                     "the new '{shown}' is in place, but the old one could not be removed from '{}': {e}",
                     aside.display()

@@ -10,7 +10,15 @@
 //!                                           the folder writer, read back on resume)
 //! ```
 //!
-//! Binary files are `MORPHCK1`, a u64 count, then that many little-endian f64: exact bits.
+//! Every checkpoint file is sealed with the run's identity and a SHA-256 of its content, so
+//! that a flipped bit, a truncation, an edit or a file of another run is refused by name
+//! instead of continuing into a different result:
+//!
+//! - binary files are `MORPHCK2`, the run id (64 hex digits), a u64 count, that many
+//!   little-endian f64 (exact bits), then the SHA-256 of everything before it;
+//! - JSON files are `{"format", "run_id", "sha256", "body"}`, the hash over the run id and the
+//!   body's exact bytes.
+//!
 //! Every file is written to a temporary name and renamed; `progress.json` is written last and
 //! names the files it belongs with, so a run killed at any instant leaves either the old or
 //! the new checkpoint whole. Files no longer named are removed after the new one is in place.
@@ -23,8 +31,10 @@ use serde::{Deserialize, Serialize};
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-const MAGIC: &[u8; 8] = b"MORPHCK1";
-const FORMAT: u32 = 1;
+const MAGIC: &[u8; 8] = b"MORPHCK2";
+const FORMAT: u32 = 2;
+/// Bytes of a binary checkpoint file around its values: magic, run id, count, digest.
+const FRAME_BYTES: usize = 8 + 64 + 8 + 32;
 /// The checkpoint folder inside the staging folder.
 pub const FOLDER: &str = "checkpoint";
 const PROGRESS: &str = "progress.json";
@@ -60,36 +70,104 @@ fn io_err(what: &str, path: &Path, e: impl std::fmt::Display) -> MorphError {
     ))
 }
 
-/// Writes `values` as a checkpoint array.
-pub fn write_f64s(path: &Path, values: &[f64]) -> std::io::Result<()> {
-    write_atomically(path, |w| {
-        w.write_all(MAGIC)?;
-        w.write_all(&(values.len() as u64).to_le_bytes())?;
-        let mut buf = Vec::with_capacity(values.len() * 8);
-        for v in values {
-            buf.extend_from_slice(&v.to_le_bytes());
-        }
-        w.write_all(&buf)
-    })
+fn sha256(parts: &[&[u8]]) -> [u8; 32] {
+    use sha2::{Digest, Sha256};
+    let mut h = Sha256::new();
+    for p in parts {
+        h.update(p);
+    }
+    h.finalize().into()
 }
 
-/// Reads a checkpoint array of exactly `expected` values.
-pub fn read_f64s(path: &Path, expected: usize) -> Result<Vec<f64>, String> {
-    let bytes = std::fs::read(path).map_err(|e| e.to_string())?;
-    if bytes.len() < 16 || &bytes[..8] != MAGIC {
-        return Err("not a morph checkpoint array".into());
+fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+fn check_run_id(run_id: &str) {
+    debug_assert!(run_id.len() == 64, "a run id is a SHA-256 in hex");
+}
+
+/// Writes `values` as a checkpoint array of run `run_id`.
+pub fn write_f64s(path: &Path, run_id: &str, values: &[f64]) -> std::io::Result<()> {
+    check_run_id(run_id);
+    let mut buf = Vec::with_capacity(FRAME_BYTES + values.len() * 8);
+    buf.extend_from_slice(MAGIC);
+    buf.extend_from_slice(run_id.as_bytes());
+    buf.extend_from_slice(&(values.len() as u64).to_le_bytes());
+    for v in values {
+        buf.extend_from_slice(&v.to_le_bytes());
     }
-    let n = u64::from_le_bytes(bytes[8..16].try_into().expect("8 bytes"));
-    if n != expected as u64 || (bytes.len() - 16) as u64 != 8 * n {
-        return Err(format!(
-            "holds {n} values in {} bytes, expected {expected}",
-            bytes.len() - 16
-        ));
+    let digest = sha256(&[&buf]);
+    buf.extend_from_slice(&digest);
+    write_atomically(path, |w| w.write_all(&buf))
+}
+
+/// Reads a checkpoint array of exactly `expected` values written by run `run_id`.
+pub fn read_f64s(path: &Path, run_id: &str, expected: usize) -> Result<Vec<f64>, String> {
+    let size = expected
+        .checked_mul(8)
+        .and_then(|b| b.checked_add(FRAME_BYTES))
+        .ok_or("too many values")?;
+    let bytes = crate::files::read(path, size as u64).map_err(|e| e.to_string())?;
+    if bytes.len() < FRAME_BYTES || &bytes[..8] != MAGIC {
+        return Err("not a morph checkpoint array of this version".into());
     }
-    Ok(bytes[16..]
+    let (body, digest) = bytes.split_at(bytes.len() - 32);
+    if sha256(&[body]) != digest {
+        return Err("its checksum does not match its content".into());
+    }
+    if &body[8..72] != run_id.as_bytes() {
+        return Err("it belongs to another run".into());
+    }
+    let n = u64::from_le_bytes(body[72..80].try_into().expect("8 bytes"));
+    if n != expected as u64 || bytes.len() != size {
+        return Err(format!("holds {n} values, expected {expected}"));
+    }
+    Ok(body[80..]
         .chunks_exact(8)
         .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes")))
         .collect())
+}
+
+#[derive(Serialize, Deserialize)]
+struct Sealed<B> {
+    format: u32,
+    run_id: String,
+    sha256: String,
+    body: B,
+}
+
+/// Writes `value` as a sealed JSON checkpoint file of run `run_id`.
+pub fn write_json<T: Serialize>(path: &Path, run_id: &str, value: &T) -> std::io::Result<()> {
+    check_run_id(run_id);
+    let body = serde_json::value::to_raw_value(value).map_err(std::io::Error::other)?;
+    let sealed = Sealed {
+        format: FORMAT,
+        run_id: run_id.to_string(),
+        sha256: hex(&sha256(&[run_id.as_bytes(), body.get().as_bytes()])),
+        body,
+    };
+    let json = serde_json::to_vec(&sealed).map_err(std::io::Error::other)?;
+    write_atomically(path, |w| w.write_all(&json))
+}
+
+/// Reads a sealed JSON checkpoint file written by run `run_id`.
+pub fn read_json<T: serde::de::DeserializeOwned>(path: &Path, run_id: &str) -> Result<T, String> {
+    let bytes =
+        crate::files::read(path, crate::files::MANIFEST_BYTES).map_err(|e| e.to_string())?;
+    let sealed: Sealed<Box<serde_json::value::RawValue>> =
+        serde_json::from_slice(&bytes).map_err(|e| e.to_string())?;
+    if sealed.format != FORMAT {
+        return Err(format!("format {} (this morph reads {FORMAT})", sealed.format));
+    }
+    let digest = hex(&sha256(&[sealed.run_id.as_bytes(), sealed.body.get().as_bytes()]));
+    if digest != sealed.sha256 {
+        return Err("its checksum does not match its content".into());
+    }
+    if sealed.run_id != run_id {
+        return Err("it belongs to another run".into());
+    }
+    serde_json::from_str(sealed.body.get()).map_err(|e| e.to_string())
 }
 
 fn flatten_state(s: &State) -> Vec<f64> {
@@ -114,13 +192,11 @@ fn unflatten_state(data: &[f64], n: usize) -> State {
 
 /// Writes the checkpoint after segment `changed` completed (only that segment's controls
 /// are new), then removes the files the previous checkpoint named and this one does not.
-pub fn save(dir: &Path, p: &RunProgress, changed: usize) -> Result<(), MorphError> {
+pub fn save(dir: &Path, run_id: &str, p: &RunProgress, changed: usize) -> Result<(), MorphError> {
     let folder = dir.join(FOLDER);
     std::fs::create_dir_all(&folder).map_err(|e| io_err("create", &folder, e))?;
     let progress_path = folder.join(PROGRESS);
-    let old: Option<ProgressFile> = std::fs::read(&progress_path)
-        .ok()
-        .and_then(|b| serde_json::from_slice(&b).ok());
+    let old: Option<ProgressFile> = read_json(&progress_path, run_id).ok();
     let mut controls = old
         .as_ref()
         .map(|o| o.controls.clone())
@@ -133,12 +209,12 @@ pub fn save(dir: &Path, p: &RunProgress, changed: usize) -> Result<(), MorphErro
         .flat_map(|layer| layer.iter().flat_map(|m| m.iter().copied()))
         .collect();
     let path = folder.join(&name);
-    write_f64s(&path, &flat).map_err(|e| io_err("write", &path, e))?;
+    write_f64s(&path, run_id, &flat).map_err(|e| io_err("write", &path, e))?;
     controls[changed] = Some(name);
 
     let state = format!("state_p{}_s{}.bin", p.pass, p.segments_done);
     let path = folder.join(&state);
-    write_f64s(&path, &flatten_state(&p.state)).map_err(|e| io_err("write", &path, e))?;
+    write_f64s(&path, run_id, &flatten_state(&p.state)).map_err(|e| io_err("write", &path, e))?;
 
     let file = ProgressFile {
         format: FORMAT,
@@ -151,9 +227,7 @@ pub fn save(dir: &Path, p: &RunProgress, changed: usize) -> Result<(), MorphErro
         iterations: p.iterations.clone(),
         segments: p.segments.clone(),
     };
-    let json = serde_json::to_vec(&file).map_err(|e| io_err("encode", &progress_path, e))?;
-    write_atomically(&progress_path, |w| w.write_all(&json))
-        .map_err(|e| io_err("write", &progress_path, e))?;
+    write_json(&progress_path, run_id, &file).map_err(|e| io_err("write", &progress_path, e))?;
 
     // The new checkpoint is whole: drop what only the old one named.
     if let Some(old) = old {
@@ -174,10 +248,12 @@ pub fn exists(dir: &Path) -> bool {
     dir.join(FOLDER).join(PROGRESS).is_file()
 }
 
-/// Reads the checkpoint of a run of `particles` particles whose segment `k` has `layers[k]`
-/// control layers; `Ok(None)` when there is none yet.
+/// Reads the checkpoint of run `run_id`, of `particles` particles whose segment `k` has
+/// `layers[k]` control layers; `Ok(None)` when there is none yet. A damaged file (or one of
+/// another run) is refused, naming it.
 pub fn load(
     dir: &Path,
+    run_id: &str,
     particles: usize,
     layers: &[usize],
 ) -> Result<Option<RunProgress>, MorphError> {
@@ -189,14 +265,12 @@ pub fn load(
     }
     let damaged = |what: &Path, e: String| {
         MorphError::Resume(format!(
-            "checkpoint '{}' is damaged ({e}); start over with --overwrite",
+            "checkpoint file '{}' is damaged or not this run's ({e}); start over with --overwrite",
             what.display()
         ))
     };
-    let bytes =
-        std::fs::read(&progress_path).map_err(|e| damaged(&progress_path, e.to_string()))?;
     let file: ProgressFile =
-        serde_json::from_slice(&bytes).map_err(|e| damaged(&progress_path, e.to_string()))?;
+        read_json(&progress_path, run_id).map_err(|e| damaged(&progress_path, e))?;
     if file.format != FORMAT || file.controls.len() != segments {
         return Err(damaged(
             &progress_path,
@@ -209,7 +283,7 @@ pub fn load(
     }
     let path = folder.join(&file.state);
     let state = unflatten_state(
-        &read_f64s(&path, particles * 24).map_err(|e| damaged(&path, e))?,
+        &read_f64s(&path, run_id, particles * 24).map_err(|e| damaged(&path, e))?,
         particles,
     );
     let mut controls = Vec::with_capacity(segments);
@@ -220,7 +294,8 @@ pub fn load(
             Some(name) => {
                 let path = folder.join(name);
                 let data =
-                    read_f64s(&path, layers * particles * 9).map_err(|e| damaged(&path, e))?;
+                    read_f64s(&path, run_id, layers * particles * 9)
+                        .map_err(|e| damaged(&path, e))?;
                 data.chunks_exact(particles * 9)
                     .map(|layer| {
                         layer

@@ -245,7 +245,7 @@ impl RunIdentity {
         let input = |p: &Path| -> Result<InputFile, MorphError> {
             Ok(InputFile {
                 path: p.display().to_string(),
-                sha256: sha256_file(p).map_err(|e| {
+                sha256: sha256_file(p, crate::files::MESH_BYTES).map_err(|e| {
                     MorphError::Mesh(crate::geometry::MeshError::Unreadable {
                         path: p.into(),
                         reason: e.to_string(),
@@ -359,6 +359,9 @@ struct Manifest {
     version: String,
     /// SHA-256 of the run identity (tool version, input hashes, settings).
     run_id: String,
+    /// Every other file of the folder, relative, with `/`: what `--overwrite` may replace
+    /// (see [`outdir::check_owned`]).
+    files: Vec<String>,
     inputs: Vec<InputFile>,
     settings: MorphSettings,
     grid_cells: [usize; 3],
@@ -468,7 +471,26 @@ pub struct OutputRequest<'a> {
     pub stop: Option<&'a AtomicUsize>,
     /// A cap on the run's memory (see [`super::memory`]).
     pub memory_limit: MemoryLimit,
+    /// The scene file the settings came from, if any: an input like the meshes, so never
+    /// inside the output folder.
+    pub scene: Option<&'a Path>,
 }
+
+/// The names a run writes at the top of its staging folder.
+const STAGING_NAMES: &[&str] = &[
+    RUN_FILE,
+    MANIFEST,
+    "frames",
+    "meshes",
+    "carried",
+    checkpoint::FOLDER,
+    super::scene_file::RESOLVED,
+    "final_mass.mgrid",
+    "loss.png",
+    "preview.png",
+    "preview.gif",
+    crate::io::usd::FILE,
+];
 
 /// What a frame's surfaces measure: the volume the rebuilt one encloses (world units), the
 /// carried one's stats and the rebuilt one's.
@@ -485,6 +507,10 @@ pub fn frame_name(index: usize, count: usize) -> String {
 }
 
 /// Morphs `source` into `target` and writes the folder `request.out`; see the module docs.
+///
+/// Nothing is deleted before the inputs are loaded and checked: an earlier output is
+/// replaced only once the new one is complete, and an interrupted run's staging folder is
+/// cleared (`--overwrite`) only after the new inputs have loaded.
 pub fn morph_to_folder(
     settings: &MorphSettings,
     source: &Path,
@@ -494,9 +520,13 @@ pub fn morph_to_folder(
 ) -> Result<Summary, MorphError> {
     let clock = Instant::now();
     settings.validate().map_err(MorphError::Settings)?;
+    settings
+        .validate_targets(targets.len())
+        .map_err(MorphError::Settings)?;
     let mut inputs: Vec<&Path> = vec![source];
     inputs.extend(targets.iter().map(PathBuf::as_path));
     inputs.extend(settings.colliders.iter().map(|c| c.mesh.as_path()));
+    inputs.extend(request.scene);
     let plan = outdir::plan(
         request.out,
         &inputs,
@@ -508,8 +538,11 @@ pub fn morph_to_folder(
     let run_id = identity.id();
     if plan.existing == outdir::Existing::Ours {
         let done = read_manifest(&plan.out.join(MANIFEST));
+        let missing = outdir::check_owned(&plan.out, MANIFEST)
+            .map(|o| o.missing)
+            .unwrap_or_default();
         match done {
-            Some(m) if request.resume && m.run_id == run_id => {
+            Some(m) if request.resume && m.run_id == run_id && missing.is_empty() => {
                 return Ok(Summary {
                     output: plan.out.clone(),
                     particles: m.particles,
@@ -525,6 +558,14 @@ pub fn morph_to_folder(
                     warnings: Vec::new(),
                 });
             }
+            Some(m) if m.run_id == run_id && !request.overwrite => {
+                return Err(MorphError::Settings(format!(
+                    "output folder '{}' is this run's, but '{}' that its manifest lists is missing ({} file(s) in all); pass --overwrite to make the folder again",
+                    plan.out.display(),
+                    missing[0],
+                    missing.len()
+                )));
+            }
             _ if !request.overwrite => {
                 return Err(MorphError::Settings(format!(
                     "output folder '{}' holds a different run; pass --overwrite to replace it",
@@ -534,13 +575,16 @@ pub fn morph_to_folder(
             _ => {}
         }
     }
-    let mut staging = Staging::take(&plan, RUN_FILE).map_err(MorphError::Output)?;
+    let mut staging = Staging::take(&plan, RUN_FILE, STAGING_NAMES).map_err(MorphError::Output)?;
     let run_path = staging.dir.join(RUN_FILE);
+    // What to do with an earlier run's staging folder, decided now, done once the inputs load.
     let mut resuming = false;
+    let mut clear_earlier = false;
     if staging.previous == Previous::Run {
-        let earlier: Option<RunIdentity> = std::fs::read(&run_path)
-            .ok()
-            .and_then(|b| serde_json::from_slice(&b).ok());
+        let earlier: Option<RunIdentity> =
+            crate::files::read(&run_path, crate::files::SMALL_FILE_BYTES)
+                .ok()
+                .and_then(|b| serde_json::from_slice(&b).ok());
         let shown = staging.dir.display().to_string();
         // What keeps the earlier run from being continued, if anything.
         let obstacle = match &earlier {
@@ -559,8 +603,8 @@ pub fn morph_to_folder(
             resuming = true;
         } else if request.overwrite {
             // --overwrite (alone, or with --resume when the earlier run cannot be continued)
-            // starts over.
-            staging.clear().map_err(MorphError::Output)?;
+            // starts over, once the new inputs have loaded.
+            clear_earlier = true;
         } else if let (true, Some(why)) = (request.resume, obstacle) {
             return Err(MorphError::Resume(format!(
                 "{why}; start over with --overwrite"
@@ -571,13 +615,30 @@ pub fn morph_to_folder(
             )));
         }
     }
+    let had_checkpoint = staging.previous == Previous::Run;
+    let prepared = Prepared::with_keyframes(settings, source, targets).and_then(|mut prep| {
+        let memory = prep.plan_memory(request.memory_limit)?;
+        Ok((prep, memory))
+    });
+    let (prep, memory) = match prepared {
+        Ok(p) => p,
+        Err(e) => {
+            // The inputs did not load: leave an earlier run's files exactly as they were.
+            if !had_checkpoint {
+                staging.discard();
+            }
+            return Err(e);
+        }
+    };
+    if clear_earlier {
+        staging.clear().map_err(MorphError::Output)?;
+    }
     if !resuming {
         let json = serde_json::to_vec_pretty(&identity).expect("plain data");
         crate::io::write_atomically(&run_path, |w| std::io::Write::write_all(w, &json))
             .map_err(|e| out_err("run identity", &run_path, e))?;
     }
-    let result = Prepared::with_keyframes(settings, source, targets).and_then(|mut prep| {
-        let memory = prep.plan_memory(request.memory_limit)?;
+    let result = (|| {
         // The resolved scene: `morph --scene OUT/scene.toml` runs this again, bit for bit.
         let scene = super::scene_file::SceneFile::resolved(&prep.settings, source, targets);
         let scene_path = staging.dir.join(super::scene_file::RESOLVED);
@@ -587,7 +648,12 @@ pub fn morph_to_folder(
         .map_err(|e| out_err("resolved scene", &scene_path, e))?;
         let setup_s = clock.elapsed().as_secs_f64();
         let resume = if resuming {
-            checkpoint::load(&staging.dir, prep.initial.len(), &prep.segment_layers())?
+            checkpoint::load(
+                &staging.dir,
+                &run_id,
+                prep.initial.len(),
+                &prep.segment_layers(),
+            )?
         } else {
             None
         };
@@ -603,7 +669,7 @@ pub fn morph_to_folder(
             clock,
             &mut on_event,
         )
-    });
+    })();
     match result {
         Ok(mut summary) => {
             staging.commit(&plan).map_err(MorphError::Output)?;
@@ -613,11 +679,16 @@ pub fn morph_to_folder(
         Err(e) => {
             // Keep whatever a later --resume can use; remove a staging folder with nothing in it.
             let kept = checkpoint::exists(&staging.dir);
+            let dir = staging.dir.clone();
             if !kept {
                 staging.discard();
             }
             Err(match e {
                 MorphError::Interrupted { signal, .. } => MorphError::Interrupted { signal, kept },
+                MorphError::Output(why) if kept => MorphError::Output(format!(
+                    "{why}; the completed segments are kept in '{}': once the cause is fixed (e.g. disk space freed), run the same command with --resume to continue",
+                    dir.display()
+                )),
                 e => e,
             })
         }
@@ -625,7 +696,7 @@ pub fn morph_to_folder(
 }
 
 fn read_manifest(path: &Path) -> Option<Manifest> {
-    serde_json::from_slice(&std::fs::read(path).ok()?).ok()
+    serde_json::from_slice(&crate::files::read(path, crate::files::MANIFEST_BYTES).ok()?).ok()
 }
 
 fn sha256_hex(bytes: &[u8]) -> String {
@@ -784,6 +855,8 @@ fn frame_stats(frame: &Frame) -> FrameStats {
 /// segments, and passes on events and stop requests.
 struct FolderWriter<'a> {
     dir: &'a Path,
+    /// The run's identity, which seals its checkpoint files.
+    run_id: &'a str,
     /// The writer thread's queue, and its answers (see [`FrameWork`]).
     work: SyncSender<FrameWork>,
     done: Receiver<FrameDone>,
@@ -893,10 +966,13 @@ impl FolderWriter<'_> {
     /// Measurements of the frames written before an interruption, from the checkpoint folder.
     fn restore_stats(&mut self, frames_done: usize) -> Result<(), MorphError> {
         let path = self.stats_path();
-        let bad = |e: String| MorphError::Resume(format!("checkpoint '{}': {e}", path.display()));
-        let bytes = std::fs::read(&path).map_err(|e| bad(e.to_string()))?;
-        let mut stats: Vec<FrameStats> =
-            serde_json::from_slice(&bytes).map_err(|e| bad(e.to_string()))?;
+        let bad = |e: String| {
+            MorphError::Resume(format!(
+                "checkpoint file '{}' is damaged or not this run's ({e}); start over with --overwrite",
+                path.display()
+            ))
+        };
+        let mut stats: Vec<FrameStats> = checkpoint::read_json(&path, self.run_id).map_err(bad)?;
         if stats.len() < frames_done {
             return Err(bad(format!(
                 "{} frame measurements for {frames_done} frames",
@@ -912,8 +988,13 @@ impl FolderWriter<'_> {
     fn restore_preview(&mut self, frames_done: usize) -> Result<(), MorphError> {
         for &index in self.preview_at.iter().filter(|&&i| i < frames_done) {
             let path = self.preview_path(index);
-            let data = checkpoint::read_f64s(&path, 3 * self.particles)
-                .map_err(|e| MorphError::Resume(format!("checkpoint '{}': {e}", path.display())))?;
+            let data = checkpoint::read_f64s(&path, self.run_id, 3 * self.particles)
+                .map_err(|e| {
+                    MorphError::Resume(format!(
+                        "checkpoint file '{}' is damaged or not this run's ({e}); start over with --overwrite",
+                        path.display()
+                    ))
+                })?;
             let x = data
                 .chunks_exact(3)
                 .map(Vector3::from_column_slice)
@@ -974,7 +1055,8 @@ impl Observer for FolderWriter<'_> {
             let path = self.preview_path(index);
             let x = frame.world.x.clone();
             let flat: Vec<f64> = x.iter().flat_map(|p| p.iter().copied()).collect();
-            checkpoint::write_f64s(&path, &flat).map_err(|e| out_err("checkpoint", &path, e))?;
+            checkpoint::write_f64s(&path, self.run_id, &flat)
+                .map_err(|e| out_err("checkpoint", &path, e))?;
             self.preview.push((index + 1, x));
         }
         Ok(())
@@ -984,11 +1066,9 @@ impl Observer for FolderWriter<'_> {
         // A checkpoint counts only frames that are on disk.
         self.collect(true)?;
         let path = self.stats_path();
-        let json =
-            serde_json::to_vec(&self.stats).map_err(|e| MorphError::Output(e.to_string()))?;
-        crate::io::write_atomically(&path, |w| std::io::Write::write_all(w, &json))
+        checkpoint::write_json(&path, self.run_id, &self.stats)
             .map_err(|e| out_err("checkpoint", &path, e))?;
-        checkpoint::save(self.dir, progress, segment)
+        checkpoint::save(self.dir, self.run_id, progress, segment)
     }
 
     fn stop_requested(&self) -> usize {
@@ -1058,6 +1138,7 @@ fn write_run(
     let (answers, done) = channel();
     let mut writer = FolderWriter {
         dir,
+        run_id,
         work,
         done,
         pending: 0,
@@ -1227,10 +1308,13 @@ fn write_run(
         .collect();
     let t = prep.geometry.placement.target_to_world;
     let total_s = clock.elapsed().as_secs_f64();
+    let listed = outdir::list_files(dir, &[MANIFEST, checkpoint::FOLDER])
+        .map_err(|e| out_err("(listing) folder", dir, e))?;
     let manifest = Manifest {
         tool: "morph".into(),
         version: env!("CARGO_PKG_VERSION").into(),
         run_id: run_id.into(),
+        files: listed,
         inputs: identity.inputs.clone(),
         settings: settings.clone(),
         grid_cells: g.cells,

@@ -35,9 +35,10 @@ impl SceneFile {
     /// Reads `path` (TOML, or JSON when it ends in `.json`) over the settings of `preset`, or
     /// of the preset the file names when `preset` is `None`.
     pub fn read(path: &Path, preset: Option<Preset>) -> Result<SceneFile, String> {
-        let text = std::fs::read_to_string(path)
+        let text = crate::files::read_to_string(path, crate::files::SMALL_FILE_BYTES)
             .map_err(|e| format!("cannot read scene file '{}': {e}", path.display()))?;
-        SceneFile::parse(&text, path, preset)
+        // A byte-order mark (editors on Windows write one) is not part of the text.
+        SceneFile::parse(text.strip_prefix('\u{feff}').unwrap_or(&text), path, preset)
     }
 
     /// [`SceneFile::read`] on text already read from `path`.

@@ -22,8 +22,12 @@ pub mod limits {
     pub const PASSES: RangeInclusive<usize> = 1..=100;
     pub const ITERATIONS: RangeInclusive<usize> = 1..=100_000;
     pub const FRAME_EVERY: RangeInclusive<usize> = 1..=1_000_000;
-    /// `--frames`: the rest shape and at least one more.
-    pub const FRAMES: RangeInclusive<usize> = 2..=1_000_000;
+    /// `--frames`: the rest shape and at least one more; at most an hour at 24 fps.
+    pub const FRAMES: RangeInclusive<usize> = 2..=100_000;
+    /// Target meshes (keyframes) in one morph.
+    pub const TARGETS: RangeInclusive<usize> = 1..=1_000;
+    /// `--threads`: more than the machine's cores is lowered to them (with a warning).
+    pub const THREADS: RangeInclusive<usize> = 1..=1024;
     /// `--fps` at most.
     pub const MAX_FPS: f64 = 1000.0;
 }
@@ -309,7 +313,27 @@ impl MorphSettings {
         }
     }
 
-    /// Checks every setting; the message names the option.
+    /// Checks the number of targets a morph is given against [`limits::TARGETS`] and `at`
+    /// (one frame per target), before any mesh is read.
+    pub fn validate_targets(&self, targets: usize) -> Result<(), String> {
+        if !limits::TARGETS.contains(&targets) {
+            return Err(format!(
+                "{targets} target meshes given; a morph takes {} to {}",
+                limits::TARGETS.start(),
+                limits::TARGETS.end()
+            ));
+        }
+        if !self.at.is_empty() && self.at.len() != targets {
+            return Err(format!(
+                "--at gives {} frame(s) for {targets} target(s): give one frame per target",
+                self.at.len()
+            ));
+        }
+        Ok(())
+    }
+
+    /// Checks every setting; the message names the option. Counts are checked before
+    /// anything is sized by them.
     pub fn validate(&self) -> Result<(), String> {
         let range = |name: &str, v: usize, r: std::ops::RangeInclusive<usize>| {
             if r.contains(&v) {
@@ -398,7 +422,37 @@ impl MorphSettings {
                 limits::MAX_FPS
             ));
         }
+        // The shot's length, counted before any list is sized by it.
+        let (step, frame_every) = self.timing();
+        if let Some(n) = self.frames {
+            range("frames", n, limits::FRAMES)?;
+            let segments = ((n - 1) as u128 * frame_every as u128)
+                .div_ceil(self.steps_per_segment.max(1) as u128);
+            if segments > *limits::SEGMENTS.end() as u128 {
+                return Err(format!(
+                    "--frames {n} makes {segments} segments of {} steps, more than {}; raise --steps or lower the frame spacing",
+                    self.steps_per_segment,
+                    limits::SEGMENTS.end()
+                ));
+            }
+        }
+        let interval = self.dt.unwrap_or(step) * frame_every as f64;
+        if 1.0 / interval > limits::MAX_FPS * (1.0 + 1e-9) {
+            return Err(format!(
+                "frames {interval:.3e} s apart play at {:.3e} frames per second, more than {}: raise --dt or --frame-every",
+                1.0 / interval,
+                limits::MAX_FPS
+            ));
+        }
         let frames = self.shot().frame_count();
+        if frames < 2 {
+            let total: usize = self.shot().segment_steps.iter().sum();
+            return Err(format!(
+                "the shot lasts {} steps ({:.3} s) but frames are {frame_every} steps ({interval:.3} s) apart: only the rest shape would be written; lower the frame spacing (--fps, --frame-every) or lengthen the shot (--frames, --seconds, --segments)",
+                total,
+                total as f64 * self.dt.unwrap_or(step)
+            ));
+        }
         for (k, &a) in self.at.iter().enumerate() {
             let first = if k == 0 { 1 } else { self.at[k - 1] + 1 };
             if !(first..=frames).contains(&a) {
@@ -456,17 +510,6 @@ impl MorphSettings {
         if self.target_fit == crate::geometry::TargetFit::OnGround && self.ground.is_none() {
             return Err("--target-fit on-ground needs a ground plane (a scene's [ground])".into());
         }
-        if let Some(n) = self.frames {
-            range("frames", n, limits::FRAMES)?;
-            let segments = self.shot().segment_steps.len();
-            if !limits::SEGMENTS.contains(&segments) {
-                return Err(format!(
-                    "--frames {n} makes {segments} segments of {} steps, more than {}; raise --steps",
-                    self.steps_per_segment,
-                    limits::SEGMENTS.end()
-                ));
-            }
-        }
         Ok(())
     }
 
@@ -485,9 +528,9 @@ impl MorphSettings {
         Ok((frames as usize).max(*limits::FRAMES.start()))
     }
 
-    /// The shot's timing: the morph step, the steps between frames and each segment's steps.
-    pub fn shot(&self) -> Shot {
-        let (step, frame_every) = match self.fps {
+    /// The morph step (seconds) and the morph steps between frames.
+    fn timing(&self) -> (f64, usize) {
+        match self.fps {
             Some(fps) => {
                 // The fewest steps per frame that keep each no longer than the reference's.
                 let k = ((1.0 / fps) / super::MORPH_STEP * (1.0 - 1e-12))
@@ -496,7 +539,12 @@ impl MorphSettings {
                 (1.0 / (fps * k), k as usize)
             }
             None => (super::MORPH_STEP, self.frame_every),
-        };
+        }
+    }
+
+    /// The shot's timing: the morph step, the steps between frames and each segment's steps.
+    pub fn shot(&self) -> Shot {
+        let (step, frame_every) = self.timing();
         let segment_steps = match self.frames {
             Some(n) => {
                 let total = n.saturating_sub(1) * frame_every;

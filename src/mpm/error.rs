@@ -22,7 +22,7 @@ pub enum SimError {
     },
 
     #[error(
-        "time step {dt} exceeds the stable bound {limit:.6} (elastic wave speed {wave_speed:.3} over dx {dx}); use dt <= {limit:.6}"
+        "time step {dt:.4e} s exceeds the stable bound {limit:.4e} s (elastic wave speed {wave_speed:.4e} over dx {dx:.4e}); use dt <= {limit:.4e}"
     )]
     UnstableTimeStep {
         dt: f64,
