@@ -340,7 +340,9 @@ fn checkpoint_reader() {
             let mut b = seed.clone();
             b[bit / 8] ^= 1 << (bit % 8);
             std::fs::write(&path, &b).unwrap();
-            let e = load().err().unwrap_or_else(|| panic!("{name}: bit {bit} flipped was read"));
+            let e = load()
+                .err()
+                .unwrap_or_else(|| panic!("{name}: bit {bit} flipped was read"));
             assert!(e.to_string().contains(&name), "{e}");
         }
         for len in (0..seed.len()).step_by(13) {
@@ -350,8 +352,14 @@ fn checkpoint_reader() {
         fuzz(&format!("checkpoint {name}"), vec![seed.clone()], |bytes| {
             std::fs::write(&path, bytes).unwrap();
             match load() {
-                Ok(Some(p)) if p.state == progress.state && p.controls == progress.controls
-                    && p.segments_done == progress.segments_done && p.pass == progress.pass => Ok(()),
+                Ok(Some(p))
+                    if p.state == progress.state
+                        && p.controls == progress.controls
+                        && p.segments_done == progress.segments_done
+                        && p.pass == progress.pass =>
+                {
+                    Ok(())
+                }
                 Ok(_) => panic!("{name}: a mutated checkpoint read as a different one"),
                 Err(e) => Err(e.to_string()),
             }

@@ -359,7 +359,7 @@ fn command_line_errors() {
         args.extend(extra);
         let r = morph(&args);
         assert_eq!(r.status.code(), Some(2));
-        assert!(String::from_utf8_lossy(&r.stderr).contains("not a morph output"));
+        assert!(String::from_utf8_lossy(&r.stderr).contains("not provably a morph output"));
     }
     assert_eq!(
         std::fs::read_to_string(out.join("keep.txt")).unwrap(),

@@ -242,7 +242,7 @@ fn output_that_contains_an_input_is_refused() {
     let keep = sentinel(&other);
     let s = asset("sphere.obj");
     let o = run(&dir, &morph_args(&s, &t, "photos", &["--overwrite"]));
-    assert_one_line_error(&o, 2, &["not a morph output"]);
+    assert_one_line_error(&o, 2, &["not provably a morph output"]);
     assert_sentinel(&keep);
 }
 
@@ -821,4 +821,656 @@ fn resume_with_a_shorter_last_segment_is_bitwise_identical() {
         serde_json::from_slice(&std::fs::read(dir.join("out/manifest.json")).unwrap()).unwrap();
     assert_eq!(m["frames"].as_array().unwrap().len(), 41);
     assert_eq!(m["settings"]["segments"].as_u64(), Some(5));
+}
+
+// ---------------------------------------------------------------------------------------
+// Never lose data, part two: one test per case found by the second round of hostile use.
+// ---------------------------------------------------------------------------------------
+
+/// A TINY morph of the built-in sphere into the cube, into `dir/out`.
+fn tiny_output(dir: &Path, out: &str) -> PathBuf {
+    let (s, t) = (asset("sphere.obj"), asset("cube.obj"));
+    let o = run(dir, &morph_args(&s, &t, out, TINY));
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    dir.join(out)
+}
+
+/// Case 1: --overwrite replaces only a folder that morph provably made: a manifest that is
+/// morph's and nothing in the folder it does not list. A `{}` manifest beside a thesis, a
+/// morph output with a file added, and a rope folder with a bare report.json are refused with
+/// the first foreign file named, and nothing is deleted.
+#[test]
+fn overwrite_replaces_only_a_folder_morph_provably_made() {
+    let dir = scratch("provably-ours");
+    let (s, t) = (asset("sphere.obj"), asset("cube.obj"));
+    std::fs::create_dir_all(dir.join("p")).unwrap();
+    let thesis = sentinel(&dir.join("p"));
+    std::fs::write(dir.join("p/manifest.json"), "{}").unwrap();
+    let mut args = morph_args(&s, &t, "p", TINY);
+    args.push("--overwrite");
+    let o = run(&dir, &args);
+    assert_one_line_error(
+        &o,
+        2,
+        &["'p' is not provably a morph output", "manifest.json"],
+    );
+    assert_sentinel(&thesis);
+
+    let out = tiny_output(&dir, "out");
+    let added = out.join("frames/notes.txt");
+    std::fs::write(&added, "the user's work").unwrap();
+    let mut args = morph_args(&s, &t, "out", TINY);
+    args.push("--overwrite");
+    let o = run(&dir, &args);
+    assert_one_line_error(&o, 2, &["'frames/notes.txt'", "does not list"]);
+    assert_sentinel(&added);
+    // Without the foreign file the same command replaces it.
+    std::fs::remove_file(&added).unwrap();
+    let o = run(&dir, &args);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+
+    // The rope's folder: a report.json that is not one morph wrote.
+    std::fs::create_dir_all(dir.join("rope")).unwrap();
+    let kept = sentinel(&dir.join("rope"));
+    std::fs::write(dir.join("rope/report.json"), "{}").unwrap();
+    let o = run(&dir, &["rope", "-o", "rope", "--overwrite"]);
+    assert_one_line_error(&o, 2, &["not provably a morph output"]);
+    assert_sentinel(&kept);
+}
+
+/// Copies the built-in sphere and two lobes into `dir` (inputs a test may damage).
+fn local_inputs(dir: &Path) -> (String, String) {
+    for name in ["sphere.obj", "two-lobes.obj"] {
+        std::fs::copy(root().join("assets").join(name), dir.join(name)).unwrap();
+    }
+    ("sphere.obj".into(), "two-lobes.obj".into())
+}
+
+/// Starts a SMALL morph of `s` into `t` in `dir/out` and stops it with SIGINT once its first
+/// checkpoint is written.
+fn interrupt_small(dir: &Path, s: &str, t: &str) {
+    let mut child = command(dir, &morph_args(s, t, "out", SMALL))
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    wait_for_checkpoint(dir, &mut child);
+    send(&child, "INT");
+    assert_eq!(child.wait_with_output().unwrap().status.code(), Some(130));
+}
+
+/// Case 2: --overwrite (and the farm's --resume --overwrite) clears an interrupted run only
+/// once the new inputs have loaded: a source truncated by a sync in progress fails the run
+/// and the checkpoint is still there, byte for byte; the repaired source then resumes.
+#[test]
+fn overwrite_keeps_an_interrupted_run_until_the_inputs_load() {
+    let dir = scratch("keep-partial");
+    let (s, t) = local_inputs(&dir);
+    interrupt_small(&dir, &s, &t);
+    let ck = dir.join("out.partial/checkpoint");
+    let before = files(&ck);
+    let progress = std::fs::read(ck.join("progress.json")).unwrap();
+    let whole = std::fs::read(dir.join(&s)).unwrap();
+    std::fs::write(dir.join(&s), "").unwrap();
+    for flags in [&["--resume", "--overwrite"][..], &["--overwrite"][..]] {
+        let mut args = morph_args(&s, &t, "out", SMALL);
+        args.extend_from_slice(flags);
+        let o = run(&dir, &args);
+        assert_one_line_error(&o, 1, &["sphere.obj"]);
+        assert_eq!(files(&ck), before, "{flags:?}");
+        assert_eq!(std::fs::read(ck.join("progress.json")).unwrap(), progress);
+    }
+    std::fs::write(dir.join(&s), whole).unwrap();
+    let mut args = morph_args(&s, &t, "out", SMALL);
+    args.push("--resume");
+    let o = run(&dir, &args);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    assert!(String::from_utf8_lossy(&o.stdout).is_empty() || o.stdout.is_empty());
+}
+
+/// Case 3: a scene file is an input like the meshes: one kept inside the output folder makes
+/// --overwrite refuse, and it survives.
+#[test]
+fn a_scene_file_inside_the_output_is_protected() {
+    let dir = scratch("scene-inside");
+    let out = tiny_output(&dir, "out");
+    let scene = out.join("shot.toml");
+    std::fs::write(
+        &scene,
+        format!(
+            "source = \"{}\"\ntargets = [\"{}\"]\nresolution = 16\nsegments = 2\n",
+            asset("sphere.obj"),
+            asset("cube.obj")
+        ),
+    )
+    .unwrap();
+    let text = std::fs::read_to_string(&scene).unwrap();
+    let o = run(
+        &dir,
+        &[
+            "--scene",
+            "out/shot.toml",
+            "-o",
+            "out",
+            "--overwrite",
+            "--quiet",
+        ],
+    );
+    assert_one_line_error(&o, 2, &["contains the input", "shot.toml"]);
+    assert_eq!(std::fs::read_to_string(&scene).unwrap(), text);
+}
+
+/// Case 4: -o naming a mount point is refused before any work, saying why and what to give
+/// instead; nothing is written beside it. With a real empty tmpfs when this machine lets a
+/// test mount one (a user namespace), and always on /proc.
+#[test]
+fn output_on_a_mount_point_is_refused_before_any_work() {
+    let (s, t) = (asset("sphere.obj"), asset("cube.obj"));
+    let dir = scratch("mount");
+    let o = run(&dir, &morph_args(&s, &t, "/proc", TINY));
+    assert_one_line_error(&o, 2, &["'/proc' is a mount point", "-o /proc/morph-out"]);
+    assert!(!Path::new("/proc.partial").exists());
+    let mnt = dir.join("volume");
+    std::fs::create_dir_all(&mnt).unwrap();
+    let script = format!(
+        "mount -t tmpfs none '{m}' && exec '{bin}' '{s}' '{t}' -o '{m}' --preset draft --resolution 16 --segments 2 --iterations 2 --quiet",
+        m = mnt.display(),
+        bin = env!("CARGO_BIN_EXE_morph"),
+    );
+    match Command::new("unshare")
+        .args(["-Urm", "sh", "-c", &script])
+        .output()
+    {
+        Ok(o)
+            if !String::from_utf8_lossy(&o.stderr).contains("unshare:")
+                && !String::from_utf8_lossy(&o.stderr).contains("mount:") =>
+        {
+            assert_one_line_error(&o, 2, &["is a mount point", "give a folder inside it"]);
+            assert!(
+                !dir.join("volume.partial").exists(),
+                "nothing written beside it"
+            );
+        }
+        _ => eprintln!("no user namespaces here: the empty tmpfs case is skipped (/proc checked)"),
+    }
+}
+
+/// Runs `args` in `dir`, killing it after 20 s (a blocked read would otherwise hang).
+fn run_bounded(dir: &Path, args: &[&str]) -> Output {
+    let mut child = command(dir, args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let t0 = Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if t0.elapsed() > Duration::from_secs(20) {
+            let _ = child.kill();
+            panic!("morph {args:?} did not finish in 20 s");
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    child.wait_with_output().unwrap()
+}
+
+/// Case 5: every read has a bound: a device, a link to one, a FIFO and a checkpoint file
+/// replaced by a link to /dev/zero are refused at once with one line, never read forever.
+#[test]
+fn reads_are_bounded_devices_and_fifos_refused() {
+    let dir = scratch("bounded-reads");
+    let o = run_bounded(&dir, &["inspect", "/dev/zero"]);
+    assert_one_line_error(&o, 1, &["/dev/zero", "a device, not a regular file"]);
+    std::os::unix::fs::symlink("/dev/zero", dir.join("zero.obj")).unwrap();
+    let o = run_bounded(&dir, &["inspect", "zero.obj"]);
+    assert_one_line_error(&o, 1, &["zero.obj", "a device"]);
+    let fifo = dir.join("pipe.obj");
+    let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
+    // SAFETY: a plain libc call on a valid C string.
+    assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+    let o = run_bounded(&dir, &["inspect", "pipe.obj"]);
+    assert_one_line_error(&o, 1, &["pipe.obj", "a FIFO"]);
+    let o = run_bounded(&dir, &morph_args("pipe.obj", &asset("cube.obj"), "o", TINY));
+    assert_one_line_error(&o, 1, &["pipe.obj", "a FIFO"]);
+    let out = tiny_output(&dir, "grid");
+    let mgrid = out.join("final_mass.mgrid");
+    let o = run_bounded(&dir, &["compare", mgrid.to_str().unwrap(), "/dev/zero"]);
+    assert_one_line_error(&o, 2, &["/dev/zero", "a device"]);
+
+    // A checkpoint file replaced by a link to /dev/zero.
+    let (s, t) = local_inputs(&dir);
+    interrupt_small(&dir, &s, &t);
+    let ck = dir.join("out.partial/checkpoint");
+    let state = files(&ck)
+        .into_iter()
+        .find(|f| f.to_string_lossy().starts_with("state_"))
+        .unwrap();
+    std::fs::remove_file(ck.join(&state)).unwrap();
+    std::os::unix::fs::symlink("/dev/zero", ck.join(&state)).unwrap();
+    let mut args = morph_args(&s, &t, "out", SMALL);
+    args.push("--resume");
+    let o = run_bounded(&dir, &args);
+    assert_one_line_error(&o, 1, &[&state.to_string_lossy(), "a device"]);
+}
+
+/// Case 6: frame counts are checked before anything is sized by them: 2^64 - 1, 2^32 + 1
+/// and 10^9 frames, on the command line or in a scene, are refused at once, in one line.
+#[test]
+fn huge_frame_counts_are_refused_before_allocation() {
+    let dir = scratch("frames-limit");
+    let (s, t) = (asset("sphere.obj"), asset("cube.obj"));
+    for n in ["18446744073709551615", "4294967297", "1000000000"] {
+        let mut args = morph_args(&s, &t, "o", &["--preset", "draft", "--quiet"]);
+        args.extend(["--frames", n]);
+        let t0 = Instant::now();
+        let o = run_bounded(&dir, &args);
+        assert_one_line_error(&o, 2, &["--frames must be between 2 and 100000"]);
+        assert!(
+            t0.elapsed() < Duration::from_secs(10),
+            "{n}: {:?}",
+            t0.elapsed()
+        );
+    }
+    std::fs::write(
+        dir.join("shot.toml"),
+        format!("source = \"{s}\"\ntargets = [\"{t}\"]\nframes = 4294967297\n"),
+    )
+    .unwrap();
+    let o = run_bounded(&dir, &["--scene", "shot.toml", "-o", "o", "--quiet"]);
+    assert_one_line_error(&o, 2, &["frames must be between 2 and 100000"]);
+    assert!(!dir.join("o").exists() && !dir.join("o.partial").exists());
+}
+
+/// Case 7: the rope's counts have an upper bound, refused before the run.
+#[test]
+fn rope_counts_have_an_upper_bound() {
+    let dir = scratch("rope-limits");
+    for (flag, value) in [("--steps", "1000000000"), ("--samples", "1000000000")] {
+        let o = run_bounded(&dir, &["rope", "-o", "r", flag, value]);
+        assert_one_line_error(&o, 2, &[flag, "between", "100000"]);
+    }
+    assert!(!dir.join("r").exists());
+}
+
+/// Case 8: the memory plan: a limit above the machine's memory is refused; a limit far below
+/// what a fine grid needs is refused before setup, at once; the verdict on a limit is the
+/// same on every run (it is computed from the inputs, not the resident size).
+#[test]
+fn memory_plan_is_deterministic_and_checked_before_setup() {
+    let dir = scratch("memory-plan");
+    let (s, t) = (asset("sphere.obj"), asset("two-lobes.obj"));
+    let mut args = morph_args(&s, &t, "o", TINY);
+    args.extend(["--memory-limit", "1T"]);
+    let o = run_bounded(&dir, &args);
+    assert_one_line_error(&o, 2, &["--memory-limit 1024.0 GB is more than the"]);
+    let mut args = morph_args(&s, &t, "o", &[]);
+    args.extend(["--resolution", "256", "--memory-limit", "1G", "--quiet"]);
+    let t0 = Instant::now();
+    let o = run_bounded(&dir, &args);
+    assert_one_line_error(&o, 2, &["needs before its first step"]);
+    assert!(t0.elapsed() < Duration::from_secs(10), "{:?}", t0.elapsed());
+    // A limit near what the morph needs: three runs, one verdict, word for word.
+    let mut verdicts = Vec::new();
+    for _ in 0..3 {
+        let mut args = morph_args(&s, &t, "near", TINY);
+        args.extend(["--memory-limit", "40M"]);
+        let o = run(&dir, &args);
+        verdicts.push((o.status.code(), stderr(&o)));
+        let _ = std::fs::remove_dir_all(dir.join("near"));
+    }
+    assert!(verdicts.iter().all(|v| v == &verdicts[0]), "{verdicts:?}");
+}
+
+/// Case 9: more threads than cores run on the cores, with a warning (1000 workers on 2 cores
+/// made a 4 s run take 269 s); the result is the same.
+#[test]
+fn threads_beyond_the_cores_are_lowered_with_a_warning() {
+    let dir = scratch("threads");
+    let (s, t) = (asset("sphere.obj"), asset("cube.obj"));
+    let mut args = morph_args(&s, &t, "many", TINY);
+    args.extend(["--threads", "1000"]);
+    let o = run_bounded(&dir, &args);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("--threads 1000 is more than this machine's"),
+        "{}",
+        stderr(&o)
+    );
+    let one = tiny_output(&dir, "one");
+    assert_eq!(
+        std::fs::read(one.join("final_mass.mgrid")).unwrap(),
+        std::fs::read(dir.join("many/final_mass.mgrid")).unwrap()
+    );
+}
+
+/// The particles a run's setup event reports.
+fn particles_of(dir: &Path, extra: &[&str]) -> usize {
+    let (s, t) = (asset("sphere.obj"), asset("two-lobes.obj"));
+    let _ = std::fs::remove_dir_all(dir.join("o"));
+    let mut args = morph_args(&s, &t, "o", &["--preset", "draft", "--segments", "1"]);
+    args.extend(["--iterations", "1", "--no-surfaces", "--json"]);
+    args.extend_from_slice(extra);
+    let o = run(dir, &args);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let first = String::from_utf8_lossy(&o.stdout)
+        .lines()
+        .next()
+        .unwrap()
+        .to_string();
+    let e: serde_json::Value = serde_json::from_str(&first).unwrap();
+    e["particles"].as_u64().unwrap() as usize
+}
+
+/// Case 10: --particles meets its budget in order: more asked, never fewer got, each within
+/// the step one resolution makes (700, 1000 and 2000 gave 17,256, 7,208 and 4,224).
+#[test]
+fn particle_budget_is_met_in_order() {
+    let dir = scratch("budget");
+    let counts: Vec<usize> = [700, 1000, 2000, 5000]
+        .iter()
+        .map(|b| particles_of(&dir, &["--particles", &b.to_string()]))
+        .collect();
+    for (b, c) in [700, 1000, 2000, 5000].iter().zip(&counts) {
+        let off = (*c as f64 / *b as f64 - 1.0).abs();
+        assert!(off < 0.3, "budget {b}: {c} particles");
+    }
+    assert!(counts.windows(2).all(|w| w[0] < w[1]), "{counts:?}");
+}
+
+/// Case 12: checkpoints are sealed: a flipped bit in a state file, or progress.json edited
+/// back to `segments_done: 0`, is refused by name on --resume (it exited 0 with a different
+/// result); a checkpoint of other settings is refused too.
+#[test]
+fn damaged_checkpoints_are_refused_by_name() {
+    let dir = scratch("sealed");
+    let (s, t) = local_inputs(&dir);
+    interrupt_small(&dir, &s, &t);
+    let ck = dir.join("out.partial/checkpoint");
+    let state = files(&ck)
+        .into_iter()
+        .find(|f| f.to_string_lossy().starts_with("state_"))
+        .unwrap();
+    let mut resume = morph_args(&s, &t, "out", SMALL);
+    resume.push("--resume");
+    let bytes = std::fs::read(ck.join(&state)).unwrap();
+    let mut flipped = bytes.clone();
+    flipped[bytes.len() / 2] ^= 0x10;
+    std::fs::write(ck.join(&state), &flipped).unwrap();
+    let o = run(&dir, &resume);
+    assert_one_line_error(&o, 1, &[&state.to_string_lossy(), "damaged", "--overwrite"]);
+    std::fs::write(ck.join(&state), &bytes).unwrap();
+    let text = std::fs::read_to_string(ck.join("progress.json")).unwrap();
+    let edited = text.replace("\"segments_done\":1", "\"segments_done\":0");
+    assert_ne!(edited, text, "progress.json holds segments_done 1: {text}");
+    std::fs::write(ck.join("progress.json"), &edited).unwrap();
+    let o = run(&dir, &resume);
+    assert_one_line_error(&o, 1, &["progress.json", "damaged"]);
+    std::fs::write(ck.join("progress.json"), &text).unwrap();
+    let o = run(&dir, &resume);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+}
+
+/// Case 13: physics no control can move is refused up front, naming what to change: a drag
+/// of 1e308 (NaN gradients and exit 0) or 1e6, a material of Young's modulus 1e-30, a
+/// density of 1e30.
+#[test]
+fn absurd_physics_is_refused_with_the_setting_to_change() {
+    let dir = scratch("absurd");
+    let (s, t) = (asset("sphere.obj"), asset("cube.obj"));
+    for (drag, needle) in [("1e308", "drag 1.000e308"), ("1e6", "drag 1.000e6")] {
+        std::fs::write(
+            dir.join("shot.toml"),
+            format!("source = \"{s}\"\ntargets = [\"{t}\"]\ndrag = {drag}\n"),
+        )
+        .unwrap();
+        let mut args = vec!["--scene", "shot.toml", "-o", "o"];
+        args.extend_from_slice(TINY);
+        let o = run(&dir, &args);
+        assert_one_line_error(&o, 2, &[needle, "nothing can move", "at most"]);
+    }
+    for flags in [["--youngs-modulus", "1e-30"], ["--density", "1e30"]] {
+        let mut args = morph_args(&s, &t, "o", TINY);
+        args.extend(flags);
+        let o = run(&dir, &args);
+        assert_one_line_error(
+            &o,
+            2,
+            &[
+                "too soft for its density",
+                "raise --youngs-modulus or lower --density",
+            ],
+        );
+    }
+    assert!(!dir.join("o").exists());
+}
+
+/// Case 14: OBJ polylines (`l`) and points (`p`) are not faces: a closed cube with a polyline
+/// is closed, with no non-manifold edge.
+#[test]
+fn obj_polylines_are_not_faces() {
+    let dir = scratch("polylines");
+    let (v, f) = cube([0.0; 3]);
+    write_obj(&dir.join("cube.obj"), &v, &f);
+    let mut text = std::fs::read_to_string(dir.join("cube.obj")).unwrap();
+    text.push_str("l 1 2 4 3 1\np 1 2 3\n");
+    std::fs::write(dir.join("cube.obj"), text).unwrap();
+    let (report, warnings) = inspect(&dir, &dir.join("cube.obj"));
+    assert_eq!(report["closed"], true, "{report}");
+    assert_eq!(report["non_manifold_edges"], 0, "{report}");
+    assert_eq!(report["triangles"], 12, "{report}");
+    assert!(warnings.is_empty(), "{warnings}");
+}
+
+/// Case 15: `v x y z w` is read as (x, y, z) / w everywhere: the carried surface's frames
+/// are written without w, at the particles' size (Blender ignores w).
+#[test]
+fn homogeneous_vertices_are_carried_at_the_right_size() {
+    let dir = scratch("vertex-w");
+    let sphere = std::fs::read_to_string(root().join("assets/sphere.obj")).unwrap();
+    let doubled: String = sphere
+        .lines()
+        .map(|l| match l.strip_prefix("v ") {
+            Some(rest) => {
+                let c: Vec<f64> = rest
+                    .split_whitespace()
+                    .map(|x| x.parse().unwrap())
+                    .collect();
+                format!("v {} {} {} 2\n", 2.0 * c[0], 2.0 * c[1], 2.0 * c[2])
+            }
+            None => format!("{l}\n"),
+        })
+        .collect();
+    std::fs::write(dir.join("w.obj"), doubled).unwrap();
+    let o = run(&dir, &morph_args("w.obj", &asset("cube.obj"), "out", TINY));
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let extent = |text: &str| -> f64 {
+        text.lines()
+            .filter_map(|l| l.strip_prefix("v "))
+            .map(|r| {
+                let c: Vec<f64> = r.split_whitespace().map(|x| x.parse().unwrap()).collect();
+                assert_eq!(c.len(), 3, "a vertex line with w: v {r}");
+                c[0].abs().max(c[1].abs()).max(c[2].abs())
+            })
+            .fold(0.0, f64::max)
+    };
+    let first = std::fs::read_to_string(dir.join("out/carried/frame_0001.obj")).unwrap();
+    let original = extent(&sphere);
+    assert!(
+        (extent(&first) - original).abs() < 1e-4 * original,
+        "{} vs {original}",
+        extent(&first)
+    );
+}
+
+/// Case 16: a frame spacing longer than the shot (only the rest shape would be written), a
+/// frame rate past 1000 fps, and --resume on a finished folder that lost a file are refused
+/// or remade, never reported as done.
+#[test]
+fn shots_without_motion_and_incomplete_folders_are_not_done() {
+    let dir = scratch("no-frames");
+    let (s, t) = (asset("sphere.obj"), asset("cube.obj"));
+    for flags in [&["--fps", "0.001"][..], &["--frame-every", "1000000"][..]] {
+        let mut args = morph_args(&s, &t, "o", TINY);
+        args.extend_from_slice(flags);
+        let o = run(&dir, &args);
+        assert_one_line_error(&o, 2, &["only the rest shape would be written"]);
+    }
+    let mut args = morph_args(&s, &t, "o", TINY);
+    args.extend(["--dt", "1e-12"]);
+    let o = run(&dir, &args);
+    assert_one_line_error(&o, 2, &["frames per second, more than 1000"]);
+    let out = tiny_output(&dir, "done");
+    std::fs::remove_file(out.join("frames/frame_0002.ply")).unwrap();
+    let mut args = morph_args(&s, &t, "done", TINY);
+    args.push("--resume");
+    let o = run(&dir, &args);
+    assert_one_line_error(
+        &o,
+        2,
+        &["'frames/frame_0002.ply'", "missing", "--overwrite"],
+    );
+    args.push("--overwrite");
+    let o = run(&dir, &args);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    assert!(out.join("frames/frame_0002.ply").is_file());
+}
+
+/// The unclear or late errors, each now one line that says what and where, in time.
+#[test]
+fn unclear_errors_are_clear_and_early() {
+    let dir = scratch("clear-errors");
+    let (s, t) = (asset("sphere.obj"), asset("cube.obj"));
+    // A 246-character -o with --overwrite: refused before the run, not after it.
+    let long = "x".repeat(246);
+    let mut args = morph_args(&s, &t, &long, TINY);
+    args.push("--overwrite");
+    let o = run(&dir, &args);
+    assert_one_line_error(&o, 2, &["is 246 bytes long", "at most 234"]);
+    // Too many targets, and an --at that does not match them: said before any mesh loads.
+    let many: Vec<String> = (0..1001).map(|_| t.clone()).collect();
+    let mut args: Vec<&str> = vec![&s];
+    args.extend(many.iter().map(String::as_str));
+    args.extend(["-o", "o", "--quiet"]);
+    let o = run_bounded(&dir, &args);
+    assert_one_line_error(&o, 2, &["1001 target meshes given", "1 to 1000"]);
+    let two = asset("two-lobes.obj");
+    let o = run(&dir, &[&s, &t, &two, "-o", "o", "--at", "5", "--quiet"]);
+    assert_one_line_error(&o, 2, &["--at gives 1 frame(s) for 2 target(s)"]);
+    // A JSON scene with a byte-order mark reads.
+    std::fs::write(
+        dir.join("bom.json"),
+        format!("\u{feff}{{\"source\": \"{s}\", \"targets\": [\"{t}\"], \"resolution\": 16, \"segments\": 2}}"),
+    )
+    .unwrap();
+    let o = run(
+        &dir,
+        &[
+            "--scene",
+            "bom.json",
+            "-o",
+            "bom",
+            "--iterations",
+            "2",
+            "--quiet",
+        ],
+    );
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    // The rope's stable step in numbers that can be read.
+    let o = run(&dir, &["rope", "-o", "r", "--youngs-modulus", "1e30"]);
+    let err = stderr(&o);
+    assert!(!err.contains("0.000000"), "{err}");
+    assert!(err.contains("e-"), "{err}");
+    // PLY triangle strips (Stanford's scans) are triangles: a cube of six strips is closed.
+    let quads = [
+        [0, 2, 3, 1],
+        [4, 5, 7, 6],
+        [0, 1, 5, 4],
+        [2, 6, 7, 3],
+        [0, 4, 6, 2],
+        [1, 3, 7, 5],
+    ];
+    let mut strip: Vec<i32> = Vec::new();
+    for q in quads {
+        if !strip.is_empty() {
+            strip.push(-1);
+        }
+        strip.extend([q[0], q[1], q[3], q[2]]);
+    }
+    let mut ply = String::from(
+        "ply\nformat ascii 1.0\nelement vertex 8\nproperty float x\nproperty float y\nproperty float z\nelement tristrips 1\nproperty list int int vertex_indices\nend_header\n",
+    );
+    for i in 0..8 {
+        ply.push_str(&format!("{} {} {}\n", i & 1, (i >> 1) & 1, (i >> 2) & 1));
+    }
+    let list: Vec<String> = strip.iter().map(|i| i.to_string()).collect();
+    ply.push_str(&format!("{} {}\n", strip.len(), list.join(" ")));
+    std::fs::write(dir.join("strips.ply"), ply).unwrap();
+    let (report, _) = inspect(&dir, &dir.join("strips.ply"));
+    assert_eq!(report["triangles"], 12, "{report}");
+    assert_eq!(report["closed"], true, "{report}");
+}
+
+/// SIGHUP (a closed terminal) and a closed stdout (SIGPIPE: the log reader went away) stop a
+/// run like SIGINT: one line saying so, the checkpoint kept, exit 129 / 141.
+#[test]
+fn sighup_and_a_closed_stdout_stop_with_a_message() {
+    let dir = scratch("hup");
+    let (s, t) = (asset("sphere.obj"), asset("two-lobes.obj"));
+    let mut child = command(&dir, &morph_args(&s, &t, "out", SMALL))
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    wait_for_checkpoint(&dir, &mut child);
+    send(&child, "HUP");
+    let o = child.wait_with_output().unwrap();
+    assert_eq!(o.status.code(), Some(129), "{}", stderr(&o));
+    assert!(stderr(&o).contains("SIGHUP"), "{}", stderr(&o));
+    assert!(dir.join("out.partial/checkpoint/progress.json").is_file());
+
+    let dir = scratch("pipe");
+    let mut args = morph_args(&s, &t, "out", SMALL);
+    args.retain(|a| *a != "--quiet");
+    args.push("--json");
+    let mut child = command(&dir, &args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    wait_for_checkpoint(&dir, &mut child);
+    drop(child.stdout.take());
+    let o = child.wait_with_output().unwrap();
+    assert_eq!(o.status.code(), Some(141), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("SIGPIPE (stdout was closed)"),
+        "{}",
+        stderr(&o)
+    );
+    assert!(dir.join("out.partial/checkpoint/progress.json").is_file());
+}
+
+/// A replacing run killed while deleting the old folder leaves `.OUT.replaced-PID`: the next
+/// run that replaces OUT removes it when its process is gone and it is still provably
+/// morph's; one holding a user's file is left alone.
+#[test]
+fn leftovers_of_a_killed_replacement_are_removed_when_provably_ours() {
+    let dir = scratch("leftovers");
+    let (s, t) = (asset("sphere.obj"), asset("cube.obj"));
+    let out = tiny_output(&dir, "out");
+    let copy = |to: &str| {
+        let status = Command::new("cp")
+            .arg("-r")
+            .arg(&out)
+            .arg(dir.join(to))
+            .status()
+            .unwrap();
+        assert!(status.success());
+    };
+    copy(".out.replaced-999999999");
+    std::fs::remove_file(dir.join(".out.replaced-999999999/frames/frame_0001.ply")).unwrap();
+    copy(".out.replaced-999999998");
+    let theirs = sentinel(&dir.join(".out.replaced-999999998"));
+    let mut args = morph_args(&s, &t, "out", TINY);
+    args.push("--overwrite");
+    let o = run(&dir, &args);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    assert!(!dir.join(".out.replaced-999999999").exists());
+    assert_sentinel(&theirs);
 }

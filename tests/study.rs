@@ -72,7 +72,12 @@ fn a_tiny_study_writes_its_files_and_continues() {
 
     let json: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("study.json")).unwrap()).unwrap();
-    assert_eq!(json.as_array().unwrap().len(), 2);
+    assert_eq!(json["rows"].as_array().unwrap().len(), 2);
+    assert_eq!(
+        json["inputs"].as_array().unwrap().len(),
+        2,
+        "the meshes are recorded"
+    );
     let png = image::open(out.join("study.png")).expect("a readable PNG");
     assert!(png.width() > 100 && png.height() > 100);
 
@@ -85,6 +90,28 @@ fn a_tiny_study_writes_its_files_and_continues() {
     assert!(more.status.success());
     let csv = std::fs::read_to_string(out.join("study.csv")).unwrap();
     assert_eq!(csv.lines().count(), 1 + 3);
+
+    // The same folder for other meshes: refused, its rows do not apply (they were kept as
+    // "measured earlier" and the study exited 0).
+    let root = env!("CARGO_MANIFEST_DIR");
+    let other = Command::new(env!("CARGO_BIN_EXE_morph"))
+        .args([
+            "study",
+            &format!("{root}/assets/sphere.obj"),
+            &format!("{root}/assets/cube.obj"),
+        ])
+        .arg("-o")
+        .arg(&out)
+        .args(["--quick", "--resolutions", "10,12"])
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&other.stderr);
+    assert_eq!(other.status.code(), Some(2), "{err}");
+    assert!(
+        err.starts_with("morph: error: ") && err.contains("a study of another target mesh"),
+        "{err}"
+    );
+    assert_eq!(std::fs::read_to_string(out.join("study.csv")).unwrap(), csv);
     let _ = std::fs::remove_dir_all(&out);
 }
 

@@ -1,6 +1,15 @@
 //! The `morph` command line: parses, calls the library, reports. One file per subcommand;
 //! every default and range is read from the library, never restated here.
 
+/// `println!` that ignores a closed stdout: a morph run ignores SIGPIPE (to keep its work and
+/// say why it stopped), and a line nobody reads must not end it in a panic.
+macro_rules! say {
+    ($($arg:tt)*) => {{
+        use std::io::Write as _;
+        let _ = writeln!(std::io::stdout(), $($arg)*);
+    }};
+}
+
 mod assets;
 mod bench;
 mod compare;
@@ -124,7 +133,11 @@ pub fn main() -> ExitCode {
             return fail(
                 json,
                 2,
-                &format!("--threads must be between {} and {}, got {t}", r.start(), r.end()),
+                &format!(
+                    "--threads must be between {} and {}, got {t}",
+                    r.start(),
+                    r.end()
+                ),
             );
         }
         // More workers than cores only wait on each other (1000 on 2 cores: 60x slower);
@@ -171,7 +184,7 @@ fn dispatch(cli: &Cli) -> ExitCode {
 fn fail(json: bool, code: u8, message: &str) -> ExitCode {
     eprintln!("morph: error: {message}");
     if json {
-        println!(
+        say!(
             "{}",
             serde_json::json!({ "event": "error", "message": message, "exit_code": code })
         );

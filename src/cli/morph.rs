@@ -501,22 +501,22 @@ pub fn run(args: &MorphArgs) -> ExitCode {
     match result {
         Ok(summary) => {
             if args.json {
-                println!(
+                say!(
                     "{}",
                     serde_json::json!({ "event": "written", "summary": summary })
                 );
             } else if !args.quiet {
                 if summary.already_complete {
-                    println!(
+                    say!(
                         "{} is already complete for these inputs and settings; nothing to do",
                         summary.output.display()
                     );
                     return ExitCode::SUCCESS;
                 }
                 if let Some(from) = &summary.resumed_from {
-                    println!("resumed from the checkpoint ({from})");
+                    say!("resumed from the checkpoint ({from})");
                 }
-                println!(
+                say!(
                     "wrote {}: {} frames of {} particles; loss {:.4e} -> {:.4e}; target cells filled {:.1}%, particles outside {:.2}% (ejected {:.2}%); {:.1} s",
                     summary.output.display(),
                     summary.frames,
@@ -529,7 +529,7 @@ pub fn run(args: &MorphArgs) -> ExitCode {
                     summary.seconds
                 );
                 if let Some(q) = &summary.quality {
-                    println!(
+                    say!(
                         "quality: IoU with the target {:.3}, fill {:.3} (1 = a lattice fill of the target), surface gap {:.2} spacings, ejected {:.2}%, close neighbours {:.1}%, J {:.2} to {:.2} (mean {:.2}, {:.2}% inverted)",
                         q.iou,
                         q.fill,
@@ -546,7 +546,7 @@ pub fn run(args: &MorphArgs) -> ExitCode {
                     let volume = f.max_surface_volume_error.map_or(String::new(), |e| {
                         format!("; surface volume within {:.1}% of the body's", 100.0 * e)
                     });
-                    println!(
+                    say!(
                         "all frames: J {:.3} to {:.3}, {} frames with inverted particles, close neighbours at most {:.1}%{volume}",
                         f.min_j,
                         f.max_j,
@@ -585,7 +585,7 @@ pub fn run(args: &MorphArgs) -> ExitCode {
             };
             eprintln!("morph: {message}");
             if args.json {
-                println!(
+                say!(
                     "{}",
                     serde_json::json!({ "event": "interrupted", "signal": signal_name(signal), "message": message, "exit_code": code })
                 );

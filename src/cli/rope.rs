@@ -89,7 +89,11 @@ pub struct RopeArgs {
 /// A count option: must be >= `min` and at most the library's bound.
 fn count(name: &str, v: i64, min: i64) -> Result<usize, String> {
     use morph::control::compare::{MAX_ROPE_CELLS, MAX_ROPE_COUNT};
-    let max = if name == "cells-along" { MAX_ROPE_CELLS } else { MAX_ROPE_COUNT };
+    let max = if name == "cells-along" {
+        MAX_ROPE_CELLS
+    } else {
+        MAX_ROPE_COUNT
+    };
     if v < min || v as u64 > max as u64 {
         Err(format!("--{name} must be between {min} and {max}, got {v}"))
     } else {

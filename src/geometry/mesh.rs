@@ -528,10 +528,11 @@ impl MeshFormat {
 /// finite, indices are in range, and the mesh is not flat. Polygons are fan-triangulated and
 /// the orientation is made consistent and outward (a warning says when faces were flipped).
 pub fn load_mesh(path: &Path) -> Result<LoadedMesh, MeshError> {
-    let bytes = crate::files::read(path, crate::files::MESH_BYTES).map_err(|e| MeshError::Unreadable {
-        path: path.into(),
-        reason: e.to_string(),
-    })?;
+    let bytes =
+        crate::files::read(path, crate::files::MESH_BYTES).map_err(|e| MeshError::Unreadable {
+            path: path.into(),
+            reason: e.to_string(),
+        })?;
     parse_mesh(path, &bytes)
 }
 
@@ -809,7 +810,11 @@ fn parse_ply(path: &Path, bytes: &[u8]) -> Result<TriMesh, MeshError> {
     // Triangle strips (Stanford's scans): each list holds strips separated by -1; triangle k
     // of a strip is (s[k], s[k+1], s[k+2]), every second one reversed to keep the strip's
     // orientation; triangles with a repeated corner only join strips and are skipped.
-    let strips = ply.payload.get("tristrips").map(Vec::as_slice).unwrap_or(&[]);
+    let strips = ply
+        .payload
+        .get("tristrips")
+        .map(Vec::as_slice)
+        .unwrap_or(&[]);
     for (si, f) in strips.iter().enumerate() {
         let list = f
             .get("vertex_indices")

@@ -46,7 +46,61 @@ pub struct KeyframeTarget {
     pub sim: TriMesh,
 }
 
+/// What a morph's grid and particles will be, estimated from the shapes' volumes before any
+/// particle is placed (no fill at the run's resolution: cheap at any resolution). The memory
+/// plan checks a limit against it before setup, and `--particles` picks a resolution by it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SizeEstimate {
+    /// Grid nodes.
+    pub nodes: usize,
+    /// Source particles (the inside volume over a particle's).
+    pub source_particles: f64,
+    /// Particles of every target together (the last and the keyframes before it).
+    pub target_particles: f64,
+}
+
 impl MorphGeometry {
+    /// Estimates the grid and particle counts of [`MorphGeometry::with_keyframes`] with the
+    /// same arguments.
+    pub fn estimate(
+        (src, source_path): (&LoadedMesh, &Path),
+        targets: &[(&LoadedMesh, &Path)],
+        options: &PlacementOptions,
+        per_cell: usize,
+    ) -> Result<SizeEstimate, MeshError> {
+        check_options(options, per_cell, None)?;
+        let source = Solid::measure(&src.mesh, source_path)?;
+        let solids = targets
+            .iter()
+            .map(|(m, p)| Solid::measure(&m.mesh, p))
+            .collect::<Result<Vec<_>, _>>()?;
+        let all: Vec<&Solid> = solids.iter().collect();
+        let placement = Placement::with_targets(&source, &all, options)?;
+        let spacing = placement.grid.dx / per_cell as f64;
+        // A solid's volume at a scale, from its unit volume (never over- or underflows).
+        let particles = |solid: &Solid, scale: f64| {
+            solid.unit_volume * (solid.length * scale / spacing).powi(3)
+        };
+        let last = solids.len() - 1;
+        let target_particles = solids
+            .iter()
+            .enumerate()
+            .map(|(k, solid)| {
+                let to_sim = if k == last {
+                    placement.target_to_sim()
+                } else {
+                    placement.keyframe_to_sim(k)
+                };
+                particles(solid, to_sim.scale)
+            })
+            .sum();
+        Ok(SizeEstimate {
+            nodes: placement.grid.node_count(),
+            source_particles: particles(&source, placement.world_to_sim.scale),
+            target_particles,
+        })
+    }
+
     /// Loads both meshes, places them (see [`Placement`]) and fills them with `per_cell^3`
     /// particles per cell. Target particles are never jittered: they only define `m*`.
     pub fn prepare(

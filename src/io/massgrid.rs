@@ -90,9 +90,8 @@ impl MassGrid {
 
     /// Reads and checks a mass grid file; errors name the file and the problem.
     pub fn read(path: &Path) -> Result<MassGrid, String> {
-        let bytes =
-            crate::files::read(path, crate::files::MASS_GRID_BYTES)
-                .map_err(|e| format!("cannot read '{}': {e}", path.display()))?;
+        let bytes = crate::files::read(path, crate::files::MASS_GRID_BYTES)
+            .map_err(|e| format!("cannot read '{}': {e}", path.display()))?;
         MassGrid::from_bytes(path, &bytes)
     }
 

@@ -29,7 +29,13 @@ pub fn sha256_file(path: &std::path::Path, max: u64) -> std::io::Result<String> 
         hasher.update(&buf[..n]);
     }
     if total > max {
-        return Err(std::io::Error::other("it grew past its size limit while being read"));
+        return Err(std::io::Error::other(
+            "it grew past its size limit while being read",
+        ));
     }
-    Ok(hasher.finalize().iter().map(|b| format!("{b:02x}")).collect())
+    Ok(hasher
+        .finalize()
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect())
 }

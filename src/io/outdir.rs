@@ -58,9 +58,8 @@ pub fn check_owned(dir: &Path, marker: &str) -> Result<Owned, String> {
         }
         Err(e) => return Err(format!("cannot read its {marker}: {e}")),
     };
-    let m: Marker = serde_json::from_slice(&bytes).map_err(|e| {
-        format!("its {marker} is not one morph wrote: {e}")
-    })?;
+    let m: Marker = serde_json::from_slice(&bytes)
+        .map_err(|e| format!("its {marker} is not one morph wrote: {e}"))?;
     let plain = |f: &str| {
         !f.is_empty()
             && !f.starts_with('/')
@@ -76,7 +75,9 @@ pub fn check_owned(dir: &Path, marker: &str) -> Result<Owned, String> {
         ));
     }
     if let Some(bad) = m.files.iter().find(|f| !plain(f)) {
-        return Err(format!("its {marker} lists '{bad}', which is not a file inside it"));
+        return Err(format!(
+            "its {marker} lists '{bad}', which is not a file inside it"
+        ));
     }
     let listed: std::collections::HashSet<&str> = m.files.iter().map(String::as_str).collect();
     let mut present = std::collections::HashSet::new();
@@ -102,7 +103,9 @@ pub fn check_owned(dir: &Path, marker: &str) -> Result<Owned, String> {
             } else if listed.contains(rel.as_str()) {
                 present.insert(rel);
             } else {
-                return Err(format!("it holds '{rel}', which its {marker} does not list"));
+                return Err(format!(
+                    "it holds '{rel}', which its {marker} does not list"
+                ));
             }
         }
     }
@@ -145,9 +148,9 @@ pub fn list_files(dir: &Path, skip: &[&str]) -> std::io::Result<Vec<String>> {
 /// Whether `dir` holds nothing but (possibly nested) empty folders.
 fn only_empty_folders(dir: &Path) -> bool {
     fs::read_dir(dir).is_ok_and(|entries| {
-        entries.filter_map(|e| e.ok()).all(|e| {
-            e.file_type().is_ok_and(|t| t.is_dir()) && only_empty_folders(&e.path())
-        })
+        entries
+            .filter_map(|e| e.ok())
+            .all(|e| e.file_type().is_ok_and(|t| t.is_dir()) && only_empty_folders(&e.path()))
     })
 }
 
@@ -218,7 +221,9 @@ pub fn is_mount_point(path: &Path) -> bool {
                 i += 1;
             }
         }
-        PathBuf::from(std::ffi::OsString::from(String::from_utf8_lossy(&out).into_owned()))
+        PathBuf::from(std::ffi::OsString::from(
+            String::from_utf8_lossy(&out).into_owned(),
+        ))
     };
     info.lines()
         .filter_map(|l| l.split(' ').nth(4))
@@ -234,7 +239,9 @@ fn remove_stale_asides(out: &Path, marker: &str) {
         Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
         _ => PathBuf::from("."),
     };
-    let Ok(entries) = fs::read_dir(&parent) else { return };
+    let Ok(entries) = fs::read_dir(&parent) else {
+        return;
+    };
     for e in entries.filter_map(|e| e.ok()) {
         let n = e.file_name().to_string_lossy().into_owned();
         let Some(pid) = n.strip_prefix(&prefix).and_then(|p| p.parse::<i32>().ok()) else {

@@ -158,9 +158,15 @@ pub fn read_json<T: serde::de::DeserializeOwned>(path: &Path, run_id: &str) -> R
     let sealed: Sealed<Box<serde_json::value::RawValue>> =
         serde_json::from_slice(&bytes).map_err(|e| e.to_string())?;
     if sealed.format != FORMAT {
-        return Err(format!("format {} (this morph reads {FORMAT})", sealed.format));
+        return Err(format!(
+            "format {} (this morph reads {FORMAT})",
+            sealed.format
+        ));
     }
-    let digest = hex(&sha256(&[sealed.run_id.as_bytes(), sealed.body.get().as_bytes()]));
+    let digest = hex(&sha256(&[
+        sealed.run_id.as_bytes(),
+        sealed.body.get().as_bytes(),
+    ]));
     if digest != sealed.sha256 {
         return Err("its checksum does not match its content".into());
     }
@@ -293,9 +299,8 @@ pub fn load(
             None => Vec::new(),
             Some(name) => {
                 let path = folder.join(name);
-                let data =
-                    read_f64s(&path, run_id, layers * particles * 9)
-                        .map_err(|e| damaged(&path, e))?;
+                let data = read_f64s(&path, run_id, layers * particles * 9)
+                    .map_err(|e| damaged(&path, e))?;
                 data.chunks_exact(particles * 9)
                     .map(|layer| {
                         layer

@@ -2,12 +2,20 @@
 //!
 //! The tape of a segment's rollout is what grows with steps x particles; everything else (the
 //! model, the loss grids, the controls of every segment, the optimizer's moments, a few
-//! states) is fixed by the particle count. A [`MemoryLimit`] caps the whole process: what is
-//! left after the fixed part is the tape budget, and the segment keeps checkpoints and
-//! recomputes instead of holding every step when its tape would not fit
+//! states) is fixed by the particle and node counts. A [`MemoryLimit`] caps the whole
+//! process: what is left after the fixed part is the tape budget, and the segment keeps
+//! checkpoints and recomputes instead of holding every step when its tape would not fit
 //! ([`crate::integrator::recompute`]). The budget never changes results, only memory and time.
+//!
+//! The plan is computed from the inputs and settings alone ([`fixed_bytes`]: counts times
+//! bytes per particle and per node), never from the process's resident size, so the same
+//! command is accepted or refused the same way on every run. It is checked twice: before
+//! setup, on counts estimated from the shapes' volumes ([`check_before_setup`]: a limit too
+//! small is refused before the fill allocates anything sized by the resolution), and after
+//! setup on the exact counts. A limit above the machine's memory (or the container's, from
+//! its cgroup) is refused.
 
-use super::{MorphError, Prepared};
+use super::{MorphError, MorphSettings, Prepared};
 use crate::integrator::Integrator;
 use crate::integrator::recompute::ChunkPlan;
 use crate::mpm::State;
@@ -32,6 +40,26 @@ pub const ALLOCATOR_SLACK: f64 = 0.10;
 
 /// The automatic limit where the machine's memory cannot be read.
 pub const FALLBACK_AUTO_BYTES: u64 = 2 << 30;
+
+/// The process before any morph data: code, libraries, worker stacks, the allocator's own
+/// (measured: 12 MB resident after setting up an 1,088-particle morph; kept with margin).
+pub const BASELINE_BYTES: u64 = 20 << 20;
+/// Bytes per source particle besides the tapes and the working set: the initial state, its
+/// mass and volume, the placed positions (measured: 190 bytes a particle over source and
+/// target together at 348,424 particles each).
+pub const SOURCE_PARTICLE_BYTES: u64 = 256;
+/// Bytes per target particle: positions, while the target's masses are made.
+pub const TARGET_PARTICLE_BYTES: u64 = 32;
+/// Bytes per simulation grid node: the loss's target masses, the step's grid (mass,
+/// momentum, velocity) and its adjoint in the reverse pass; 8 more per keyframe target.
+pub const NODE_BYTES: u64 = 128;
+/// Bytes per particle of one frame on its way to disk (its world copy and its state, for
+/// the surfaces); the writer holds [`super::output::WRITE_QUEUE`] queued, one being
+/// written and one being made.
+pub const FRAME_PARTICLE_BYTES: u64 = 256;
+/// Bytes per node of the finer loss grid: its target, the rollout's masses and adjoint; 8
+/// more per keyframe target.
+pub const FINE_NODE_BYTES: u64 = 24;
 
 impl FromStr for MemoryLimit {
     type Err = String;
@@ -63,13 +91,137 @@ impl FromStr for MemoryLimit {
 }
 
 impl MemoryLimit {
-    /// The limit in bytes.
+    /// The limit in bytes: a quarter of the memory this process may use for `Auto`.
     pub fn bytes(self) -> u64 {
         match self {
             MemoryLimit::Bytes(b) => b,
-            MemoryLimit::Auto => physical_memory().map_or(FALLBACK_AUTO_BYTES, |m| m / 4),
+            MemoryLimit::Auto => available_memory().map_or(FALLBACK_AUTO_BYTES, |m| m / 4),
         }
     }
+
+    /// The limit, refused when it is more than the memory this process may use at all.
+    pub fn checked_bytes(self) -> Result<u64, String> {
+        let b = self.bytes();
+        match available_memory() {
+            Some(m) if b > m => Err(format!(
+                "--memory-limit {} is more than the {} this machine (or its container) has; give at most {}, or auto",
+                show_bytes(b),
+                show_bytes(m),
+                show_bytes(m)
+            )),
+            _ => Ok(b),
+        }
+    }
+}
+
+/// The memory this process may use: the machine's, or its container's where a cgroup
+/// limits it to less.
+pub fn available_memory() -> Option<u64> {
+    let machine = physical_memory();
+    let cgroup = cgroup_limit();
+    match (machine, cgroup) {
+        (Some(m), Some(c)) => Some(m.min(c)),
+        (m, c) => m.or(c),
+    }
+}
+
+/// The memory limit of this process's cgroup (v2 `memory.max`, or v1
+/// `memory.limit_in_bytes`), when there is one.
+pub fn cgroup_limit() -> Option<u64> {
+    let read = |p: &str| {
+        crate::files::read_to_string(std::path::Path::new(p), crate::files::SMALL_FILE_BYTES).ok()
+    };
+    // The cgroup this process is in (v2: one line `0::/path`).
+    let own = read("/proc/self/cgroup")
+        .and_then(|t| {
+            t.lines()
+                .find_map(|l| l.strip_prefix("0::").map(|p| p.trim().to_string()))
+        })
+        .unwrap_or_default();
+    let candidates = [
+        format!("/sys/fs/cgroup{own}/memory.max"),
+        "/sys/fs/cgroup/memory.max".to_string(),
+        "/sys/fs/cgroup/memory/memory.limit_in_bytes".to_string(),
+    ];
+    candidates.iter().find_map(|p| {
+        let v: u64 = read(p)?.trim().parse().ok()?;
+        // v1 writes a number near 2^63 for "no limit".
+        (v < 1 << 60).then_some(v)
+    })
+}
+
+/// Bytes of everything but the tapes for a morph of `particles` source particles,
+/// `targets` target particles (all targets), `nodes` grid nodes and `keyframes` targets
+/// before the last, under `settings` (see the constants above and [`working_bytes`]).
+pub fn fixed_bytes(
+    settings: &MorphSettings,
+    particles: u64,
+    targets: u64,
+    nodes: u64,
+    keyframes: u64,
+) -> u64 {
+    let fine_nodes = if settings.fine_weight > 0.0 {
+        nodes * (super::FINE_REFINE as u64).pow(3)
+    } else {
+        0
+    };
+    BASELINE_BYTES
+        + particles * SOURCE_PARTICLE_BYTES
+        + targets * TARGET_PARTICLE_BYTES
+        + nodes * (NODE_BYTES + 8 * keyframes)
+        + fine_nodes * (FINE_NODE_BYTES + 8 * keyframes)
+        + working_bytes(settings, particles as usize)
+        + (super::output::WRITE_QUEUE as u64 + 2) * particles * FRAME_PARTICLE_BYTES
+}
+
+/// Estimated bytes the run needs besides the tapes and the setup: the controls of the
+/// passes before the last (kept for the next) and the optimizer's copies of one segment's,
+/// Adam's moments and saved values, and the states a segment holds at once (start, the one
+/// advancing, last, best, adjoints, the reverse step's scratch).
+fn working_bytes(s: &MorphSettings, n: usize) -> u64 {
+    let stride = s.control_stride.max(1);
+    let layers = s
+        .shot()
+        .segment_steps
+        .iter()
+        .map(|k| k.div_ceil(stride))
+        .max()
+        .unwrap_or(0);
+    let layer = n * size_of::<Matrix3<f64>>();
+    let kept = if s.passes > 1 { s.segments } else { 0 };
+    let controls = (kept + 6) * layers * layer;
+    let free = layers * 9 * n;
+    let adam = 5 * free * size_of::<f64>();
+    (controls + adam + 6 * State::bytes_for(n)) as u64
+}
+
+/// Refuses `limit` before setup when the morph's fixed part, on counts estimated from the
+/// shapes' volumes ([`crate::geometry::MorphGeometry::estimate`]) at `resolution`, would
+/// not fit in it: setup itself then never allocates past the limit.
+pub fn check_before_setup(
+    settings: &MorphSettings,
+    estimate: &crate::geometry::SizeEstimate,
+    keyframes: usize,
+    limit: MemoryLimit,
+) -> Result<(), MorphError> {
+    let limit_bytes = limit.checked_bytes().map_err(MorphError::Settings)?;
+    let need = fixed_bytes(
+        settings,
+        estimate.source_particles.ceil() as u64,
+        estimate.target_particles.ceil() as u64,
+        estimate.nodes as u64,
+        keyframes as u64,
+    );
+    if need > limit_bytes {
+        return Err(MorphError::Settings(format!(
+            "--memory-limit {} is below the {} this morph needs before its first step (about {:.0} particles on a grid of {} nodes); raise it, or lower --resolution or --particles",
+            show_bytes(limit_bytes),
+            show_bytes(need.div_ceil(1 << 20) * (1 << 20)),
+            estimate.source_particles,
+            estimate.nodes
+        )));
+    }
+    Ok(())
 }
 
 /// How a morph's memory is planned (written to the manifest).
@@ -98,8 +250,20 @@ impl Prepared {
         let state = State::bytes_for(n);
         let step = crate::with_integrator!(&self.engine, sim => sim.tape_bytes_per_step(n));
         let steps = self.max_sim_segment_steps();
-        let fixed = resident_bytes().unwrap_or(0) + self.working_bytes();
-        let limit_bytes = limit.bytes();
+        let fixed = fixed_bytes(
+            &self.settings,
+            n as u64,
+            (self.geometry.target.positions.len()
+                + self
+                    .geometry
+                    .keyframes
+                    .iter()
+                    .map(|k| k.particles.positions.len())
+                    .sum::<usize>()) as u64,
+            self.model().grid.node_count() as u64,
+            self.geometry.keyframes.len() as u64,
+        );
+        let limit_bytes = limit.checked_bytes().map_err(MorphError::Settings)?;
         let tape_budget =
             (limit_bytes.saturating_sub(fixed) as f64 / (1.0 + ALLOCATOR_SLACK)) as usize;
         let stride = self.sim_control_stride();
@@ -140,22 +304,6 @@ impl Prepared {
             State::bytes_for(n),
             self.sim_control_stride(),
         )
-    }
-
-    /// Estimated bytes the run needs besides the tapes and what is allocated already: the
-    /// controls of the passes before the last (kept for the next) and the optimizer's copies
-    /// of one segment's, Adam's moments and saved values, and the states a segment holds at
-    /// once (start, the one advancing, last, best, adjoints, the reverse step's scratch).
-    fn working_bytes(&self) -> u64 {
-        let s = &self.settings;
-        let n = self.initial.len();
-        let layers = self.segment_layers().into_iter().max().unwrap_or(0);
-        let layer = n * size_of::<Matrix3<f64>>();
-        let kept = if s.passes > 1 { s.segments } else { 0 };
-        let controls = (kept + 6) * layers * layer;
-        let free = layers * 9 * n;
-        let adam = 5 * free * size_of::<f64>();
-        (controls + adam + 6 * State::bytes_for(n)) as u64
     }
 }
 

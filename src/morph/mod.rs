@@ -16,7 +16,7 @@ pub mod scene_file;
 pub mod segment;
 pub mod settings;
 
-use crate::geometry::{Jitter, LoadedMesh, MeshError, MorphGeometry, PlacementOptions};
+use crate::geometry::{Jitter, LoadedMesh, MeshError, MorphGeometry};
 use crate::integrator::{Engine, Integrator};
 use crate::loss::{FINE_KERNEL, FineMassLoss, MassLoss};
 use crate::mpm::model::Model;
@@ -222,6 +222,45 @@ impl Prepared {
         Prepared::from_keyframe_meshes(settings, source, &[target])
     }
 
+    /// The resolution whose source fill comes nearest `settings.particles` by the shapes'
+    /// volumes ([`MorphGeometry::estimate`]; the fill then refines it).
+    pub fn resolution_for_budget(
+        settings: &MorphSettings,
+        source: (&LoadedMesh, &Path),
+        targets: &[(&LoadedMesh, &Path)],
+    ) -> Result<usize, MorphError> {
+        const PROBE: usize = 32;
+        let budget = settings.particles.unwrap_or(0) as f64;
+        let at_probe = MorphGeometry::estimate(
+            source,
+            targets,
+            &settings.placement_options(PROBE),
+            settings.particles_per_cell,
+        )?;
+        let limits = settings::limits::RESOLUTION;
+        let r = PROBE as f64 * (budget / at_probe.source_particles.max(1.0)).cbrt();
+        Ok((r.round() as usize).clamp(*limits.start(), *limits.end()))
+    }
+
+    /// The grid and particle counts this morph will have, estimated before setup (see
+    /// [`MorphGeometry::estimate`]): what [`memory::check_before_setup`] checks.
+    pub fn estimate(
+        settings: &MorphSettings,
+        source: (&LoadedMesh, &Path),
+        targets: &[(&LoadedMesh, &Path)],
+    ) -> Result<crate::geometry::SizeEstimate, MorphError> {
+        let resolution = match settings.particles {
+            None => settings.resolution,
+            Some(_) => Prepared::resolution_for_budget(settings, source, targets)?,
+        };
+        Ok(MorphGeometry::estimate(
+            source,
+            targets,
+            &settings.placement_options(resolution),
+            settings.particles_per_cell,
+        )?)
+    }
+
     /// [`Prepared::from_meshes`] through several targets (see [`Prepared::with_keyframes`]).
     pub fn from_keyframe_meshes(
         settings: &MorphSettings,
@@ -241,12 +280,7 @@ impl Prepared {
             seed: settings.seed,
         });
         let geometry_at = |resolution: usize| {
-            let placement = PlacementOptions {
-                resolution,
-                target_fit: settings.target_fit,
-                ground: settings.ground.as_ref().map(|g| g.height),
-                ..Default::default()
-            };
+            let placement = settings.placement_options(resolution);
             MorphGeometry::with_keyframes(
                 source,
                 targets,
@@ -259,19 +293,32 @@ impl Prepared {
         let geometry = match settings.particles {
             None => geometry_at(settings.resolution)?,
             Some(budget) => {
-                // Particles grow with the cube of the resolution: a probe fixes the scale, and
-                // one correction from the first estimate absorbs the coarse probe's error.
+                // Start from the resolution the shapes' volumes call for, then step one
+                // resolution at a time toward the budget while the count gets closer: the
+                // count grows with the resolution, so a larger budget never gets fewer
+                // particles.
                 let limits = settings::limits::RESOLUTION;
-                let next = |r: usize, count: usize| {
-                    let r = r as f64 * (budget as f64 / count.max(1) as f64).cbrt();
-                    (r.round() as usize).clamp(*limits.start(), *limits.end())
-                };
-                const PROBE: usize = 24;
-                let r = next(PROBE, geometry_at(PROBE)?.source.positions.len());
-                let first = geometry_at(r)?;
-                let r2 = next(r, first.source.positions.len());
-                settings.resolution = r2;
-                if r2 == r { first } else { geometry_at(r2)? }
+                let mut r = Prepared::resolution_for_budget(&settings, source, targets)?;
+                let mut best = geometry_at(r)?;
+                let count = |g: &MorphGeometry| g.source.positions.len();
+                let up = count(&best) < budget;
+                for _ in 0..MAX_BUDGET_STEPS {
+                    let next = if up { r + 1 } else { r.saturating_sub(1) };
+                    if !limits.contains(&next) {
+                        break;
+                    }
+                    let g = geometry_at(next)?;
+                    if count(&g).abs_diff(budget) >= count(&best).abs_diff(budget) {
+                        break;
+                    }
+                    let crossed = (count(&g) >= budget) == up;
+                    (r, best) = (next, g);
+                    if crossed {
+                        break;
+                    }
+                }
+                settings.resolution = r;
+                best
             }
         };
         // The shot's timing decides the segments and the frame spacing (`--fps`, `--frames`).
@@ -300,6 +347,31 @@ impl Prepared {
         // stiffer material or a finer grid costs more substeps, never a shorter shot. A set
         // dt above the bound is refused, with the bound.
         let (limit, wave_speed) = scene.stable_dt();
+        // Physics no control can move: refused with the setting to change, not run into a
+        // body that never moves.
+        let segment_seconds = settings.dt.unwrap_or(shot.step) * settings.steps_per_segment as f64;
+        if limit > segment_seconds {
+            return Err(MorphError::Settings(format!(
+                "the material is too soft for its density: its elastic waves ({wave_speed:.3e} grid units per second) cross {:.2e} grid cells in a segment of {segment_seconds:.3} s, less than one, so no control can move the body; raise --youngs-modulus or lower --density",
+                segment_seconds / limit
+            )));
+        }
+        let frame_seconds = settings.dt.unwrap_or(shot.step) * shot.frame_every as f64;
+        if settings.drag * frame_seconds > MAX_DRAG_DAMPING {
+            return Err(MorphError::Settings(format!(
+                "drag {:.3e} leaves e^-{:.3e} of the body's speed from one frame to the next ({frame_seconds:.4} s apart), so nothing can move; use a drag of at most {:.3e}",
+                settings.drag,
+                settings.drag * frame_seconds,
+                MAX_DRAG_DAMPING / frame_seconds
+            )));
+        }
+        // The drag's explicit form keeps a share `1 - c dt` of the momentum each step: at
+        // most half of it may go in one step.
+        let limit = if settings.drag > 0.0 {
+            limit.min(1.0 / settings.drag)
+        } else {
+            limit
+        };
         let substeps = match settings.dt {
             Some(dt) if dt > limit => {
                 return Err(MorphError::Settings(format!(
@@ -908,6 +980,13 @@ fn chain<I: Integrator>(
     })
 }
 
+/// The most drag may damp the body between two frames, as an exponent: `e^-10` leaves
+/// 0.005% of its speed, nothing a viewer could see move.
+pub const MAX_DRAG_DAMPING: f64 = 10.0;
+
+/// Resolutions `--particles` steps through from its estimate, at most.
+const MAX_BUDGET_STEPS: usize = 8;
+
 /// The morph's step when no dt is set: the reference's 1/120 s (simulated in substeps
 /// where the material or the grid needs a shorter one).
 pub const MORPH_STEP: f64 = 1.0 / 120.0;
@@ -989,13 +1068,27 @@ pub fn run_warnings(segments: &[SegmentRecord]) -> Vec<String> {
         .map(|r| r.grad_norm_first)
         .find(|g| g.is_finite() && *g > 0.0)
     else {
-        return Vec::new();
+        // No segment had a usable gradient: say so when one was taken.
+        return segments
+            .iter()
+            .find(|r| r.evaluations > 1 && !r.grad_norm_first.is_finite())
+            .map(|r| {
+                vec![format!(
+                    "pass {} segment {}: the gradient is {} from the first segment on; no control moved the body as asked (check the physics settings)",
+                    r.pass + 1,
+                    r.segment + 1,
+                    r.grad_norm_first
+                )]
+            })
+            .unwrap_or_default();
     };
     let mut out = Vec::new();
     for r in segments {
         for g in [r.grad_norm_first, r.grad_norm_last] {
-            let what = if g.is_nan() {
+            let what = if g.is_nan() && r.evaluations <= 1 {
                 continue; // No gradient taken (one iteration).
+            } else if g.is_nan() {
+                "is not a number"
             } else if !g.is_finite() || g > GRADIENT_EXPLODED * reference {
                 "exploded"
             } else if g < GRADIENT_VANISHED * reference {

@@ -616,10 +616,29 @@ pub fn morph_to_folder(
         }
     }
     let had_checkpoint = staging.previous == Previous::Run;
-    let prepared = Prepared::with_keyframes(settings, source, targets).and_then(|mut prep| {
+    let prepared = (|| {
+        let src = crate::geometry::load_mesh(source)?;
+        let loaded = targets
+            .iter()
+            .map(|t| crate::geometry::load_mesh(t))
+            .collect::<Result<Vec<_>, _>>()?;
+        let meshes: Vec<(&crate::geometry::LoadedMesh, &Path)> = loaded
+            .iter()
+            .zip(targets)
+            .map(|(m, p)| (m, p.as_path()))
+            .collect();
+        // The memory limit holds for setup too: refused before the fill when it cannot.
+        let estimate = Prepared::estimate(settings, (&src, source), &meshes)?;
+        super::memory::check_before_setup(
+            settings,
+            &estimate,
+            targets.len() - 1,
+            request.memory_limit,
+        )?;
+        let mut prep = Prepared::from_keyframe_meshes(settings, (&src, source), &meshes)?;
         let memory = prep.plan_memory(request.memory_limit)?;
         Ok((prep, memory))
-    });
+    })();
     let (prep, memory) = match prepared {
         Ok(p) => p,
         Err(e) => {
@@ -923,7 +942,7 @@ fn write_frames(mut sink: PlyObjSink, work: Receiver<FrameWork>, done: Sender<Fr
 }
 
 /// Frames the writer thread may hold queued before the optimizer waits for it.
-const WRITE_QUEUE: usize = 4;
+pub const WRITE_QUEUE: usize = 4;
 
 impl FolderWriter<'_> {
     /// Takes in the writer thread's answers: every one still owed when `all`, else those

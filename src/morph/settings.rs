@@ -528,6 +528,16 @@ impl MorphSettings {
         Ok((frames as usize).max(*limits::FRAMES.start()))
     }
 
+    /// How the shapes are placed on a grid of `resolution` cells across.
+    pub fn placement_options(&self, resolution: usize) -> crate::geometry::PlacementOptions {
+        crate::geometry::PlacementOptions {
+            resolution,
+            target_fit: self.target_fit,
+            ground: self.ground.as_ref().map(|g| g.height),
+            ..Default::default()
+        }
+    }
+
     /// The morph step (seconds) and the morph steps between frames.
     fn timing(&self) -> (f64, usize) {
         match self.fps {

@@ -322,9 +322,43 @@ pub const STUDY_JSON: &str = "study.json";
 pub const STUDY_CSV: &str = "study.csv";
 pub const STUDY_PNG: &str = "study.png";
 
-/// The study folder: new, empty, or an earlier study's (holding `study.json`). Anything else
-/// is refused, so a study never writes into a folder it did not make.
-fn open_folder(dir: &Path) -> Result<Vec<StudyRow>, StudyError> {
+/// A mesh a study morphs, by path and content.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StudyInput {
+    pub path: String,
+    pub sha256: String,
+}
+
+/// `study.json`: which meshes the study morphs (by content) and every row measured so far.
+#[derive(Serialize, Deserialize)]
+struct StudyFile {
+    tool: String,
+    version: String,
+    /// The source, then the target.
+    inputs: Vec<StudyInput>,
+    rows: Vec<StudyRow>,
+}
+
+/// The source and target as a study records them.
+fn study_inputs(source: &Path, target: &Path) -> Result<Vec<StudyInput>, StudyError> {
+    [source, target]
+        .iter()
+        .map(|p| {
+            let sha256 = crate::io::sha256_file(p, crate::files::MESH_BYTES).map_err(|e| {
+                StudyError::Folder(format!("cannot read mesh '{}': {e}", p.display()))
+            })?;
+            Ok(StudyInput {
+                path: p.display().to_string(),
+                sha256,
+            })
+        })
+        .collect()
+}
+
+/// The study folder: new, empty, or an earlier study of the same meshes (holding its
+/// `study.json`). Anything else is refused, so a study never writes into a folder it did
+/// not make, and never keeps rows measured on other meshes.
+fn open_folder(dir: &Path, inputs: &[StudyInput]) -> Result<Vec<StudyRow>, StudyError> {
     let bad = |m: String| Err(StudyError::Folder(m));
     if dir.is_symlink() || dir.is_file() {
         return bad(format!(
@@ -334,16 +368,43 @@ fn open_folder(dir: &Path) -> Result<Vec<StudyRow>, StudyError> {
     }
     let json = dir.join(STUDY_JSON);
     if json.is_file() {
-        let bytes = std::fs::read(&json).map_err(|source| StudyError::Write {
-            path: json.clone(),
-            source,
-        })?;
-        return serde_json::from_slice(&bytes).or_else(|e| {
-            bad(format!(
-                "'{}' is not a readable study ({e}); choose another -o",
-                json.display()
-            ))
-        });
+        let bytes =
+            crate::files::read(&json, crate::files::SMALL_FILE_BYTES).map_err(|source| {
+                StudyError::Write {
+                    path: json.clone(),
+                    source,
+                }
+            })?;
+        let file: StudyFile = match serde_json::from_slice(&bytes) {
+            Ok(f) => f,
+            Err(e) => {
+                return bad(format!(
+                    "'{}' is not a study this morph can continue ({e}; studies before morph 0.3.0 did not record their meshes); choose another -o",
+                    json.display()
+                ));
+            }
+        };
+        for (which, (was, now)) in ["source", "target"]
+            .iter()
+            .zip(file.inputs.iter().zip(inputs))
+        {
+            if was.sha256 != now.sha256 {
+                return bad(format!(
+                    "'{}' is a study of another {which} mesh ('{}', not the content of '{}'); its rows do not apply: choose another -o",
+                    dir.display(),
+                    was.path,
+                    now.path
+                ));
+            }
+        }
+        if file.inputs.len() != inputs.len() {
+            return bad(format!(
+                "'{}' records {} meshes, not a source and a target; choose another -o",
+                json.display(),
+                file.inputs.len()
+            ));
+        }
+        return Ok(file.rows);
     }
     if dir.exists() {
         let entries = std::fs::read_dir(dir).map_err(|source| StudyError::Write {
@@ -364,9 +425,15 @@ fn open_folder(dir: &Path) -> Result<Vec<StudyRow>, StudyError> {
     Ok(Vec::new())
 }
 
-fn write_files(dir: &Path, rows: &[StudyRow]) -> Result<(), StudyError> {
+fn write_files(dir: &Path, inputs: &[StudyInput], rows: &[StudyRow]) -> Result<(), StudyError> {
     let err = |path: PathBuf| move |source| StudyError::Write { path, source };
-    let json = serde_json::to_vec_pretty(rows).expect("plain data");
+    let file = StudyFile {
+        tool: "morph study".into(),
+        version: env!("CARGO_PKG_VERSION").into(),
+        inputs: inputs.to_vec(),
+        rows: rows.to_vec(),
+    };
+    let json = serde_json::to_vec_pretty(&file).expect("plain data");
     let path = dir.join(STUDY_JSON);
     crate::io::write_atomically(&path, |w| std::io::Write::write_all(w, &json))
         .map_err(err(path.clone()))?;
@@ -402,7 +469,8 @@ pub fn run(
     mut on_event: impl FnMut(StudyEvent),
 ) -> Result<Vec<StudyRow>, StudyError> {
     grid.validate().map_err(StudyError::Folder)?;
-    let mut rows = open_folder(dir)?;
+    let inputs = study_inputs(source, target)?;
+    let mut rows = open_folder(dir, &inputs)?;
     let configs = grid.configs();
     let of = configs.len();
     for (index, config) in configs.iter().enumerate() {
@@ -415,12 +483,12 @@ pub fn run(
         let row = measure(source, target, config);
         rows.push(row);
         mark_pareto(&mut rows);
-        write_files(dir, &rows)?;
+        write_files(dir, &inputs, &rows)?;
         let row = rows.last().expect("just pushed");
         on_event(StudyEvent::Measured { index, of, row });
     }
     mark_pareto(&mut rows);
-    write_files(dir, &rows)?;
+    write_files(dir, &inputs, &rows)?;
     Ok(rows)
 }
 
