@@ -886,16 +886,20 @@ fn local_inputs(dir: &Path) -> (String, String) {
     ("sphere.obj".into(), "two-lobes.obj".into())
 }
 
+/// Runs morph with `args` in `dir` (writing `dir/out`), sends `signal` once its first
+/// checkpoint is written, and returns what it printed.
+fn stop_after_checkpoint(dir: &Path, args: &[&str], signal: &str) -> Output {
+    let mut child = command(dir, args).stderr(Stdio::piped()).spawn().unwrap();
+    wait_for_checkpoint(dir, &mut child);
+    send(&child, signal);
+    child.wait_with_output().unwrap()
+}
+
 /// Starts a SMALL morph of `s` into `t` in `dir/out` and stops it with SIGINT once its first
 /// checkpoint is written.
 fn interrupt_small(dir: &Path, s: &str, t: &str) {
-    let mut child = command(dir, &morph_args(s, t, "out", SMALL))
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    wait_for_checkpoint(dir, &mut child);
-    send(&child, "INT");
-    assert_eq!(child.wait_with_output().unwrap().status.code(), Some(130));
+    let o = stop_after_checkpoint(dir, &morph_args(s, t, "out", SMALL), "INT");
+    assert_eq!(o.status.code(), Some(130), "{}", stderr(&o));
 }
 
 /// Case 2: --overwrite (and the farm's --resume --overwrite) clears an interrupted run only
@@ -1085,7 +1089,7 @@ fn rope_counts_have_an_upper_bound() {
     let dir = scratch("rope-limits");
     for (flag, value) in [("--steps", "1000000000"), ("--samples", "1000000000")] {
         let o = run_bounded(&dir, &["rope", "-o", "r", flag, value]);
-        assert_one_line_error(&o, 2, &[flag, "between", "100000"]);
+        assert_one_line_error(&o, 2, &[flag, "must be at most 100000"]);
     }
     assert!(!dir.join("r").exists());
 }
@@ -1414,13 +1418,7 @@ fn unclear_errors_are_clear_and_early() {
 fn sighup_and_a_closed_stdout_stop_with_a_message() {
     let dir = scratch("hup");
     let (s, t) = (asset("sphere.obj"), asset("two-lobes.obj"));
-    let mut child = command(&dir, &morph_args(&s, &t, "out", SMALL))
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    wait_for_checkpoint(&dir, &mut child);
-    send(&child, "HUP");
-    let o = child.wait_with_output().unwrap();
+    let o = stop_after_checkpoint(&dir, &morph_args(&s, &t, "out", SMALL), "HUP");
     assert_eq!(o.status.code(), Some(129), "{}", stderr(&o));
     assert!(stderr(&o).contains("SIGHUP"), "{}", stderr(&o));
     assert!(dir.join("out.partial/checkpoint/progress.json").is_file());
@@ -1473,4 +1471,84 @@ fn leftovers_of_a_killed_replacement_are_removed_when_provably_ours() {
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
     assert!(!dir.join(".out.replaced-999999999").exists());
     assert_sentinel(&theirs);
+}
+
+/// A disk that fills up after the first checkpoint: the error says the completed segments are
+/// kept and that --resume continues (it said only what could not be written). Run on a full
+/// tmpfs in a user namespace, when this machine lets a test mount one.
+#[test]
+fn disk_full_says_the_checkpoint_is_kept() {
+    let dir = scratch("disk-full");
+    let mnt = dir.join("volume");
+    std::fs::create_dir_all(&mnt).unwrap();
+    let (s, t) = (asset("sphere.obj"), asset("two-lobes.obj"));
+    let script = format!(
+        "mount -t tmpfs -o size=48m none '{m}' || exit 99
+cd '{m}'
+'{bin}' '{s}' '{t}' -o out {small} 2> '{d}/err.txt' &
+pid=$!
+while [ ! -f out.partial/checkpoint/progress.json ]; do sleep 0.02; done
+dd if=/dev/zero of=fill bs=1M count=64 2>/dev/null
+wait $pid
+echo \"code $?\"
+cat '{d}/err.txt'
+ls out.partial/checkpoint/progress.json",
+        m = mnt.display(),
+        d = dir.display(),
+        bin = env!("CARGO_BIN_EXE_morph"),
+        small = SMALL.join(" "),
+    );
+    let o = Command::new("unshare")
+        .args(["-Urm", "sh", "-c", &script])
+        .output();
+    let Some(o) = o
+        .ok()
+        .filter(|o| o.status.code() != Some(99) && o.status.success())
+    else {
+        eprintln!("no user namespaces here: the full-disk case is skipped");
+        return;
+    };
+    let said = String::from_utf8_lossy(&o.stdout);
+    assert!(said.contains("code 1"), "{said}");
+    let errors: Vec<&str> = said
+        .lines()
+        .filter(|l| l.starts_with("morph: error:"))
+        .collect();
+    assert_eq!(errors.len(), 1, "{said}");
+    assert!(errors[0].contains("No space left on device"), "{said}");
+    assert!(
+        errors[0].contains("the completed segments are kept in 'out.partial'")
+            && errors[0].contains("--resume"),
+        "{said}"
+    );
+    assert!(
+        said.contains("out.partial/checkpoint/progress.json"),
+        "{said}"
+    );
+}
+
+/// An output of morph 0.2.0 or earlier (its manifest lists no files) is refused by
+/// --overwrite with a message that says why, and kept.
+#[test]
+fn outputs_of_earlier_versions_are_refused_saying_why() {
+    let dir = scratch("old-version");
+    let out = tiny_output(&dir, "out");
+    let path = out.join("manifest.json");
+    let mut m: serde_json::Value = serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+    m.as_object_mut().unwrap().remove("files");
+    m["version"] = "0.2.0".into();
+    std::fs::write(&path, serde_json::to_vec(&m).unwrap()).unwrap();
+    let (s, t) = (asset("sphere.obj"), asset("cube.obj"));
+    let mut args = morph_args(&s, &t, "out", TINY);
+    args.push("--overwrite");
+    let o = run(&dir, &args);
+    assert_one_line_error(
+        &o,
+        2,
+        &[
+            "written by morph 0.2.0, which did not list",
+            "delete it yourself",
+        ],
+    );
+    assert!(out.join("frames/frame_0001.ply").is_file());
 }

@@ -43,8 +43,10 @@ OUTPUT (folder -o, written in the locked OUT.partial and put in place when compl
   preview.gif                the sequence animated at its fps
   carried/frame_0001.obj ... the source mesh carried through the morph (--surface)
   morph.usda                 the whole sequence in one USD file (points, both surfaces)
-  -o is checked before any work; --overwrite replaces only an earlier morph output; a second
-  run on the same -o fails at once. Each completed segment is checkpointed in OUT.partial.
+  -o is checked before any work; --overwrite replaces only a folder morph provably wrote (its
+  manifest.json is morph's and lists every file in it), never anything else; a second run on
+  the same -o fails at once. Each completed segment is checkpointed in OUT.partial (sealed
+  with the run id and SHA-256: a damaged checkpoint is refused by name).
 
 PRESETS (resolution, segments x steps, passes, iterations per segment; measured quality and
 time from docs/morph.md, 2 cores):
@@ -55,8 +57,9 @@ EXIT CODES:
   0    success (every written file checked finite)
   1    the run failed (bad mesh, simulation, writing, output folder in use)
   2    bad command line, option value or output folder (refused before any work)
-  130  interrupted by SIGINT (Ctrl-C), 143 by SIGTERM: completed segments are kept in
-       OUT.partial; the same command with --resume continues bit for bit
+  130  interrupted by SIGINT (Ctrl-C), 143 by SIGTERM, 129 by SIGHUP, 141 by a closed
+       stdout: completed segments are kept in OUT.partial; the same command with --resume
+       continues bit for bit
 
 EXAMPLES:
   morph assets/sphere.obj assets/two-lobes.obj -o out
@@ -103,8 +106,8 @@ pub(super) fn after_long_help() -> String {
 /// The main job: `morph SOURCE TARGET [options]`.
 #[derive(Args, Debug)]
 pub struct MorphArgs {
-    /// Mesh to start from, then the mesh(es) to become in order (OBJ or PLY): `morph A B`,
-    /// or `morph A B C --at 48,96` to pass through B on the way to C.
+    /// Mesh to start from, then the mesh(es) to become in order (OBJ or PLY; at most 1000
+    /// targets): `morph A B`, or `morph A B C --at 48,96` to pass through B on the way to C.
     #[arg(value_name = "SOURCE TARGET...")]
     meshes: Vec<PathBuf>,
     /// A scene file (TOML, or JSON): the meshes and any settings, by the settings' names
@@ -114,8 +117,9 @@ pub struct MorphArgs {
     /// Output folder (a new folder, an empty one, or an earlier morph output with --overwrite).
     #[arg(short, long, default_value = "morph-out")]
     output: PathBuf,
-    /// Replace the output folder if it holds an earlier morph output (nothing else is ever
-    /// replaced); also starts over from an interrupted run's OUT.partial.
+    /// Replace the output folder if morph provably wrote it (its manifest.json is morph's and
+    /// lists every file there; nothing else is ever replaced); also starts over from an
+    /// interrupted run's OUT.partial, once the new inputs have loaded.
     #[arg(long)]
     overwrite: bool,
     /// Continue an interrupted run (same inputs and settings) from OUT.partial; starts afresh
@@ -186,9 +190,7 @@ pub struct MorphArgs {
     /// --frame-every or --dt replace it].
     #[arg(long, conflicts_with_all = ["frame_every", "dt"])]
     fps: Option<f64>,
-    /// Frames in the sequence, the rest shape first: the chain is cut into segments of
-    /// --steps steps to fit (the last one shorter) [default: --segments segments].
-    #[arg(long, conflicts_with = "segments")]
+    #[arg(long, conflicts_with = "segments", help = help("Frames in the sequence, the rest shape first: the chain is cut into segments of --steps steps to fit (the last one shorter)", Some(limits::FRAMES), "--segments segments"))]
     frames: Option<usize>,
     /// The shot's length in seconds instead of --frames: the frames that fill it at the frame
     /// rate, the rest shape first (4 s at 24 fps: 97 frames).
@@ -212,9 +214,9 @@ pub struct MorphArgs {
     /// Print nothing but errors.
     #[arg(long, short)]
     quiet: bool,
-    /// Cap on the run's memory, e.g. 150M or 4G: segments then keep checkpoints and recompute
-    /// instead of holding every step (same results, more time). auto: a quarter of the
-    /// machine's memory.
+    /// Cap on the run's memory, e.g. 200M or 4G, at most the machine's (or its container's)
+    /// memory: segments then keep checkpoints and recompute instead of holding every step
+    /// (same results, more time). auto: a quarter of the memory this process may use.
     #[arg(long, default_value = "auto", value_parser = parse_memory_limit)]
     memory_limit: MemoryLimit,
 }

@@ -94,8 +94,10 @@ fn count(name: &str, v: i64, min: i64) -> Result<usize, String> {
     } else {
         MAX_ROPE_COUNT
     };
-    if v < min || v as u64 > max as u64 {
-        Err(format!("--{name} must be between {min} and {max}, got {v}"))
+    if v < min {
+        Err(format!("--{name} must be at least {min}, got {v}"))
+    } else if v as u64 > max as u64 {
+        Err(format!("--{name} must be at most {max}, got {v}"))
     } else {
         Ok(v as usize)
     }

@@ -58,8 +58,17 @@ pub fn check_owned(dir: &Path, marker: &str) -> Result<Owned, String> {
         }
         Err(e) => return Err(format!("cannot read its {marker}: {e}")),
     };
-    let m: Marker = serde_json::from_slice(&bytes)
-        .map_err(|e| format!("its {marker} is not one morph wrote: {e}"))?;
+    let m: Marker = serde_json::from_slice(&bytes).map_err(|e| {
+        let value: serde_json::Value = serde_json::from_slice(&bytes).unwrap_or_default();
+        match (value["tool"].as_str(), value["version"].as_str()) {
+            (Some(tool), Some(version)) if tool.starts_with("morph") && value["files"].is_null() => {
+                format!(
+                    "its {marker} was written by {tool} {version}, which did not list the folder's files, so nothing proves the folder holds only morph's; delete it yourself if it is"
+                )
+            }
+            _ => format!("its {marker} is not one morph wrote: {e}"),
+        }
+    })?;
     let plain = |f: &str| {
         !f.is_empty()
             && !f.starts_with('/')
