@@ -544,6 +544,19 @@ pub fn run(args: &MorphArgs) -> ExitCode {
                         100.0 * q.inverted
                     );
                 }
+                if let Some(m) = &summary.motion {
+                    let ease = m
+                        .ease_error
+                        .map_or("n/a".to_string(), |e| format!("{e:.2}"));
+                    say!(
+                        "motion: pulse {:.2}, dip {:.2}, wobble {:.2}, settle {:.2}, ease error {ease}, {} frozen frames",
+                        m.pulse,
+                        m.dip,
+                        m.wobble,
+                        m.settle,
+                        m.frozen_frames
+                    );
+                }
                 if let Some(f) = &summary.frames_summary {
                     let volume = f.max_surface_volume_error.map_or(String::new(), |e| {
                         format!("; surface volume within {:.1}% of the body's", 100.0 * e)

@@ -10,6 +10,7 @@ pub mod basis;
 pub mod checkpoint;
 pub mod memory;
 pub mod metrics;
+pub mod motion;
 pub mod output;
 pub mod quality;
 pub mod scene_file;
@@ -635,6 +636,59 @@ impl Prepared {
         let judge = quality::Judge::new(mesh, spacing, positions);
         let j: Vec<f64> = state.f.iter().map(|f| f.determinant()).collect();
         judge.judge(&state.x, &j)
+    }
+
+    /// A progress measure toward each target in keyframe order (see [`motion`]).
+    pub fn progress_judges(&self) -> Vec<quality::Progress> {
+        let spacing = self.model().grid.dx / self.settings.particles_per_cell as f64;
+        self.geometry
+            .keyframes
+            .iter()
+            .map(|k| &k.sim)
+            .chain(std::iter::once(&self.geometry.target_sim))
+            .map(|mesh| quality::Progress::new(mesh, &self.initial.x, spacing))
+            .collect()
+    }
+
+    /// The motion measures of frames `from..=to` (1-based) of a run whose frames measured
+    /// `stats`, against target `t` reached on frame `arrive` (see [`motion`]).
+    pub fn motion_of(
+        &self,
+        speeds: &[f64],
+        iou: &[f64],
+        from: usize,
+        to: usize,
+        arrive: usize,
+    ) -> motion::MotionMeasures {
+        let every = self.settings.frame_every as f64;
+        let mut boundaries = Vec::new();
+        let mut end = 0;
+        for &n in &self.segment_steps {
+            end += n;
+            boundaries.push(1 + (end as f64 / every).round() as usize);
+        }
+        let per_segment = self.segment_steps.iter().sum::<usize>() as f64
+            / self.segment_steps.len().max(1) as f64
+            / every;
+        let section: Vec<usize> = boundaries
+            .iter()
+            .filter(|&&b| b >= from && b <= to)
+            .map(|b| b + 1 - from)
+            .collect();
+        let to = to.min(speeds.len());
+        let from = from.clamp(1, to.max(1));
+        let iou = if iou.len() >= to {
+            &iou[from - 1..to]
+        } else {
+            &[][..]
+        };
+        motion::measure(
+            &speeds[from - 1..to],
+            iou,
+            &section,
+            per_segment,
+            arrive + 1 - from,
+        )
     }
 
     pub fn loss_of(&self, state: &State) -> Result<f64, SimError> {

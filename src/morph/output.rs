@@ -16,6 +16,7 @@
 
 use super::memory::{MemoryLimit, MemoryPlan};
 use super::metrics::{FillMetrics, fill_metrics};
+use super::motion::MotionMeasures;
 use super::quality::Quality;
 use super::{
     Frame, FrameSink, IterationRecord, MorphError, MorphEvent, MorphSettings, Observer, Prepared,
@@ -72,7 +73,7 @@ struct FrameEntry {
 
 /// What each written frame measured: its particles' volume ratios, their order below the
 /// grid, and the volume its rebuilt surface encloses.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct FrameStats {
     pub min_j: f64,
     pub mean_j: f64,
@@ -103,6 +104,10 @@ pub struct FrameStats {
     /// [`crate::geometry::cleanup`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rebuilt: Option<RebuiltStats>,
+    /// The body's IoU with each target's inside on the coarse progress lattice, in target
+    /// order ([`super::quality::Progress`]): how far it has come toward each.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub progress_iou: Vec<f64>,
     /// Volume inside the rebuilt surface (world units), when surfaces are written.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub surface_volume: Option<f64>,
@@ -387,6 +392,10 @@ struct Manifest {
     /// The worst of the frames' measurements (each frame's are in `frames`).
     #[serde(default)]
     frames_summary: Option<FramesSummary>,
+    /// What a viewer sees of the motion: pulse, dip, wobble, settle, ease error
+    /// ([`super::motion`]), over the whole sequence against the final target.
+    #[serde(default)]
+    motion: Option<MotionMeasures>,
     iterations: Vec<IterationRecord>,
     segments: Vec<SegmentRecord>,
     timings: Timings,
@@ -419,6 +428,10 @@ pub struct KeyframeReport {
     pub quality: Option<Quality>,
     pub halfway_frame: usize,
     pub halfway_quality: Option<Quality>,
+    /// The motion measures of this target's section: from the previous keyframe's frame (the
+    /// rest shape's for the first) to this one's (to the last frame for the final target).
+    #[serde(default)]
+    pub motion: Option<MotionMeasures>,
 }
 
 #[derive(Clone, Copy, Serialize, Deserialize)]
@@ -443,6 +456,8 @@ pub struct Summary {
     /// The worst of the written frames' measurements: J range, inverted frames, order,
     /// surface volume.
     pub frames_summary: Option<FramesSummary>,
+    /// The motion measures of the whole sequence (see [`super::motion`]).
+    pub motion: Option<MotionMeasures>,
     pub seconds: f64,
     /// Where the run continued from (`--resume`), e.g. "pass 2 of 2, 5 of 12 segments done".
     pub resumed_from: Option<String>,
@@ -552,6 +567,7 @@ pub fn morph_to_folder(
                     fill: m.fill,
                     quality: m.quality,
                     frames_summary: m.frames_summary,
+                    motion: m.motion,
                     seconds: 0.0,
                     resumed_from: None,
                     already_complete: true,
@@ -865,6 +881,7 @@ fn frame_stats(frame: &Frame) -> FrameStats {
         // Measured on the writer thread with the surfaces (see `FrameWork`).
         close_share: 0.0,
         rms_speed: (frame.world.v.iter().map(|v| v.norm_squared()).sum::<f64>() / n).sqrt(),
+        progress_iou: Vec::new(),
         surface_volume: None,
         surface_volume_error: None,
     }
@@ -893,6 +910,8 @@ struct FolderWriter<'a> {
     preview: Vec<(usize, Vec<Vector3<f64>>)>,
     /// The judge's verdict on the frames [`judged_frames`] names: (frame, target, verdict).
     judged: Vec<(usize, usize, Quality)>,
+    /// Progress toward each target, measured on every frame (see [`super::motion`]).
+    progress: Vec<super::quality::Progress>,
     stop: Option<&'a AtomicUsize>,
     on_event: &'a mut dyn FnMut(&MorphEvent),
 }
@@ -1037,6 +1056,11 @@ impl Observer for FolderWriter<'_> {
             self.collect(true)?;
         }
         let mut stats = frame_stats(frame);
+        stats.progress_iou = self
+            .progress
+            .iter()
+            .map(|p| p.iou(&frame.state.x))
+            .collect();
         self.recent.retain(|(i, _)| *i + 2 >= index && *i < index);
         if let [(a, older), (b, previous)] = self.recent.as_slice()
             && *a + 2 == index
@@ -1168,6 +1192,7 @@ fn write_run(
         preview_at: (0..6).map(|i| i * (n_frames - 1) / 5).collect(),
         preview: Vec::new(),
         judged: Vec::new(),
+        progress: prep.progress_judges(),
         stop,
         on_event,
     };
@@ -1194,6 +1219,35 @@ fn write_run(
     let preview = std::mem::take(&mut writer.preview);
     let frame_stats = std::mem::take(&mut writer.stats);
     let frames_summary = FramesSummary::of(&frame_stats);
+    // The motion measures, from every frame's speed and progress (a resumed run restored the
+    // earlier frames' from its checkpoint).
+    let speeds: Vec<f64> = frame_stats.iter().map(|s| s.rms_speed).collect();
+    let progress_to = |t: usize| -> Vec<f64> {
+        frame_stats
+            .iter()
+            .filter_map(|s| s.progress_iou.get(t).copied())
+            .collect()
+    };
+    let targets = settings.at.len();
+    let motion = (speeds.len() == n_frames).then(|| {
+        prep.motion_of(
+            &speeds,
+            &progress_to(targets - 1),
+            1,
+            n_frames,
+            settings.at[targets - 1],
+        )
+    });
+    let section_motion = |t: usize| {
+        let from = if t == 0 { 1 } else { settings.at[t - 1] };
+        let to = if t + 1 == targets {
+            n_frames
+        } else {
+            settings.at[t]
+        };
+        (speeds.len() == n_frames)
+            .then(|| prep.motion_of(&speeds, &progress_to(t), from, to, settings.at[t]))
+    };
     let run_warnings = super::run_warnings(&result.segments);
     let mut judged = std::mem::take(&mut writer.judged);
     judged.sort_by_key(|(f, t, _)| (*f, *t));
@@ -1225,6 +1279,7 @@ fn write_run(
                 quality: at(frame),
                 halfway_frame: halfway(prep, t),
                 halfway_quality: at(halfway(prep, t)),
+                motion: section_motion(t),
             }
         })
         .collect();
@@ -1321,7 +1376,7 @@ fn write_run(
                     .surfaces
                     .carried()
                     .then(|| format!("carried/{name}.obj")),
-                stats: frame_stats.get(i).copied(),
+                stats: frame_stats.get(i).cloned(),
             }
         })
         .collect();
@@ -1352,6 +1407,7 @@ fn write_run(
         fill,
         quality,
         frames_summary,
+        motion,
         iterations: result.iterations,
         segments: result.segments,
         timings: Timings {
@@ -1389,6 +1445,7 @@ fn write_run(
         fill,
         quality,
         frames_summary,
+        motion,
         seconds: total_s,
         resumed_from,
         already_complete: false,

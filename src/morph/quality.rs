@@ -156,6 +156,56 @@ fn iou(a: &[bool], b: &[bool]) -> f64 {
     both as f64 / either.max(1) as f64
 }
 
+/// How far a body has come toward a target, frame by frame: its IoU with the target's inside
+/// on a coarse lattice ([`super::motion::PROGRESS_ACROSS`] points along the longest side)
+/// over the box of the target and the body at rest, a point covered by a particle within
+/// [`COVER_RADIUS`] spacings.
+pub struct Progress {
+    lattice: Lattice,
+    inside: Vec<bool>,
+    spacing: f64,
+}
+
+impl Progress {
+    /// For `target` and a body at rest at `rest` (sim coordinates), particles `spacing` apart.
+    pub fn new(target: &TriMesh, rest: &[Vector3<f64>], spacing: f64) -> Progress {
+        let mut bounds = target.bounds();
+        for p in rest {
+            bounds.grow(p);
+        }
+        let lattice = Lattice::covering(&bounds, super::motion::PROGRESS_ACROSS);
+        let inside = voxelize(target, &lattice).inside;
+        Progress {
+            lattice,
+            inside,
+            spacing,
+        }
+    }
+
+    /// The IoU of particles `x` with the target's inside.
+    pub fn iou(&self, x: &[Vector3<f64>]) -> f64 {
+        iou(
+            &covered(&self.lattice, x, COVER_RADIUS * self.spacing),
+            &self.inside,
+        )
+    }
+}
+
+/// Which points of `lattice` lie within `radius` of a particle.
+fn covered(lattice: &Lattice, particles: &[Vector3<f64>], radius: f64) -> Vec<bool> {
+    let grid = PointGrid::new(particles, radius);
+    let d = lattice.dims;
+    (0..lattice.len())
+        .into_par_iter()
+        .map(|index| {
+            let k = index % d[2];
+            let j = (index / d[2]) % d[1];
+            let i = index / (d[1] * d[2]);
+            grid.any_within(&lattice.point(i, j, k), radius)
+        })
+        .collect()
+}
+
 /// The judge lattice over the target's box and which of its points are inside the target.
 pub struct Judge {
     lattice: Lattice,
@@ -196,18 +246,7 @@ impl Judge {
 
     /// Which judge points lie within [`COVER_RADIUS`] spacings of a particle.
     fn covered(&self, particles: &[Vector3<f64>]) -> Vec<bool> {
-        let radius = COVER_RADIUS * self.spacing;
-        let grid = PointGrid::new(particles, radius);
-        let d = self.lattice.dims;
-        (0..self.lattice.len())
-            .into_par_iter()
-            .map(|index| {
-                let k = index % d[2];
-                let j = (index / d[2]) % d[1];
-                let i = index / (d[1] * d[2]);
-                grid.any_within(&self.lattice.point(i, j, k), radius)
-            })
-            .collect()
+        covered(&self.lattice, particles, COVER_RADIUS * self.spacing)
     }
 
     /// Judges final particle positions `x` with volume ratios `j`.
