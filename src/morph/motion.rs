@@ -177,7 +177,7 @@ mod tests {
         assert!(m.pulse > 0.2 && m.dip > 0.3 && m.wobble > 0.2, "{m:?}");
         // Frozen frames, settle and ease error.
         let mut late = vec![0.0; 10];
-        late.extend(smooth.iter().take(40));
+        late.extend(smooth.iter().skip(10).take(40));
         let iou: Vec<f64> = (0..late.len()).map(|f| f as f64 / 49.0).collect();
         let m = measure(&late, &iou, &[], p, 50);
         assert_eq!(m.frozen_frames, 10);
