@@ -113,9 +113,10 @@ fn source_equal_to_target_does_not_move() {
 #[test]
 fn a_learning_rate_100x_the_default_stays_finite() {
     let m = check("learning-rate-x100").measured.unwrap();
-    // Every step blew up, was rejected and halved; the run says so.
+    // The first steps were too large: each was undone (recorded as such) and halved until one
+    // lowered the objective, so the run still gets somewhere.
     assert!(m.rejected_steps > 0, "{m:?}");
-    assert_eq!(m.warnings.len(), 1, "{m:?}");
+    assert!(m.final_loss < m.initial_loss, "{m:?}");
 }
 
 #[test]

@@ -150,7 +150,7 @@ pub struct MorphArgs {
     learning_rate: Option<f64>,
     #[arg(long, value_parser = choice(&MassLossKind::ALL), help = format!("Mass loss on the grid [default {}]", name(&defaults().loss)))]
     loss: Option<MassLossKind>,
-    #[arg(long, help = help("Weight of the kinetic energy left at each segment's end, >= 0", None, defaults().arrival_weight))]
+    #[arg(long, help = help("Weight of the kinetic energy left at the end of each segment after the final target's arrival (the held shape comes to rest), >= 0", None, defaults().arrival_weight))]
     arrival_weight: Option<f64>,
     #[arg(long, help = help("Weight of the volume cost (sum 1/2 (ln J)^2 per particle, and the whole body's) averaged over every step, >= 0 (keeps the body at its volume)", None, defaults().volume_weight))]
     volume_weight: Option<f64>,

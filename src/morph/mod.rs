@@ -83,7 +83,8 @@ pub struct IterationRecord {
     pub pass: usize,
     pub segment: usize,
     pub iteration: usize,
-    /// Infinite (written as null) for a step that blew the simulation up and was undone.
+    /// Infinite (written as null) for a step that was undone: it blew the simulation up, or,
+    /// as a segment's first step, raised the objective.
     #[serde(deserialize_with = "null_is_infinite")]
     pub loss: f64,
     /// Wall seconds since the optimization started.
@@ -534,6 +535,20 @@ impl Prepared {
         }
     }
 
+    /// The weight of the kinetic energy left at segment `k`'s end: the settings' for a segment
+    /// that starts at or after the final target's arrival (the held shape comes to rest), none
+    /// before (braking at every segment's end made the body pulse at the segments' period,
+    /// and braking the segment that still has to finish the shape cost fill).
+    pub fn segment_arrival_weight(&self, k: usize) -> f64 {
+        let start: usize = self.segment_steps[..k].iter().sum();
+        let arrival = self.schedule.steps.last().copied().unwrap_or(0);
+        if start >= arrival {
+            self.settings.arrival_weight
+        } else {
+            0.0
+        }
+    }
+
     /// Keyframe `i`'s nodal masses on the simulation and fine grids for segment `k`
     /// (keyframe 0: where the body would be on its own at the segment's end).
     fn keyframe_masses(
@@ -933,7 +948,7 @@ fn chain<I: Integrator>(
                 first_step: prep.sim_segment_first(k),
                 steps: prep.sim_segment_steps(k),
                 stride: prep.sim_control_stride(),
-                arrival_weight: s.arrival_weight,
+                arrival_weight: prep.segment_arrival_weight(k),
                 volume_weight: s.volume_weight,
                 resolution: s.control_resolution,
                 tape_budget: prep.tape_budget,

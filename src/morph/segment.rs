@@ -152,14 +152,44 @@ impl<I: Integrator> Segment<'_, I> {
         self.steps.div_ceil(self.stride)
     }
 
-    /// Per-step controls with layer `l` at step `l * stride`, from layer `from` on.
+    /// Per-step controls from layer `from` on: layer `l` acts in equal parts `Fc / stride`
+    /// on each of its steps `l * stride ..`. (Applied whole on its first step, every layer
+    /// kicked the body at the layers' period, a frame-to-frame wobble a viewer sees.)
     fn schedule(
         &self,
         layers: &[Vec<Matrix3<f64>>],
         from: usize,
     ) -> Vec<Option<Vec<Matrix3<f64>>>> {
-        (from * self.stride..self.steps)
-            .map(|s| (s % self.stride == 0).then(|| layers[s / self.stride].clone()))
+        let share = 1.0 / self.stride as f64;
+        let mut out = Vec::with_capacity(self.steps - from * self.stride);
+        for layer in &layers[from..] {
+            let part: Vec<Matrix3<f64>> = layer.iter().map(|c| c * share).collect();
+            let steps = self.stride.min(self.steps - from * self.stride - out.len());
+            for _ in 0..steps {
+                out.push(Some(part.clone()));
+            }
+        }
+        out
+    }
+
+    /// The gradient of each layer from `from` on, from the gradients of its steps' controls
+    /// (the reverse of [`Segment::schedule`]).
+    fn layer_gradients(&self, per_step: Vec<Option<Vec<Matrix3<f64>>>>) -> Layers {
+        let share = 1.0 / self.stride as f64;
+        per_step
+            .chunks(self.stride)
+            .map(|steps| {
+                let mut sum: Option<Vec<Matrix3<f64>>> = None;
+                for g in steps.iter().flatten() {
+                    match &mut sum {
+                        None => sum = Some(g.clone()),
+                        Some(acc) => acc.iter_mut().zip(g).for_each(|(a, b)| *a += b),
+                    }
+                }
+                let mut sum = sum.expect("every step of a layer is controlled");
+                sum.iter_mut().for_each(|g| *g *= share);
+                sum
+            })
             .collect()
     }
 
@@ -282,7 +312,7 @@ impl<I: Integrator> Segment<'_, I> {
             (self.volume_weight > 0.0).then_some(&mut volume_seed);
         let grads =
             recompute::reverse(self.sim, &rollout.run, &schedule, at, at, seed, seed_after)?;
-        Ok(grads.controls.into_iter().flatten().collect())
+        Ok(self.layer_gradients(grads.controls))
     }
 
     /// The segment objective (mass loss + arrival term) for `layers`, and its gradient with
@@ -383,11 +413,15 @@ impl<I: Integrator> Segment<'_, I> {
         let mut norms = GradNorms::default();
         let mut lr = s.learning_rate;
         let mut iteration = 0;
+        // Whether a step has been taken, and the free evaluations spent halving the first one
+        // (see its check below): those do not count against the iterations.
+        let mut moved = false;
+        let mut halvings = 0;
         'outer: loop {
             if !on_iteration(iteration, current.loss) {
                 return Ok(None);
             }
-            let grad = if iteration + 1 < iterations {
+            let grad = if iteration - halvings + 1 < iterations {
                 let g = to_params(self.gradient(&current, &layers, 0)?);
                 norms.add(&g);
                 Some(g)
@@ -396,6 +430,7 @@ impl<I: Integrator> Segment<'_, I> {
             };
             // Reversed: its chunks go before the next rollout records its own.
             let done = current.settled();
+            let from_loss = done.loss;
             if best.as_ref().is_none_or(|b| done.loss < b.1.loss) {
                 best = Some((layers.clone(), done));
             }
@@ -407,9 +442,30 @@ impl<I: Integrator> Segment<'_, I> {
                 evaluations += 1;
                 iteration += 1;
                 match self.rollout(self.start, &layers, 0, 0.0) {
-                    Ok(r) => {
+                    Ok(r) if moved || r.loss <= from_loss => {
+                        moved = true;
                         current = r;
                         break;
+                    }
+                    Ok(_) => {
+                        // The first step raised the objective: undo it, retry with half the
+                        // step. Adam's first step moves every control by the full step size;
+                        // where little motion is asked for (early in a shot) it overshot so
+                        // far that no later step came back, and the body froze. A retry that
+                        // would leave no iteration for the step is free, so a run of few
+                        // iterations still takes one.
+                        (params, adam) = saved.clone();
+                        to_layers(&params, &mut layers);
+                        lr *= 0.5;
+                        if !on_iteration(iteration, f64::INFINITY) {
+                            return Ok(None);
+                        }
+                        if iteration - halvings + 1 >= iterations {
+                            halvings += 1;
+                            if halvings > MAX_FIRST_STEP_HALVINGS {
+                                break 'outer;
+                            }
+                        }
                     }
                     Err(e) if blew_up(&e) => {
                         // The step blew the simulation up: undo it, retry with half the step.
@@ -419,7 +475,7 @@ impl<I: Integrator> Segment<'_, I> {
                         if !on_iteration(iteration, f64::INFINITY) {
                             return Ok(None);
                         }
-                        if iteration + 1 >= iterations {
+                        if iteration - halvings + 1 >= iterations {
                             break 'outer;
                         }
                     }
@@ -516,6 +572,11 @@ impl<I: Integrator> Segment<'_, I> {
         }))
     }
 }
+
+/// Free halvings of a segment's first Adam step at most, once its iterations are spent and it
+/// still raises the objective: the gradient is then no guide, and the segment keeps its
+/// initial controls.
+const MAX_FIRST_STEP_HALVINGS: usize = 8;
 
 /// The first and the last gradient norm of an optimization.
 #[derive(Default)]
