@@ -13,8 +13,12 @@ use std::borrow::Cow;
 pub mod recompute;
 
 /// Per-step deformation-gradient controls: `controls[s]`, when present and `Some`, is the
-/// `Fc` (one per particle) of local step `s`.
-pub type StepControls = [Option<Vec<Matrix3<f64>>>];
+/// `Fc` (one per particle) of local step `s`. Shared: the steps of one control layer hold the
+/// same values without a copy each.
+pub type StepControls = [Option<StepControl>];
+
+/// One step's controls (see [`StepControls`]).
+pub type StepControl = std::sync::Arc<[Matrix3<f64>]>;
 
 /// A cost on every state along a run: `seed(k, state, adj)` adds to `adj` the adjoint of the
 /// cost on the state after global step `k` (see [`Integrator::backward_seeded`]).

@@ -56,7 +56,7 @@ fn run_on(
             }
             let mut tape = Default::default();
             let (_, last) = rollout_loss(sim, &init, &ctrl, steps, &loss, Some(&mut tape));
-            let grads = sim.backward(&tape, &ctrl, loss_seed(sim.model(), &last, &loss));
+            let grads = sim.backward(&tape, &shared(&ctrl), loss_seed(sim.model(), &last, &loss));
             (last, grads)
         })
     })

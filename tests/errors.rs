@@ -68,7 +68,7 @@ fn nan_in_the_state_or_controls() {
     let mut fc = vec![Matrix3::zeros(); s.len()];
     fc[12][(0, 0)] = f64::NAN;
     let err = sim
-        .forward(&mut s, &[None, Some(fc)], 0, 5, None)
+        .forward(&mut s, &[None, Some(fc.into())], 0, 5, None)
         .unwrap_err();
     assert_eq!(
         err,

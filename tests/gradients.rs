@@ -129,7 +129,7 @@ fn check_rollout<I: Integrator>(
         .map(|p| (last.f[p] - init.f[p]).norm())
         .fold(0.0, f64::max);
     assert!(max_df > 0.05, "body barely deforms: max |dF| = {max_df}");
-    let grads = sim.backward(&tape, &ctrl, loss_seed(model, &last, &loss));
+    let grads = sim.backward(&tape, &shared(&ctrl), loss_seed(model, &last, &loss));
 
     let label = format!("{kernel:?}/{kind:?}");
     let eval = |init: &State, ctrl: &[Option<Vec<Matrix3<f64>>>]| {
@@ -395,7 +395,7 @@ fn gravity_parameter_gradient_matches_fd() {
     let loss = shifted_target(&sim, &init, Vector3::new(0.0, 1.0, 0.5), MassLossKind::Log);
     let mut tape = Tape::default();
     let (_, last) = rollout_loss(&sim, &init, &ctrl, STEPS, &loss, Some(&mut tape));
-    let grads = sim.backward(&tape, &ctrl, loss_seed(&sim, &last, &loss));
+    let grads = sim.backward(&tape, &shared(&ctrl), loss_seed(&sim, &last, &loss));
     for a in 0..3 {
         let fd = fd(|e| {
             let mut g = g0;
@@ -648,7 +648,8 @@ fn time_dependent_effect_case(kind: IntegratorKind) {
         tape: Option<&mut I::Tape>,
     ) -> (f64, State) {
         let mut s = init.clone();
-        sim.forward(&mut s, ctrl, FIRST, STEPS, tape).unwrap();
+        sim.forward(&mut s, &shared(ctrl), FIRST, STEPS, tape)
+            .unwrap();
         let m = sim.model().mass_grid(&s.x).unwrap();
         (loss.value_and_grad(&m).0, s)
     }
@@ -656,7 +657,7 @@ fn time_dependent_effect_case(kind: IntegratorKind) {
     let grads = morph::with_integrator!(&engine, sim => {
         let mut tape = Default::default();
         let (_, last) = run(sim, &init, &ctrl, &loss, Some(&mut tape));
-        sim.backward(&tape, &ctrl, loss_seed(sim.model(), &last, &loss))
+        sim.backward(&tape, &shared(&ctrl), loss_seed(sim.model(), &last, &loss))
     });
     let fd_k = fd(|e| loss_of(&build(k0 + e), &init));
     let an_k = grads.effect_params[0][0];
@@ -753,7 +754,7 @@ fn planned_tape_bytes_match_a_real_tape() {
                 (0..4).map(|_| Some(vec![Matrix3::zeros(); n])).collect();
             let mut tape = Default::default();
             let mut s = init.clone();
-            sim.forward(&mut s, &ctrl, 0, 4, Some(&mut tape)).unwrap();
+            sim.forward(&mut s, &shared(&ctrl), 0, 4, Some(&mut tape)).unwrap();
             let measured = (tape.bytes() - tape.last().bytes()) as f64 / 4.0;
             let planned = sim.tape_bytes_per_step(n) as f64;
             assert!(

@@ -41,7 +41,7 @@ fn momentum_is_conserved_without_effects() {
             init.angular_momentum(&sim.mass, inv_d),
         );
         let mut s = init.clone();
-        sim.forward(&mut s, &ctrl, 0, 30, None).unwrap();
+        sim.forward(&mut s, &shared(&ctrl), 0, 30, None).unwrap();
         let (p1, l1) = (
             s.linear_momentum(&sim.mass),
             s.angular_momentum(&sim.mass, inv_d),

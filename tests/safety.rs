@@ -902,6 +902,19 @@ fn interrupt_small(dir: &Path, s: &str, t: &str) {
     assert_eq!(o.status.code(), Some(130), "{}", stderr(&o));
 }
 
+/// A SMALL morph of local copies of the inputs interrupted in `dir/out` after its first
+/// checkpoint: the source, the target, the checkpoint folder and its state file's name.
+fn interrupted_with_checkpoint(dir: &Path) -> (String, String, PathBuf, PathBuf) {
+    let (s, t) = local_inputs(dir);
+    interrupt_small(dir, &s, &t);
+    let ck = dir.join("out.partial/checkpoint");
+    let state = files(&ck)
+        .into_iter()
+        .find(|f| f.to_string_lossy().starts_with("state_"))
+        .unwrap();
+    (s, t, ck, state)
+}
+
 /// Case 2: --overwrite (and the farm's --resume --overwrite) clears an interrupted run only
 /// once the new inputs have loaded: a source truncated by a sync in progress fails the run
 /// and the checkpoint is still there, byte for byte; the repaired source then resumes.
@@ -1040,13 +1053,7 @@ fn reads_are_bounded_devices_and_fifos_refused() {
     assert_one_line_error(&o, 2, &["/dev/zero", "a device"]);
 
     // A checkpoint file replaced by a link to /dev/zero.
-    let (s, t) = local_inputs(&dir);
-    interrupt_small(&dir, &s, &t);
-    let ck = dir.join("out.partial/checkpoint");
-    let state = files(&ck)
-        .into_iter()
-        .find(|f| f.to_string_lossy().starts_with("state_"))
-        .unwrap();
+    let (s, t, ck, state) = interrupted_with_checkpoint(&dir);
     std::fs::remove_file(ck.join(&state)).unwrap();
     std::os::unix::fs::symlink("/dev/zero", ck.join(&state)).unwrap();
     let mut args = morph_args(&s, &t, "out", SMALL);
@@ -1181,17 +1188,11 @@ fn particle_budget_is_met_in_order() {
 
 /// Case 12: checkpoints are sealed: a flipped bit in a state file, or progress.json edited
 /// back to `segments_done: 0`, is refused by name on --resume (it exited 0 with a different
-/// result); a checkpoint of other settings is refused too.
+/// result). A checkpoint of another run is refused in `tests/fuzz.rs`.
 #[test]
 fn damaged_checkpoints_are_refused_by_name() {
     let dir = scratch("sealed");
-    let (s, t) = local_inputs(&dir);
-    interrupt_small(&dir, &s, &t);
-    let ck = dir.join("out.partial/checkpoint");
-    let state = files(&ck)
-        .into_iter()
-        .find(|f| f.to_string_lossy().starts_with("state_"))
-        .unwrap();
+    let (s, t, ck, state) = interrupted_with_checkpoint(&dir);
     let mut resume = morph_args(&s, &t, "out", SMALL);
     resume.push("--resume");
     let bytes = std::fs::read(ck.join(&state)).unwrap();

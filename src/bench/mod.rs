@@ -23,7 +23,7 @@ use std::time::Instant;
 pub struct Workload {
     pub engine: Engine,
     pub initial: State,
-    pub controls: Vec<Option<Vec<Matrix3<f64>>>>,
+    pub controls: Vec<Option<crate::integrator::StepControl>>,
     pub loss: MassLoss,
 }
 
@@ -65,7 +65,7 @@ pub fn workload(
                         let a = 0.02 * (0.4 * x[0] + 0.3 * x[1]).sin();
                         Matrix3::new(a, 0.01, 0.0, -0.01, -a, 0.005, 0.0, 0.002, 0.5 * a)
                     })
-                    .collect()
+                    .collect::<crate::integrator::StepControl>()
             })
         })
         .collect();

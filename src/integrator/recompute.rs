@@ -177,8 +177,12 @@ pub fn record<I: Integrator>(
 /// The reverse pass of `run` from its end down to global step `down_to` (a chunk start):
 /// `controls` are the ones the forward pass used, indexed from global step `controls_from`
 /// (at most `down_to`); `seed_after`, when given, seeds a cost on every state (see
-/// [`Integrator::backward_seeded`]). Each chunk without a tape is re-run with one first. Returns the
-/// gradients of the steps from `down_to` on (`initial` is dL/d(state at `down_to`)).
+/// [`Integrator::backward_seeded`]). Each chunk without a tape is re-run with one first.
+/// `on_control(k, g)` receives dL/dFc of every controlled global step `k` as its chunk is
+/// reversed, so that no more than one chunk's are held at once. Returns the gradients with
+/// respect to the state at `down_to` (`initial`) and the effects' parameters (`controls` is
+/// empty).
+#[allow(clippy::too_many_arguments)]
 pub fn reverse<I: Integrator>(
     sim: &I,
     run: &Checkpointed<I::Tape>,
@@ -187,10 +191,10 @@ pub fn reverse<I: Integrator>(
     down_to: usize,
     grad_last: StateGrad,
     mut seed_after: Option<&mut super::SeedAfter>,
+    on_control: &mut dyn FnMut(usize, Vec<nalgebra::Matrix3<f64>>),
 ) -> Result<Gradients, SimError> {
     debug_assert!(controls_from <= down_to && run.state_at(down_to).is_some());
     let mut adj = grad_last;
-    let mut blocks = Vec::new();
     let mut effect_params: Option<Vec<Vec<f64>>> = None;
     let mut end = run.end_step;
     for chunk in run.chunks.iter().rev() {
@@ -222,9 +226,11 @@ pub fn reverse<I: Integrator>(
             None => sim.backward(tape, ctrl, adj),
         };
         adj = g.initial;
-        let mut steps = g.controls;
-        steps.resize(end - chunk.first_step, None);
-        blocks.push(steps);
+        for (k, grad) in g.controls.into_iter().enumerate() {
+            if let Some(grad) = grad {
+                on_control(chunk.first_step + k, grad);
+            }
+        }
         match &mut effect_params {
             None => effect_params = Some(g.effect_params),
             Some(acc) => {
@@ -239,7 +245,7 @@ pub fn reverse<I: Integrator>(
     }
     Ok(Gradients {
         initial: adj,
-        controls: blocks.into_iter().rev().flatten().collect(),
+        controls: Vec::new(),
         effect_params: effect_params.unwrap_or_default(),
     })
 }

@@ -16,7 +16,6 @@
 //! its cgroup) is refused.
 
 use super::{MorphError, MorphSettings, Prepared};
-use crate::integrator::Integrator;
 use crate::integrator::recompute::ChunkPlan;
 use crate::mpm::State;
 use nalgebra::Matrix3;
@@ -248,7 +247,7 @@ impl Prepared {
     pub fn plan_memory(&mut self, limit: MemoryLimit) -> Result<MemoryPlan, MorphError> {
         let n = self.initial.len();
         let state = State::bytes_for(n);
-        let step = crate::with_integrator!(&self.engine, sim => sim.tape_bytes_per_step(n));
+        let step = crate::with_integrator!(&self.engine, sim => super::segment::step_bytes(sim, n));
         let steps = self.max_sim_segment_steps();
         let fixed = fixed_bytes(
             &self.settings,
@@ -263,6 +262,8 @@ impl Prepared {
             self.model().grid.node_count() as u64,
             self.geometry.keyframes.len() as u64,
         );
+        // The reverse pass gathers one control layer's step gradients at a time.
+        let fixed = fixed + (self.sim_control_stride() * n * size_of::<Matrix3<f64>>()) as u64;
         let limit_bytes = limit.checked_bytes().map_err(MorphError::Settings)?;
         let tape_budget =
             (limit_bytes.saturating_sub(fixed) as f64 / (1.0 + ALLOCATOR_SLACK)) as usize;
@@ -296,7 +297,7 @@ impl Prepared {
 
     fn chunk_plan_within(&self, budget: usize) -> ChunkPlan {
         let n = self.initial.len();
-        let step = crate::with_integrator!(&self.engine, sim => sim.tape_bytes_per_step(n));
+        let step = crate::with_integrator!(&self.engine, sim => super::segment::step_bytes(sim, n));
         ChunkPlan::within(
             budget,
             self.max_sim_segment_steps(),

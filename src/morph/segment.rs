@@ -13,7 +13,7 @@
 
 use super::basis::{ControlBasis, ControlResolution};
 use crate::integrator::recompute::{self, Checkpointed, ChunkPlan};
-use crate::integrator::{Integrator, RunTape, SeedAfter};
+use crate::integrator::{Integrator, RunTape, SeedAfter, StepControl};
 use crate::loss::{FineMassLoss, MassLoss, volume_cost};
 use crate::mpm::{SimError, State, StateGrad};
 use crate::optim::Adam;
@@ -155,15 +155,12 @@ impl<I: Integrator> Segment<'_, I> {
     /// Per-step controls from layer `from` on: layer `l` acts in equal parts `Fc / stride`
     /// on each of its steps `l * stride ..`. (Applied whole on its first step, every layer
     /// kicked the body at the layers' period, a frame-to-frame wobble a viewer sees.)
-    fn schedule(
-        &self,
-        layers: &[Vec<Matrix3<f64>>],
-        from: usize,
-    ) -> Vec<Option<Vec<Matrix3<f64>>>> {
+    /// The steps of a layer share one copy of its values.
+    fn schedule(&self, layers: &[Vec<Matrix3<f64>>], from: usize) -> Vec<Option<StepControl>> {
         let share = 1.0 / self.stride as f64;
         let mut out = Vec::with_capacity(self.steps - from * self.stride);
         for layer in &layers[from..] {
-            let part: Vec<Matrix3<f64>> = layer.iter().map(|c| c * share).collect();
+            let part: StepControl = layer.iter().map(|c| c * share).collect();
             let steps = self.stride.min(self.steps - from * self.stride - out.len());
             for _ in 0..steps {
                 out.push(Some(part.clone()));
@@ -172,34 +169,13 @@ impl<I: Integrator> Segment<'_, I> {
         out
     }
 
-    /// The gradient of each layer from `from` on, from the gradients of its steps' controls
-    /// (the reverse of [`Segment::schedule`]).
-    fn layer_gradients(&self, per_step: Vec<Option<Vec<Matrix3<f64>>>>) -> Layers {
-        let share = 1.0 / self.stride as f64;
-        per_step
-            .chunks(self.stride)
-            .map(|steps| {
-                let mut sum: Option<Vec<Matrix3<f64>>> = None;
-                for g in steps.iter().flatten() {
-                    match &mut sum {
-                        None => sum = Some(g.clone()),
-                        Some(acc) => acc.iter_mut().zip(g).for_each(|(a, b)| *a += b),
-                    }
-                }
-                let mut sum = sum.expect("every step of a layer is controlled");
-                sum.iter_mut().for_each(|g| *g *= share);
-                sum
-            })
-            .collect()
-    }
-
     /// How a rollout is cut into chunks within [`Segment::tape_budget`].
     pub fn chunk_plan(&self) -> ChunkPlan {
         let n = self.start.len();
         ChunkPlan::within(
             self.tape_budget,
             self.steps,
-            self.sim.tape_bytes_per_step(n),
+            step_bytes(self.sim, n),
             State::bytes_for(n),
             self.stride,
         )
@@ -310,9 +286,44 @@ impl<I: Integrator> Segment<'_, I> {
         };
         let seed_after: Option<&mut SeedAfter> =
             (self.volume_weight > 0.0).then_some(&mut volume_seed);
-        let grads =
-            recompute::reverse(self.sim, &rollout.run, &schedule, at, at, seed, seed_after)?;
-        Ok(self.layer_gradients(grads.controls))
+        // A layer's gradient is the sum of its steps' over `stride` (the reverse of
+        // `schedule`), in step order. Chunks arrive last first and may cut a layer, so its
+        // steps wait until the layer is whole (at most one layer's steps at a time).
+        let share = 1.0 / self.stride as f64;
+        let n_steps = self.steps - from * self.stride;
+        let mut layer_grads: Layers = vec![Vec::new(); layers.len() - from];
+        let mut pending: Vec<(usize, Vec<Matrix3<f64>>)> = Vec::new();
+        let mut on_control = |k: usize, grad: Vec<Matrix3<f64>>| {
+            let local = k - at;
+            let l = local / self.stride;
+            pending.push((local, grad));
+            let in_layer = self.stride.min(n_steps - l * self.stride);
+            if pending.iter().filter(|(s, _)| s / self.stride == l).count() < in_layer {
+                return;
+            }
+            let (mut mine, rest): (Vec<_>, Vec<_>) =
+                pending.drain(..).partition(|(s, _)| s / self.stride == l);
+            pending = rest;
+            mine.sort_by_key(|(s, _)| *s);
+            let mut steps = mine.into_iter().map(|(_, g)| g);
+            let mut sum = steps.next().expect("a layer has a step");
+            for g in steps {
+                sum.iter_mut().zip(g).for_each(|(a, b)| *a += b);
+            }
+            sum.iter_mut().for_each(|g| *g *= share);
+            layer_grads[l] = sum;
+        };
+        recompute::reverse(
+            self.sim,
+            &rollout.run,
+            &schedule,
+            at,
+            at,
+            seed,
+            seed_after,
+            &mut on_control,
+        )?;
+        Ok(layer_grads)
     }
 
     /// The segment objective (mass loss + arrival term) for `layers`, and its gradient with
@@ -441,45 +452,35 @@ impl<I: Integrator> Segment<'_, I> {
                 to_layers(&params, &mut layers);
                 evaluations += 1;
                 iteration += 1;
-                match self.rollout(self.start, &layers, 0, 0.0) {
+                // An undone step: `Some(true)` the first step raised the objective, `Some(false)`
+                // the step blew the simulation up.
+                let undone = match self.rollout(self.start, &layers, 0, 0.0) {
                     Ok(r) if moved || r.loss <= from_loss => {
                         moved = true;
                         current = r;
                         break;
                     }
-                    Ok(_) => {
-                        // The first step raised the objective: undo it, retry with half the
-                        // step. Adam's first step moves every control by the full step size;
-                        // where little motion is asked for (early in a shot) it overshot so
-                        // far that no later step came back, and the body froze. A retry that
-                        // would leave no iteration for the step is free, so a run of few
-                        // iterations still takes one.
-                        (params, adam) = saved.clone();
-                        to_layers(&params, &mut layers);
-                        lr *= 0.5;
-                        if !on_iteration(iteration, f64::INFINITY) {
-                            return Ok(None);
-                        }
-                        if iteration - halvings + 1 >= iterations {
-                            halvings += 1;
-                            if halvings > MAX_FIRST_STEP_HALVINGS {
-                                break 'outer;
-                            }
-                        }
-                    }
-                    Err(e) if blew_up(&e) => {
-                        // The step blew the simulation up: undo it, retry with half the step.
-                        (params, adam) = saved.clone();
-                        to_layers(&params, &mut layers);
-                        lr *= 0.5;
-                        if !on_iteration(iteration, f64::INFINITY) {
-                            return Ok(None);
-                        }
-                        if iteration - halvings + 1 >= iterations {
-                            break 'outer;
-                        }
-                    }
+                    // Adam's first step moves every control by the full step size; where
+                    // little motion is asked for (early in a shot) it overshot so far that no
+                    // later step came back, and the body froze.
+                    Ok(_) => true,
+                    Err(e) if blew_up(&e) => false,
                     Err(e) => return Err(e),
+                };
+                // Undo it and retry with half the step.
+                (params, adam) = saved.clone();
+                to_layers(&params, &mut layers);
+                lr *= 0.5;
+                if !on_iteration(iteration, f64::INFINITY) {
+                    return Ok(None);
+                }
+                if iteration - halvings + 1 >= iterations {
+                    // Out of iterations: a first step retried is free (at most
+                    // MAX_FIRST_STEP_HALVINGS times), so a run of few iterations still takes one.
+                    if !undone || halvings == MAX_FIRST_STEP_HALVINGS {
+                        break 'outer;
+                    }
+                    halvings += 1;
                 }
             }
         }
@@ -571,6 +572,12 @@ impl<I: Integrator> Segment<'_, I> {
             evaluations,
         }))
     }
+}
+
+/// Bytes one simulation step of a segment holds while it is reversed: its tape, and the
+/// gradient of its control (every step of a spread layer is controlled).
+pub fn step_bytes<I: Integrator>(sim: &I, particles: usize) -> usize {
+    sim.tape_bytes_per_step(particles) + particles * size_of::<Matrix3<f64>>()
 }
 
 /// Free halvings of a segment's first Adam step at most, once its iterations are spent and it

@@ -143,7 +143,7 @@ pub struct Gradients {
 pub const CONTROL_THETA: f64 = 0.5;
 
 /// Control `Fc` for local step `s`, if any.
-fn control_at(controls: &[Option<Vec<Matrix3<f64>>>], s: usize) -> Option<&[Matrix3<f64>]> {
+fn control_at(controls: &crate::integrator::StepControls, s: usize) -> Option<&[Matrix3<f64>]> {
     controls.get(s).and_then(|c| c.as_deref())
 }
 
@@ -192,7 +192,7 @@ impl Simulator {
     pub fn forward(
         &self,
         state: &mut State,
-        controls: &[Option<Vec<Matrix3<f64>>>],
+        controls: &crate::integrator::StepControls,
         first_step: usize,
         n_steps: usize,
         tape: Option<&mut Tape>,
@@ -208,7 +208,7 @@ impl Simulator {
     pub fn forward_driven(
         &self,
         state: &mut State,
-        controls: &[Option<Vec<Matrix3<f64>>>],
+        controls: &crate::integrator::StepControls,
         params: Option<&ControlParams>,
         first_step: usize,
         n_steps: usize,
@@ -407,7 +407,7 @@ impl Simulator {
     pub fn backward(
         &self,
         tape: &Tape,
-        controls: &[Option<Vec<Matrix3<f64>>>],
+        controls: &crate::integrator::StepControls,
         grad_last: StateGrad,
     ) -> Gradients {
         self.backward_driven(tape, controls, None, grad_last, |_, _, _| {})
@@ -420,7 +420,7 @@ impl Simulator {
     pub fn backward_driven(
         &self,
         tape: &Tape,
-        controls: &[Option<Vec<Matrix3<f64>>>],
+        controls: &crate::integrator::StepControls,
         params: Option<&ControlParams>,
         grad_last: StateGrad,
         mut seed_after: impl FnMut(usize, &State, &mut StateGrad),

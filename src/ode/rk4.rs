@@ -273,7 +273,7 @@ impl OdeSystem {
                 let (grad_f, grad_fc): (Vec<_>, Vec<_>) = adj
                     .f
                     .par_iter()
-                    .zip(pre_f.par_iter().zip(fc))
+                    .zip(pre_f.par_iter().zip(fc.par_iter()))
                     .map(|(g, (f, c))| form.apply_reverse(f, c, g))
                     .unzip();
                 adj.f = grad_f;

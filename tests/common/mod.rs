@@ -78,6 +78,14 @@ pub fn controls(
         .collect()
 }
 
+/// Controls as the integrators take them (shared per step), from the owned ones the tests
+/// build and perturb.
+pub fn shared(ctrl: &[Option<Vec<Matrix3<f64>>>]) -> Vec<Option<morph::integrator::StepControl>> {
+    ctrl.iter()
+        .map(|c| c.as_ref().map(|c| c.as_slice().into()))
+        .collect()
+}
+
 /// Mass loss of the final state after `steps` steps (and the tape when asked), with either
 /// integrator.
 pub fn rollout_loss<I: Integrator>(
@@ -89,7 +97,8 @@ pub fn rollout_loss<I: Integrator>(
     tape: Option<&mut I::Tape>,
 ) -> (f64, State) {
     let mut s = init.clone();
-    sim.forward(&mut s, ctrl, 0, steps, tape).expect("forward");
+    sim.forward(&mut s, &shared(ctrl), 0, steps, tape)
+        .expect("forward");
     let m = sim.model().mass_grid(&s.x).expect("mass grid");
     (loss.value_and_grad(&m).0, s)
 }
