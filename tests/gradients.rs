@@ -425,7 +425,7 @@ fn segment_objective_gradient_matches_finite_differences() {
 }
 
 fn check_segment<I: Integrator>(sim: &I, mut init: State) {
-    use morph::morph::segment::Segment;
+    use morph::morph::segment::{PathPoint, Segment};
     let mut rng = Lcg(2024);
     deform(&mut init, &mut rng);
     let n = init.len();
@@ -450,11 +450,25 @@ fn check_segment<I: Integrator>(sim: &I, mut init: State) {
         loss: MassLoss::new(MassLossKind::Log, fine_target),
         weight: 0.7,
     };
-    for (arrival_weight, volume_weight, fine_loss) in [
-        (0.0, 0.0, None),
-        (0.05, 0.0, None),
-        (0.0, 30.0, None),
-        (0.05, 30.0, Some(&fine)),
+    // Two points on the scheduled path, inside the segment, against part-way targets.
+    let path: Vec<PathPoint> = [(3, 0.3), (8, 0.7)]
+        .into_iter()
+        .map(|(step, part)| PathPoint {
+            step,
+            loss: shifted_target(
+                sim.model(),
+                &init,
+                part * Vector3::new(1.1, 0.4, -0.6),
+                MassLossKind::Log,
+            ),
+        })
+        .collect();
+    for (arrival_weight, volume_weight, fine_loss, path_weight) in [
+        (0.0, 0.0, None, 0.0),
+        (0.05, 0.0, None, 0.0),
+        (0.0, 30.0, None, 0.0),
+        (0.0, 0.0, None, 0.8),
+        (0.05, 30.0, Some(&fine), 0.8),
     ] {
         let segment = Segment {
             sim,
@@ -466,6 +480,8 @@ fn check_segment<I: Integrator>(sim: &I, mut init: State) {
             stride: STRIDE,
             arrival_weight,
             volume_weight,
+            path: if path_weight > 0.0 { &path } else { &[] },
+            path_weight,
             resolution: Default::default(),
             tape_budget: usize::MAX,
         };
@@ -506,7 +522,7 @@ fn check_segment<I: Integrator>(sim: &I, mut init: State) {
             let err = rel_err(analytic, numeric);
             assert!(
                 err < TOL,
-                "arrival {arrival_weight}, volume {volume_weight}, fine {}, direction {trial}: {analytic} vs {numeric} ({err:e})",
+                "arrival {arrival_weight}, volume {volume_weight}, path {path_weight}, fine {}, direction {trial}: {analytic} vs {numeric} ({err:e})",
                 fine_loss.is_some()
             );
         }

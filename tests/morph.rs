@@ -300,6 +300,7 @@ fn command_line_errors() {
         (vec!["--particles", "5"], 2, "--particles"),
         (vec!["--volume-weight", "-1"], 2, "--volume-weight"),
         (vec!["--fine-weight", "nan"], 2, "--fine-weight"),
+        (vec!["--path-weight", "-0.5"], 2, "--path-weight"),
         (vec!["--control", "multiplicative"], 2, "multiplicative"),
         (vec!["--control-resolution", "voxel"], 2, "voxel"),
         (vec!["--memory-limit", "12Q"], 2, "--memory-limit"),
@@ -602,4 +603,28 @@ fn arrive_reaches_the_target_at_its_frame() {
         .map(|j| j["frame"].as_u64().unwrap())
         .collect();
     assert_eq!(frames, [10, 13, 19, 25, 28, 37]);
+}
+
+/// The path term (mass losses at the frames inside each segment) runs end to end, changes the
+/// result, and keeps it independent of the thread count.
+#[test]
+fn path_term_changes_the_result_and_keeps_it_thread_independent() {
+    let mut grids = Vec::new();
+    for (threads, weight) in [("1", "0"), ("1", "1"), ("2", "1")] {
+        let out = scratch(&format!("path-{threads}-{weight}"));
+        let mut args = vec!["--threads", threads, "--path-weight", weight];
+        args.extend_from_slice(SMALL);
+        args.extend_from_slice(&["-o", out.to_str().unwrap(), "--quiet"]);
+        let r = morph(&args);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        let m = manifest(&out);
+        assert_eq!(
+            m["settings"]["path_weight"].as_f64(),
+            Some(weight.parse().unwrap())
+        );
+        assert!(m["final_loss"].as_f64().unwrap().is_finite());
+        grids.push(std::fs::read(out.join("final_mass.mgrid")).unwrap());
+    }
+    assert_ne!(grids[0], grids[1], "the path term must act");
+    assert_eq!(grids[1], grids[2], "bitwise the same on 1 and 2 threads");
 }

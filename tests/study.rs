@@ -139,7 +139,10 @@ fn a_study_refuses_a_folder_it_did_not_make() {
     assert_eq!(r.status.code(), Some(2));
     let err = String::from_utf8_lossy(&r.stderr);
     assert!(err.contains("not a study this morph can continue"), "{err}");
-    assert_eq!(std::fs::read_to_string(old.join("study.json")).unwrap(), "[]");
+    assert_eq!(
+        std::fs::read_to_string(old.join("study.json")).unwrap(),
+        "[]"
+    );
     let bad = study(&scratch("bad"), &["--segments", "0"]);
     assert_eq!(bad.status.code(), Some(2));
     let _ = std::fs::remove_dir_all(&out);

@@ -154,6 +154,8 @@ pub struct MorphArgs {
     arrival_weight: Option<f64>,
     #[arg(long, help = help("Weight of the volume cost (sum 1/2 (ln J)^2 per particle, and the whole body's) averaged over every step, >= 0 (keeps the body at its volume)", None, defaults().volume_weight))]
     volume_weight: Option<f64>,
+    #[arg(long, help = help("Weight of the scheduled path: the mass loss at every frame inside a segment against where the easing curve puts the body then, >= 0 (0: each segment's end alone)", None, defaults().path_weight))]
+    path_weight: Option<f64>,
     #[arg(long, help = help("Weight of the mass loss on a grid twice as fine as the simulation's, >= 0 (sees holes and clumps within a cell)", None, defaults().fine_weight))]
     fine_weight: Option<f64>,
     #[arg(long, value_parser = choice(&TargetFit::ALL), help = format!("How each target is placed (on-ground needs a scene's ground) [default {}]", name(&defaults().target_fit)))]
@@ -300,6 +302,9 @@ impl MorphArgs {
         }
         if let Some(lr) = self.learning_rate {
             s.optimizer.learning_rate = lr;
+        }
+        if let Some(w) = self.path_weight {
+            s.path_weight = w;
         }
         if let Some(w) = self.fine_weight {
             s.fine_weight = w;

@@ -151,7 +151,8 @@ pub fn cgroup_limit() -> Option<u64> {
 
 /// Bytes of everything but the tapes for a morph of `particles` source particles,
 /// `targets` target particles (all targets), `nodes` grid nodes and `keyframes` targets
-/// before the last, under `settings` (see the constants above and [`working_bytes`]).
+/// before the last, under `settings`, with a segment's path targets when its path weight is
+/// on (see the constants above and [`working_bytes`]).
 pub fn fixed_bytes(
     settings: &MorphSettings,
     particles: u64,
@@ -164,10 +165,17 @@ pub fn fixed_bytes(
     } else {
         0
     };
+    // A segment's path points: one target per frame inside it.
+    let path_points = if settings.path_weight > 0.0 {
+        let longest = settings.shot().segment_steps.into_iter().max().unwrap_or(0);
+        (longest / settings.frame_every.max(1)) as u64
+    } else {
+        0
+    };
     BASELINE_BYTES
         + particles * SOURCE_PARTICLE_BYTES
         + targets * TARGET_PARTICLE_BYTES
-        + nodes * (NODE_BYTES + 8 * keyframes)
+        + nodes * (NODE_BYTES + 8 * keyframes + 8 * path_points)
         + fine_nodes * (FINE_NODE_BYTES + 8 * keyframes)
         + working_bytes(settings, particles as usize)
         + (super::output::WRITE_QUEUE as u64 + 2) * particles * FRAME_PARTICLE_BYTES

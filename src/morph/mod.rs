@@ -24,7 +24,7 @@ use crate::mpm::model::Model;
 use crate::mpm::{SimError, State};
 use crate::scene::{EffectConfig, SceneConfig};
 use nalgebra::{Matrix3, Vector3};
-use segment::{Layers, Segment};
+use segment::{Layers, PathPoint, Segment};
 use serde::{Deserialize, Serialize};
 pub use settings::{MorphSettings, Preset};
 use std::path::{Path, PathBuf};
@@ -174,8 +174,8 @@ pub struct Schedule {
     /// The nodal masses (simulation grid, fine loss grid) of each keyframe target before the
     /// last, in order; the last one's are the loss's target.
     pub keyframes: Vec<(Vec<f64>, Option<Vec<f64>>)>,
-    /// Where the body would be on its own, by morph step: the source's positions at the end of
-    /// each segment that ends before the first keyframe, from a run without controls. Empty
+    /// Where the body would be on its own, by morph step: the source's positions at each frame
+    /// before the first keyframe, from a run without controls. Empty
     /// when nothing moves a body at rest (no gravity, no initial velocity): it stays where it
     /// starts.
     pub passive: Vec<(usize, Vec<Vector3<f64>>)>,
@@ -426,18 +426,12 @@ impl Prepared {
             .map(|f| (f - 1) * settings.frame_every)
             .collect();
         // Where the body goes on its own, up to the first keyframe: a run without controls,
-        // when anything moves a body at rest.
+        // when anything moves a body at rest, kept at every frame (the segments' ends and
+        // their path points).
         let mut passive = Vec::new();
         if settings.gravity.is_some() || v0 != Vector3::zeros() {
-            let mut ends = Vec::new();
-            let mut end = 0;
-            for &n in &shot.segment_steps {
-                end += n;
-                if end >= steps[0] {
-                    break;
-                }
-                ends.push(end);
-            }
+            let every = settings.frame_every;
+            let ends: Vec<usize> = (1..steps[0]).filter(|s| s.is_multiple_of(every)).collect();
             if let Some(&last) = ends.last() {
                 let mut state = initial.clone();
                 let mut on_step = |k: usize, st: &State| {
@@ -519,17 +513,22 @@ impl Prepared {
         self.settings.frame_every * self.substeps
     }
 
-    /// What segment `k` aims at, as `(from, to, w)`: keyframe indices (0 = where the body is
-    /// on its own, `i` = the `i`-th target) and the smoothstep weight `3u^2 - 2u^3` of `to`,
-    /// `u` the segment's end time between the two keyframes' times. `w = 1`: `to` itself.
+    /// What segment `k` aims at: [`Prepared::blend_at`] its last step.
     pub fn segment_blend(&self, k: usize) -> (usize, usize, f64) {
-        let end: usize = self.segment_steps[..=k].iter().sum();
+        self.blend_at(self.segment_steps[..=k].iter().sum())
+    }
+
+    /// Where the schedule puts the body after morph step `step`, as `(from, to, w)`: keyframe
+    /// indices (0 = where the body is on its own, `i` = the `i`-th target) and the smoothstep
+    /// weight `3u^2 - 2u^3` of `to`, `u` the step's time between the two keyframes' times.
+    /// `w = 1`: `to` itself.
+    pub fn blend_at(&self, step: usize) -> (usize, usize, f64) {
         let steps = &self.schedule.steps;
-        match steps.iter().position(|&s| end < s) {
+        match steps.iter().position(|&s| step < s) {
             None => (steps.len(), steps.len(), 1.0),
             Some(i) => {
                 let start = if i == 0 { 0 } else { steps[i - 1] };
-                let u = (end - start) as f64 / (steps[i] - start) as f64;
+                let u = (step - start) as f64 / (steps[i] - start) as f64;
                 (i, i + 1, u * u * (3.0 - 2.0 * u))
             }
         }
@@ -549,30 +548,33 @@ impl Prepared {
         }
     }
 
-    /// Keyframe `i`'s nodal masses on the simulation and fine grids for segment `k`
-    /// (keyframe 0: where the body would be on its own at the segment's end).
+    /// Keyframe `i`'s nodal masses on the simulation grid, and on the fine grid when `fine`
+    /// and the fine loss is on, after morph step `step` (keyframe 0: where the body would be
+    /// on its own then).
     fn keyframe_masses(
         &self,
         i: usize,
-        k: usize,
+        step: usize,
+        fine: bool,
     ) -> Result<(Vec<f64>, Option<Vec<f64>>), SimError> {
+        let fine_loss = self.fine_loss.as_ref().filter(|_| fine);
         let n = self.schedule.steps.len();
         if i == n {
-            let fine = self.fine_loss.as_ref().map(|f| f.loss.target.clone());
+            let fine = fine_loss.map(|f| f.loss.target.clone());
             return Ok((self.loss.target.clone(), fine));
         }
         if i > 0 {
-            return Ok(self.schedule.keyframes[i - 1].clone());
+            let (coarse, fine) = &self.schedule.keyframes[i - 1];
+            return Ok((coarse.clone(), fine.clone().filter(|_| fine_loss.is_some())));
         }
-        let end: usize = self.segment_steps[..=k].iter().sum();
         let x = self
             .schedule
             .passive
             .iter()
-            .find(|(step, _)| *step == end)
+            .find(|(s, _)| *s == step)
             .map_or(&self.initial.x, |(_, x)| x);
         let model = self.model();
-        let fine = match &self.fine_loss {
+        let fine = match fine_loss {
             Some(f) => Some(crate::mpm::transfer::mass_grid(
                 &f.grid,
                 FINE_KERNEL,
@@ -584,7 +586,33 @@ impl Prepared {
         Ok((model.mass_grid(x)?, fine))
     }
 
-    /// The losses segment `k` optimizes: against the nodal masses of
+    /// The nodal masses the schedule puts the body at after morph step `step` (simulation grid,
+    /// fine grid when `fine`).
+    fn scheduled_masses(
+        &self,
+        step: usize,
+        fine: bool,
+    ) -> Result<(Vec<f64>, Option<Vec<f64>>), SimError> {
+        let (from, to, w) = self.blend_at(step);
+        if w == 1.0 {
+            return self.keyframe_masses(to, step, fine);
+        }
+        let (a, a_fine) = self.keyframe_masses(from, step, fine)?;
+        let (b, b_fine) = self.keyframe_masses(to, step, fine)?;
+        let blend = |src: &[f64], tgt: &[f64]| -> Vec<f64> {
+            src.iter()
+                .zip(tgt)
+                .map(|(s, t)| (1.0 - w) * s + w * t)
+                .collect()
+        };
+        let fine = match (a_fine, b_fine) {
+            (Some(a), Some(b)) => Some(blend(&a, &b)),
+            _ => None,
+        };
+        Ok((blend(&a, &b), fine))
+    }
+
+    /// The losses segment `k` optimizes at its end: against the nodal masses of
     /// [`Prepared::segment_blend`], the final target's once it is reached.
     pub fn segment_losses(
         &self,
@@ -597,37 +625,45 @@ impl Prepared {
         SimError,
     > {
         use std::borrow::Cow;
-        let (from, to, w) = self.segment_blend(k);
+        let (from, to, _) = self.segment_blend(k);
         if from == to && to == self.schedule.steps.len() {
             return Ok((
                 Cow::Borrowed(&self.loss),
                 self.fine_loss.as_ref().map(Cow::Borrowed),
             ));
         }
-        let (a, a_fine) = self.keyframe_masses(from, k)?;
-        let (b, b_fine) = self.keyframe_masses(to, k)?;
-        let blend = |src: &[f64], tgt: &[f64]| -> Vec<f64> {
-            src.iter()
-                .zip(tgt)
-                .map(|(s, t)| (1.0 - w) * s + w * t)
-                .collect()
-        };
-        let loss = MassLoss::new(self.loss.kind, blend(&a, &b));
+        let end = self.segment_steps[..=k].iter().sum();
+        let (coarse, fine) = self.scheduled_masses(end, true)?;
+        let loss = MassLoss::new(self.loss.kind, coarse);
         let fine = self.fine_loss.as_ref().map(|f| {
-            let (a, b) = (a_fine.as_deref(), b_fine.as_deref());
             Cow::Owned(FineMassLoss {
                 grid: f.grid.clone(),
-                loss: MassLoss::new(
-                    f.loss.kind,
-                    blend(
-                        a.expect("made with the fine loss"),
-                        b.expect("made with the fine loss"),
-                    ),
-                ),
+                loss: MassLoss::new(f.loss.kind, fine.expect("made with the fine loss")),
                 weight: f.weight,
             })
         });
         Ok((Cow::Owned(loss), fine))
+    }
+
+    /// The path points inside segment `k`: the state at each frame before the segment's end,
+    /// against the nodal masses the schedule puts the body at then (simulation grid only: the
+    /// fine loss weighs on the segment's end).
+    pub fn segment_path(&self, k: usize) -> Result<Vec<PathPoint>, SimError> {
+        if self.settings.path_weight == 0.0 {
+            return Ok(Vec::new());
+        }
+        let first: usize = self.segment_steps[..k].iter().sum();
+        let end = first + self.segment_steps[k];
+        let every = self.settings.frame_every;
+        (first + 1..end)
+            .filter(|s| s.is_multiple_of(every))
+            .map(|s| {
+                Ok(PathPoint {
+                    step: s * self.substeps - 1,
+                    loss: MassLoss::new(self.loss.kind, self.scheduled_masses(s, false)?.0),
+                })
+            })
+            .collect()
     }
 
     /// Frames the chain exports: the initial state and every `frame_every`-th step.
@@ -940,6 +976,7 @@ fn chain<I: Integrator>(
         for k in from..s.segments {
             let seg_clock = Instant::now();
             let (loss, fine_loss) = prep.segment_losses(k)?;
+            let path = prep.segment_path(k)?;
             let segment = Segment {
                 sim,
                 loss: &loss,
@@ -950,6 +987,8 @@ fn chain<I: Integrator>(
                 stride: prep.sim_control_stride(),
                 arrival_weight: prep.segment_arrival_weight(k),
                 volume_weight: s.volume_weight,
+                path: &path,
+                path_weight: s.path_weight,
                 resolution: s.control_resolution,
                 tape_budget: prep.tape_budget,
             };

@@ -1,5 +1,7 @@
 //! One segment of a morph: `steps` simulation steps from a start state, with a control layer
-//! (one `Fc` per particle) every `stride` steps, scored by the mass loss of its last state.
+//! (one `Fc` per particle) every `stride` steps, scored by the mass loss of its last state
+//! and of the states on its way (the [`PathPoint`]s: where the schedule says the body should
+//! be at each frame inside the segment).
 //!
 //! Two optimizers:
 //! - [`Optimizer::Adam`]: Adam on all control layers of the segment at once, one forward and
@@ -79,6 +81,14 @@ pub struct SegmentResult {
     pub evaluations: usize,
 }
 
+/// A point on a segment's scheduled path: the mass loss, against where the schedule puts the
+/// body then, of the state after global simulation step `step` (inside the segment, before its
+/// last step).
+pub struct PathPoint {
+    pub step: usize,
+    pub loss: MassLoss,
+}
+
 /// A segment to optimize, with either integrator.
 pub struct Segment<'a, I: Integrator> {
     pub sim: &'a I,
@@ -97,6 +107,11 @@ pub struct Segment<'a, I: Integrator> {
     /// [`crate::loss::volume_cost`] on the state after each step, so
     /// the optimizer keeps the body at its volume all along, not only at the segment's end.
     pub volume_weight: f64,
+    /// The scheduled path inside the segment, and its weight: `w` times the mean of the
+    /// points' mass losses is added to the objective, so the body follows the easing curve
+    /// from frame to frame and not only at the segment's end (none: the end alone).
+    pub path: &'a [PathPoint],
+    pub path_weight: f64,
     /// Where Adam's free control values live (see [`ControlBasis`]); the line search always
     /// works per particle, as the reference does.
     pub resolution: ControlResolution,
@@ -111,6 +126,8 @@ pub struct Segment<'a, I: Integrator> {
 struct AfterStep {
     /// The volume cost (0 when it is off).
     volume: f64,
+    /// The mass loss against the path point at this step (0 where there is none).
+    path: f64,
     min_j: f64,
     max_j: f64,
 }
@@ -148,6 +165,11 @@ impl<T: RunTape> Rollout<T> {
 }
 
 impl<I: Integrator> Segment<'_, I> {
+    /// The path point on the state after global step `k`, if any.
+    fn path_point(&self, k: usize) -> Option<&PathPoint> {
+        self.path.iter().find(|p| p.step == k)
+    }
+
     pub fn num_layers(&self) -> usize {
         self.steps.div_ceil(self.stride)
     }
@@ -182,21 +204,23 @@ impl<I: Integrator> Segment<'_, I> {
     }
 
     /// Forward from the start of layer `from` (state `start`) to the end of the segment.
-    /// `prefix` is the volume cost summed over the steps before `from`, so that objectives
-    /// of partial rollouts compare with whole ones.
+    /// `before` holds the costs of the steps before `from` (empty when `from` is 0), so that
+    /// objectives of partial rollouts compare with whole ones.
     fn rollout(
         &self,
         start: &State,
         layers: &[Vec<Matrix3<f64>>],
         from: usize,
-        prefix: f64,
+        before: &[AfterStep],
     ) -> Result<Rollout<I::Tape>, SimError> {
         let schedule = self.schedule(layers, from);
         let first = self.first_step + from * self.stride;
         let n_steps = self.steps - from * self.stride;
         let mut after = Vec::with_capacity(n_steps);
         let mut inverted = None;
+        let mut outside = None;
         let with_volume = self.volume_weight > 0.0;
+        let model = self.sim.model();
         // Chunks start at every control layer too: the line search restarts there.
         let (seg_first, stride) = (self.first_step, self.stride);
         let cut = move |k: usize| (k - seg_first).is_multiple_of(stride);
@@ -222,18 +246,26 @@ impl<I: Integrator> Segment<'_, I> {
                     }
                     None => 0.0,
                 };
+                let path = match self.path_point(k).map(|p| path_loss(model, p, state)) {
+                    Some(Ok(value)) => value,
+                    Some(Err(e)) => {
+                        outside.get_or_insert(e);
+                        0.0
+                    }
+                    None => 0.0,
+                };
                 after.push(AfterStep {
                     volume,
+                    path,
                     min_j,
                     max_j,
                 });
             },
         )?;
         // An inverted particle is an error when the volume cost is on (it is undefined there).
-        if let Some(e) = inverted {
+        if let Some(e) = inverted.or(outside) {
             return Err(e);
         }
-        let model = self.sim.model();
         let state = &run.last;
         let mass = model.mass_grid(&state.x)?;
         let (loss, _) = self.loss.value_and_grad(&mass);
@@ -241,9 +273,14 @@ impl<I: Integrator> Segment<'_, I> {
         if let Some(fine) = self.fine_loss {
             loss += fine.value(&state.x, &model.mass)?;
         }
+        let all = || before.iter().chain(&after);
         if with_volume {
-            let sum = prefix + after.iter().map(|a| a.volume).sum::<f64>();
+            let sum: f64 = all().map(|a| a.volume).sum();
             loss += self.volume_weight * sum / self.steps as f64;
+        }
+        if !self.path.is_empty() {
+            let sum: f64 = all().map(|a| a.path).sum();
+            loss += self.path_weight * sum / self.path.len() as f64;
         }
         Ok(Rollout { loss, run, after })
     }
@@ -275,17 +312,31 @@ impl<I: Integrator> Segment<'_, I> {
         }
         let schedule = self.schedule(layers, from);
         let at = self.first_step + from * self.stride;
-        let weight = self.volume_weight / self.steps as f64;
-        // The forward pass checked every J > 0, so the cost is defined on every state.
-        let mut volume_seed = |_: usize, state: &State, adj: &mut StateGrad| {
-            if let Ok((_, grad)) = volume_cost(&state.f) {
+        let volume_weight = self.volume_weight / self.steps as f64;
+        let path_weight = self.path_weight / self.path.len().max(1) as f64;
+        // The forward pass checked every J > 0 and every path state inside the grid, so the
+        // costs are defined on every state.
+        let mut costs_seed = |k: usize, state: &State, adj: &mut StateGrad| {
+            if volume_weight > 0.0
+                && let Ok((_, grad)) = volume_cost(&state.f)
+            {
                 for (a, g) in adj.f.iter_mut().zip(grad) {
-                    *a += weight * g;
+                    *a += volume_weight * g;
+                }
+            }
+            if let Some(point) = self.path_point(k)
+                && let Ok(mass) = model.mass_grid(&state.x)
+            {
+                let (_, grad_m) = point.loss.value_and_grad(&mass);
+                let grad_x = model.mass_grid_reverse(&state.x, &grad_m);
+                for (a, g) in adj.x.iter_mut().zip(grad_x) {
+                    *a += path_weight * g;
                 }
             }
         };
-        let seed_after: Option<&mut SeedAfter> =
-            (self.volume_weight > 0.0).then_some(&mut volume_seed);
+        let seed_after: Option<&mut SeedAfter> = (self.volume_weight > 0.0
+            || (self.path_weight > 0.0 && !self.path.is_empty()))
+        .then_some(&mut costs_seed);
         // A layer's gradient is the sum of its steps' over `stride` (the reverse of
         // `schedule`), in step order. Chunks arrive last first and may cut a layer, so its
         // steps wait until the layer is whole (at most one layer's steps at a time).
@@ -332,14 +383,14 @@ impl<I: Integrator> Segment<'_, I> {
         &self,
         layers: &[Vec<Matrix3<f64>>],
     ) -> Result<(f64, Layers), SimError> {
-        let r = self.rollout(self.start, layers, 0, 0.0)?;
+        let r = self.rollout(self.start, layers, 0, &[])?;
         let g = self.gradient(&r, layers, 0)?;
         Ok((r.loss, g))
     }
 
     /// The objective alone.
     pub fn objective(&self, layers: &[Vec<Matrix3<f64>>]) -> Result<f64, SimError> {
-        Ok(self.rollout(self.start, layers, 0, 0.0)?.loss)
+        Ok(self.rollout(self.start, layers, 0, &[])?.loss)
     }
 
     /// Runs the segment under `layers` again, without a tape: `on_step(k, state)` sees the
@@ -416,7 +467,7 @@ impl<I: Integrator> Segment<'_, I> {
             None => flatten(&grad),
         };
         let mut adam = Adam::new(params.len(), BETA1, BETA2, EPS);
-        let mut current = self.rollout(self.start, &layers, 0, 0.0)?;
+        let mut current = self.rollout(self.start, &layers, 0, &[])?;
         let initial_loss = current.loss;
         let mut evaluations = 1;
         // The best so far, without its chunks (only the current rollout is reversed).
@@ -454,7 +505,7 @@ impl<I: Integrator> Segment<'_, I> {
                 iteration += 1;
                 // An undone step: `Some(true)` the first step raised the objective, `Some(false)`
                 // the step blew the simulation up.
-                let undone = match self.rollout(self.start, &layers, 0, 0.0) {
+                let undone = match self.rollout(self.start, &layers, 0, &[]) {
                     Ok(r) if moved || r.loss <= from_loss => {
                         moved = true;
                         current = r;
@@ -503,7 +554,7 @@ impl<I: Integrator> Segment<'_, I> {
         on_iteration: &mut dyn FnMut(usize, f64) -> bool,
     ) -> Result<Option<SegmentResult>, SimError> {
         // The accepted rollout of the whole segment, with a chunk starting at every layer.
-        let mut accepted = self.rollout(self.start, &layers, 0, 0.0)?;
+        let mut accepted = self.rollout(self.start, &layers, 0, &[])?;
         let initial_loss = accepted.loss;
         if !on_iteration(0, accepted.loss) {
             return Ok(None);
@@ -528,7 +579,7 @@ impl<I: Integrator> Segment<'_, I> {
                     .state_at(self.first_step + from_step)
                     .expect("a chunk starts at every layer")
                     .clone();
-                let prefix: f64 = accepted.after[..from_step].iter().map(|a| a.volume).sum();
+                let before = &accepted.after[..from_step];
                 let mut alpha = s.learning_rate;
                 let mut improved = None;
                 for _ in 0..s.line_search_tries.max(1) {
@@ -537,7 +588,7 @@ impl<I: Integrator> Segment<'_, I> {
                         *fc -= (alpha / norm) * gp;
                     }
                     evaluations += 1;
-                    match self.rollout(&start, &trial, layer, prefix) {
+                    match self.rollout(&start, &trial, layer, before) {
                         Ok(r) if r.loss < accepted.loss => {
                             improved = Some((trial, r));
                             break;
@@ -608,6 +659,15 @@ impl GradNorms {
             self.last.unwrap_or(f64::NAN),
         )
     }
+}
+
+/// The mass loss of `state` against a path point.
+fn path_loss(
+    model: &crate::mpm::model::Model,
+    point: &PathPoint,
+    state: &State,
+) -> Result<f64, SimError> {
+    Ok(point.loss.value_and_grad(&model.mass_grid(&state.x)?).0)
 }
 
 /// Smallest and largest determinant of `f`.

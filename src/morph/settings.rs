@@ -101,6 +101,10 @@ pub struct MorphSettings {
     /// Weight of the volume cost (`loss::volume_cost`) averaged over every step of a segment.
     #[serde(default)]
     pub volume_weight: f64,
+    /// Weight of the scheduled path: the mean mass loss, against where the schedule puts the
+    /// body, of the states at the frames inside each segment (0: each segment's end alone).
+    #[serde(default)]
+    pub path_weight: f64,
     /// Weight of the mass loss on a grid twice as fine as the simulation's, which sees how
     /// particles are arranged within a cell (0: off).
     #[serde(default)]
@@ -290,6 +294,7 @@ impl MorphSettings {
             loss: MassLossKind::Log,
             arrival_weight: 0.03,
             volume_weight: 400.0,
+            path_weight: 0.0,
             fine_weight: 1.0,
             kernel: KernelKind::Cubic,
             integrator: IntegratorKind::Euler,
@@ -392,6 +397,12 @@ impl MorphSettings {
             return Err(format!(
                 "--volume-weight must be >= 0, got {}",
                 self.volume_weight
+            ));
+        }
+        if !(self.path_weight.is_finite() && self.path_weight >= 0.0) {
+            return Err(format!(
+                "--path-weight must be >= 0, got {}",
+                self.path_weight
             ));
         }
         if !(self.fine_weight.is_finite() && self.fine_weight >= 0.0) {
