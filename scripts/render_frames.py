@@ -2,7 +2,9 @@
 """Renders chosen frames of morph outputs' carried surface with Blender (bpy, Cycles on the
 CPU) into one contact sheet: a row per output, a column per frame.
 
-    python scripts/render_frames.py OUT.png 5,15,30,45,60,73 LABEL=DIR [LABEL=DIR ...]
+    python scripts/render_frames.py OUT.png 5,15,30,45,60,73 LABEL=DIR[:SUB] [LABEL=DIR[:SUB] ...]
+
+SUB is the surface's folder in the output: `carried` (the default) or `meshes` (rebuilt).
 
 Needs the `bpy` module (Blender 4.5 as a Python module, e.g. the client check's venv).
 """
@@ -50,10 +52,11 @@ def main():
     tiles = []
     for r, run in enumerate(runs):
         label, folder = run.split("=", 1)
+        folder, sub = folder.split(":", 1) if ":" in folder else (folder, "carried")
         row = []
         for f in frames:
             png = os.path.join(tmp, f"{r}_{f}.png")
-            render(os.path.join(folder, "carried", f"frame_{f:04d}.obj"), png)
+            render(os.path.join(folder, sub, f"frame_{f:04d}.obj"), png)
             row.append(png)
         tiles.append((label, row))
     # Paste the tiles into one image with bpy's image API.

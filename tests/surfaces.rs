@@ -1,4 +1,5 @@
-//! The surfaces a morph writes: the source's own surface carried through the morph.
+//! The surfaces a morph writes: the source's own surface carried through the morph, and the
+//! surface rebuilt from the particles, measured against the source and the target.
 
 mod common;
 use common::cli::{manifest, morph, ok, scratch_in};
@@ -66,42 +67,171 @@ fn the_carried_surface_keeps_the_source_topology_and_uvs() {
     assert!(summary["max_stretch"].as_f64().unwrap() > 1.0, "{summary}");
 }
 
-/// The rebuilt surfaces come out clean: one shell (the body; no void walls, no islands),
-/// closed, and no triangle under the stated smallest angle; the manifest has the surfaces
-/// before cleaning too, which had voids.
+/// The rebuilt surfaces come out clean with either method: one shell (the body; no void
+/// walls, no islands), closed, and no triangle under the stated smallest angle; the manifest
+/// has the surfaces before cleaning too (the narrow lattice kernel leaves voids to drop).
 #[test]
 fn rebuilt_surfaces_have_one_shell_and_no_slivers() {
-    let out = scratch_in("surface-tests", "rebuilt");
+    for method in ["deformed", "lattice"] {
+        let out = scratch_in("surface-tests", &format!("rebuilt-{method}"));
+        ok(&morph(&[
+            "assets/sphere.obj",
+            "assets/two-lobes.obj",
+            "-o",
+            out.to_str().unwrap(),
+            "--preset",
+            "draft",
+            "--resolution",
+            "20",
+            "--surface",
+            "rebuilt",
+            "--rebuilt-method",
+            method,
+            "--quiet",
+        ]));
+        let m = manifest(&out);
+        let mut voids_before = 0;
+        for f in m["frames"].as_array().unwrap() {
+            let r = &f["rebuilt"];
+            let after = &r["after"];
+            assert_eq!(after["shells"].as_u64(), Some(1), "{method}: {r}");
+            assert_eq!(after["void_shells"].as_u64(), Some(0), "{method}: {r}");
+            assert!(
+                after["min_angle_deg"].as_f64().unwrap() >= 0.25,
+                "{method}: {r}"
+            );
+            assert_eq!(after["zero_area"].as_u64(), Some(0), "{method}: {r}");
+            voids_before += r["before"]["void_shells"].as_u64().unwrap();
+            let mesh = morph::geometry::load_mesh(&out.join(f["mesh"].as_str().unwrap()))
+                .unwrap()
+                .mesh;
+            assert!(mesh.topology().is_closed(), "{method}: {}", f["mesh"]);
+            // The deformed surface keeps the particles' volume (the body's times their mean
+            // J) within 0.5%; the narrow kernel's stays within 4%.
+            let e = f["surface_volume_error"].as_f64().unwrap();
+            let against_particles = (1.0 + e) / f["mean_j"].as_f64().unwrap() - 1.0;
+            let bound = if method == "deformed" { 0.005 } else { 0.04 };
+            assert!(
+                against_particles.abs() <= bound,
+                "{method}: volume off the particles' by {against_particles}"
+            );
+        }
+        if method == "lattice" {
+            assert!(
+                voids_before > 0,
+                "the narrow kernel leaves void shells for cleaning to drop"
+            );
+        }
+    }
+}
+
+/// The particle spacing of a run, world units.
+fn world_spacing(m: &serde_json::Value) -> f64 {
+    let per_cell = m["settings"]["particles_per_cell"].as_f64().unwrap();
+    m["dx_sim"].as_f64().unwrap() / per_cell * m["sim_to_world"]["scale"].as_f64().unwrap()
+}
+
+/// Frame 1 is the body at rest: its rebuilt surface is true to the source sphere (mean normal
+/// deviation <= 3.5 degrees: issue 28's goal is 3, measured 3.3; <= 1% of the area beyond 20;
+/// mean distance <= 0.15 spacings); the old narrow kernel is not (what the measure must tell
+/// apart). On fandisk (flat faces, sharp edges) neither meets the goal at the default
+/// resolution (docs/geometry.md): the test holds its figures where they are measured. The
+/// manifest's figures agree with a recomputation from the written files.
+#[test]
+fn a_body_at_rest_is_rebuilt_true_to_its_mesh() {
+    use morph::geometry::fidelity::{Reference, mesh_fidelity};
+    for (source, method, bounds, within) in [
+        ("assets/sphere.obj", "deformed", (3.5, 0.01, 0.15), true),
+        ("assets/sphere.obj", "lattice", (3.5, 0.01, 0.15), false),
+        (
+            "../shared/meshes/fandisk.obj",
+            "deformed",
+            (14.0, 0.27, 0.3),
+            true,
+        ),
+    ] {
+        let name = format!("rest-{method}-{}", source.rsplit('/').next().unwrap());
+        let out = scratch_in("surface-tests", &name);
+        ok(&morph(&[
+            source,
+            "assets/cube.obj",
+            "-o",
+            out.to_str().unwrap(),
+            "--frames",
+            "2",
+            "--iterations",
+            "1",
+            "--surface",
+            "rebuilt",
+            "--rebuilt-method",
+            method,
+            "--quiet",
+        ]));
+        let m = manifest(&out);
+        let f = &m["frames_summary"]["surfaces"]["rebuilt_first"];
+        let (normal, off, mean) = (
+            f["mean_normal_deg"].as_f64().unwrap(),
+            f["off_share"].as_f64().unwrap(),
+            f["mean_distance"].as_f64().unwrap(),
+        );
+        let meets = normal <= bounds.0 && off <= bounds.1 && mean <= bounds.2;
+        assert_eq!(meets, within, "{source} {method}: {f}");
+        // Recomputed from the written frame and the source file.
+        let rebuilt = morph::geometry::load_mesh(&out.join("meshes/frame_0001.obj")).unwrap();
+        let reference = morph::geometry::load_mesh(std::path::Path::new(source)).unwrap();
+        let again = mesh_fidelity(
+            &rebuilt.mesh,
+            &Reference::new(&reference.mesh).unwrap(),
+            world_spacing(&m),
+        );
+        for (ours, theirs) in [
+            (again.mean_normal_deg, normal),
+            (again.mean_distance, mean),
+            (again.max_distance, f["max_distance"].as_f64().unwrap()),
+        ] {
+            assert!(
+                (ours - theirs).abs() <= 0.02 * theirs.abs() + 1e-3,
+                "{source} {method}: recomputed {again:?}, manifest {f}"
+            );
+        }
+        assert!((again.off_share - off).abs() <= 0.002, "{again:?} vs {f}");
+    }
+}
+
+/// The carried surface must not fold where the body compresses (sphere -> fandisk): no
+/// frame's fold share above the source's own (plus one face in a thousand). Fails today
+/// (0.25% of the faces fold on this run; 3.3% on sphere -> spot): the fix is open work of
+/// issue 28.
+#[test]
+#[ignore = "issue 28: the carried surface still creases under compression"]
+fn the_carried_surface_does_not_fold_under_compression() {
+    let out = scratch_in("surface-tests", "fold");
     ok(&morph(&[
         "assets/sphere.obj",
-        "assets/two-lobes.obj",
+        "../shared/meshes/fandisk.obj",
         "-o",
         out.to_str().unwrap(),
         "--preset",
         "draft",
-        "--resolution",
-        "20",
         "--surface",
-        "rebuilt",
+        "carried",
         "--quiet",
     ]));
     let m = manifest(&out);
-    let mut voids_before = 0;
-    for f in m["frames"].as_array().unwrap() {
-        let r = &f["rebuilt"];
-        let after = &r["after"];
-        assert_eq!(after["shells"].as_u64(), Some(1), "{r}");
-        assert_eq!(after["void_shells"].as_u64(), Some(0), "{r}");
-        assert!(after["min_angle_deg"].as_f64().unwrap() >= 0.25, "{r}");
-        assert_eq!(after["zero_area"].as_u64(), Some(0), "{r}");
-        voids_before += r["before"]["void_shells"].as_u64().unwrap();
-        let mesh = morph::geometry::load_mesh(&out.join(f["mesh"].as_str().unwrap()))
-            .unwrap()
-            .mesh;
-        assert!(mesh.topology().is_closed(), "{}", f["mesh"]);
-    }
-    assert!(
-        voids_before > 0,
-        "the extraction leaves void shells for cleaning to drop"
+    let s = &m["frames_summary"]["surfaces"];
+    let (source, most) = (
+        s["source_fold_share"].as_f64().unwrap(),
+        s["max_carried_fold_share"].as_f64().unwrap(),
     );
+    assert!(
+        most <= source + 1e-3,
+        "fold share {most} against the source's {source}"
+    );
+    // The summary is the largest of the frames'.
+    let frames = m["frames"].as_array().unwrap();
+    let largest = frames
+        .iter()
+        .map(|f| f["carried"]["fold_share"].as_f64().unwrap())
+        .fold(0.0, f64::max);
+    assert_eq!(largest, most);
 }

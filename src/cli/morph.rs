@@ -12,7 +12,7 @@ use morph::morph::basis::ControlResolution;
 use morph::morph::memory::MemoryLimit;
 use morph::morph::scene_file::SceneFile;
 use morph::morph::segment::Optimizer;
-use morph::morph::settings::{Surfaces, limits};
+use morph::morph::settings::{RebuiltMethod, Surfaces, limits};
 use morph::morph::{MorphError, MorphEvent, MorphSettings, Preset};
 use morph::mpm::ControlForm;
 use std::path::PathBuf;
@@ -206,6 +206,8 @@ pub struct MorphArgs {
     at: Vec<usize>,
     #[arg(long, value_parser = choice(&Surfaces::ALL), help = format!("Surfaces per frame: carried (the source mesh itself, with its UVs and groups, following the body; carried/), rebuilt (a closed surface made from the particles, which follows any change of topology; meshes/), both, or none [default {}]", name(&defaults().surfaces)))]
     surface: Option<Surfaces>,
+    #[arg(long, value_parser = choice(&RebuiltMethod::ALL), help = format!("How the rebuilt surface is made: deformed (each particle's kernel follows its deformation; smooth) or lattice (0.2.0's narrow round kernels; shows the particles as bumps) [default {}]", name(&defaults().rebuilt_method)))]
+    rebuilt_method: Option<RebuiltMethod>,
     /// Points only: the same as --surface none.
     #[arg(long, conflicts_with = "surface")]
     no_surfaces: bool,
@@ -378,6 +380,9 @@ impl MorphArgs {
         }
         if let Some(fit) = self.target_fit {
             s.target_fit = fit;
+        }
+        if let Some(m) = self.rebuilt_method {
+            s.rebuilt_method = m;
         }
         if let Some(surfaces) = self.surface {
             s.surfaces = surfaces;

@@ -81,6 +81,14 @@ pub struct CarriedStats {
     pub min_stretch: f64,
     /// Vertices more than [`DETACHED_SPACINGS`] particle spacings from every particle.
     pub detached: usize,
+    /// Share of the faces that fold ([`crate::geometry::fidelity::fold_share`]); the first
+    /// frame's is the source's own.
+    #[serde(default)]
+    pub fold_share: f64,
+    /// How true it is to the reference of its frame: the target on the last frame
+    /// ([`crate::geometry::fidelity`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fidelity: Option<super::fidelity::Fidelity>,
 }
 
 impl CarriedSurface {
@@ -171,6 +179,8 @@ impl CarriedSurface {
             max_stretch,
             min_stretch,
             detached: detached(&sim, x, DETACHED_SPACINGS * spacing),
+            fold_share: super::fidelity::fold_share(&frame.positions, &self.triangles),
+            fidelity: None,
         }
     }
 

@@ -102,6 +102,24 @@ pub fn clean(mesh: &TriMesh, spacing: f64) -> (TriMesh, CleanReport) {
     (mesh, report)
 }
 
+/// Moves every vertex along its normal by one distance, the one that makes the surface
+/// enclose `volume` (to first order: the volume missing over the area; twice, for the
+/// second-order term). A smoothing kernel or smoothing steps shrink a convex body by a thin
+/// layer; this puts the layer back evenly, without changing the shape's detail.
+pub fn keep_volume(mesh: &mut TriMesh, volume: f64) {
+    for _ in 0..2 {
+        let (current, area) = (mesh.signed_volume(), mesh.surface_area());
+        if !(area > 0.0 && current > 0.0 && volume > 0.0) {
+            return;
+        }
+        let d = (volume - current) / area;
+        let normals = mesh.vertex_normals();
+        for (v, n) in mesh.vertices.iter_mut().zip(normals) {
+            *v += d * n;
+        }
+    }
+}
+
 /// Triangles grouped into connected shells (by shared vertices), in order of first triangle.
 fn shells(mesh: &TriMesh) -> Vec<Vec<usize>> {
     let n = mesh.vertices.len();

@@ -11,7 +11,7 @@
 //! produce non-manifold surface nets.)
 
 use super::mesh::{Aabb, TriMesh};
-use nalgebra::Vector3;
+use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 use rustc_hash::FxHashMap;
 
@@ -67,6 +67,81 @@ pub fn extract_surface(
     Ok(FillField::splat(positions, volumes, spacing).march())
 }
 
+/// How wide each particle's kernel is in [`extract_deformed_surface`], in particle spacings
+/// along each rest axis (an integer, so rest lattices fill exactly; see there).
+pub const DEFORMED_KERNEL_WIDTH: usize = 2;
+
+/// A closed surface around particles that carry their deformation: particle `p` at
+/// `positions[p]` stands for the material of a rest cell of `rest_volume` deformed by
+/// `deformation[p]` (`F`). Its share of the fill field is the cubic B-spline of width `w`
+/// rest spacings ([`DEFORMED_KERNEL_WIDTH`]) evaluated in the particle's rest frame,
+///
+/// ```text
+///   fill(x) = sum_p rest_volume / (w h)^3  N(F_p^-1 (x - x_p) / (w h))
+/// ```
+///
+/// so the kernel is an ellipsoid that stretches, shears and turns with the material. For a
+/// lattice of particles `h` apart under any one affine deformation the fill is exactly 1
+/// inside and exactly 1/2 where the deformed cells end (the cubic B-spline at an integer
+/// width is a partition of unity, symmetric about the half-spacing): the surface sits where
+/// the material ends, parts along a stretch stay closed, and the kernel's width smooths the
+/// rest lattice's steps that show as bumps with a narrow kernel.
+pub fn extract_deformed_surface(
+    positions: &[Vector3<f64>],
+    deformation: &[Matrix3<f64>],
+    rest_volume: f64,
+    spacing: f64,
+) -> Result<TriMesh, SurfaceError> {
+    assert_eq!(positions.len(), deformation.len(), "one F per particle");
+    if !(spacing.is_finite() && spacing > 0.0) {
+        return Err(SurfaceError::BadSpacing(spacing));
+    }
+    if let Some(p) = (0..positions.len()).find(|&p| {
+        !(positions[p].iter().all(|c| c.is_finite())
+            && deformation[p].iter().all(|c| c.is_finite()))
+    }) {
+        return Err(SurfaceError::NonFinite(p));
+    }
+    if positions.is_empty() {
+        return Ok(TriMesh::default());
+    }
+    let clipped: Vec<Matrix3<f64>> = deformation.par_iter().map(clip_stretch).collect();
+    let reach = 2.0 * DEFORMED_KERNEL_WIDTH as f64 * spacing * max_row_sum(&clipped);
+    let extent = (Aabb::of_points(positions).extent() + Vector3::repeat(2.0 * reach)) / spacing;
+    let nodes = extent.iter().map(|e| e.ceil() + 3.0).product::<f64>();
+    if nodes > MAX_NODES as f64 {
+        return Err(SurfaceError::TooLarge(nodes as usize));
+    }
+    Ok(FillField::splat_deformed(positions, &clipped, rest_volume, spacing, reach).march())
+}
+
+/// The largest row sum of `|F|` over the particles: how far, in rest half-widths, a
+/// particle's kernel box reaches along a lattice axis.
+fn max_row_sum(deformation: &[Matrix3<f64>]) -> f64 {
+    deformation
+        .iter()
+        .flat_map(|f| (0..3).map(move |a| f.row(a).abs().sum()))
+        .fold(1.0f64, f64::max)
+}
+
+/// Largest principal stretch a kernel takes (and smallest, its inverse): beyond it a
+/// particle's ellipsoid is clipped (a strand pulled that thin is below what the lattice
+/// resolves, and a torn-off particle cannot blow the lattice up).
+const MAX_KERNEL_STRETCH: f64 = 4.0;
+
+/// The cubic B-spline (support [-2, 2], integral 1).
+fn cubic(t: f64) -> f64 {
+    let a = t.abs();
+    if a < 1.0 {
+        2.0 / 3.0 - a * a + 0.5 * a * a * a
+    } else if a < 2.0 {
+        let b = 2.0 - a;
+        b * b * b / 6.0
+    } else {
+        0.0
+    }
+}
+
 /// Fill fraction on a lattice: node (i, j, k) at `origin + h * (i, j, k)`.
 struct FillField {
     origin: Vector3<f64>,
@@ -108,6 +183,88 @@ impl FillField {
                 }
             }
         }
+        FillField {
+            origin,
+            h,
+            dims,
+            values,
+        }
+    }
+
+    /// The field of [`extract_deformed_surface`]. The lattice is cut into x-slabs; each slab
+    /// sums the particles that reach it in particle order, so the field is the same for any
+    /// thread count.
+    fn splat_deformed(
+        positions: &[Vector3<f64>],
+        deformation: &[Matrix3<f64>],
+        rest_volume: f64,
+        h: f64,
+        reach: f64,
+    ) -> FillField {
+        let bounds = Aabb::of_points(positions);
+        let pad = (reach / h).ceil() + 1.0;
+        let origin = bounds.min - Vector3::repeat(pad * h);
+        let dims =
+            [0, 1, 2].map(|a| (bounds.extent()[a] / h).ceil() as usize + 2 * pad as usize + 1);
+        let s = DEFORMED_KERNEL_WIDTH as f64 * h;
+        let weight = rest_volume / (s * s * s);
+        // Per particle: the map from a lattice offset to rest-frame kernel coordinates, and the
+        // box of nodes its ellipsoid reaches (clipped to `reach`).
+        let kernels: Vec<(Matrix3<f64>, [usize; 3], [usize; 3])> = positions
+            .iter()
+            .zip(deformation)
+            .map(|(x, f)| {
+                let inv = f.try_inverse().unwrap_or_else(Matrix3::identity) / s;
+                // Half-widths of the support box: 2 s times the row sums of |F| (the box
+                // around F times the kernel's cube).
+                let g = (x - origin) / h;
+                let mut lo = [0usize; 3];
+                let mut hi = [0usize; 3];
+                for a in 0..3 {
+                    let half = 2.0 * s * f.row(a).abs().sum() / h;
+                    lo[a] = (g[a] - half).ceil().max(0.0) as usize;
+                    hi[a] = ((g[a] + half).floor() as usize).min(dims[a] - 1);
+                }
+                (inv, lo, hi)
+            })
+            .collect();
+        let [nx, ny, nz] = dims;
+        let mut values = vec![0.0; nx * ny * nz];
+        // Particles by the first slab they reach, then each slab gathers those that reach it.
+        let slab = 4usize;
+        let chunks: Vec<(usize, Vec<usize>)> = (0..nx.div_ceil(slab))
+            .map(|c| {
+                let (a, b) = (c * slab, ((c + 1) * slab).min(nx));
+                let list = (0..positions.len())
+                    .filter(|&p| kernels[p].1[0] < b && kernels[p].2[0] >= a)
+                    .collect();
+                (c, list)
+            })
+            .collect();
+        values
+            .par_chunks_mut(slab * ny * nz)
+            .zip(chunks.par_iter())
+            .for_each(|(out, (c, list))| {
+                let i0 = c * slab;
+                let i1 = (i0 + slab).min(nx);
+                for &p in list {
+                    let (inv, lo, hi) = &kernels[p];
+                    let xp = positions[p];
+                    for i in lo[0].max(i0)..=hi[0].min(i1 - 1) {
+                        for j in lo[1]..=hi[1] {
+                            let row = ((i - i0) * ny + j) * nz;
+                            for k in lo[2]..=hi[2] {
+                                let node = origin + h * Vector3::new(i as f64, j as f64, k as f64);
+                                let u = inv * (node - xp);
+                                let w = cubic(u.x) * cubic(u.y) * cubic(u.z);
+                                if w > 0.0 {
+                                    out[row + k] += weight * w;
+                                }
+                            }
+                        }
+                    }
+                }
+            });
         FillField {
             origin,
             h,
@@ -184,6 +341,31 @@ impl FillField {
         let t = ((ISO - flo) / (fhi - flo)).clamp(0.0, 1.0);
         let (xlo, xhi) = (self.position(lo), self.position(hi));
         xlo + t * (xhi - xlo)
+    }
+}
+
+/// `f` with its singular values clipped to [1 / MAX_KERNEL_STRETCH, MAX_KERNEL_STRETCH]
+/// (unchanged, and no SVD, when its norm says they already are).
+fn clip_stretch(f: &Matrix3<f64>) -> Matrix3<f64> {
+    let norm = f.norm();
+    if norm <= MAX_KERNEL_STRETCH && f.determinant() > 0.0 {
+        let svd = f.svd(false, false);
+        if svd.singular_values.min() >= 1.0 / MAX_KERNEL_STRETCH {
+            return *f;
+        }
+    }
+    let svd = f.svd(true, true);
+    let (Some(u), Some(v_t)) = (svd.u, svd.v_t) else {
+        return Matrix3::identity();
+    };
+    let clipped = svd
+        .singular_values
+        .map(|s| s.clamp(1.0 / MAX_KERNEL_STRETCH, MAX_KERNEL_STRETCH));
+    let r = u * Matrix3::from_diagonal(&clipped) * v_t;
+    if r.determinant() > 0.0 {
+        r
+    } else {
+        Matrix3::identity()
     }
 }
 

@@ -18,12 +18,16 @@ use super::memory::{MemoryLimit, MemoryPlan};
 use super::metrics::{FillMetrics, fill_metrics};
 use super::motion::MotionMeasures;
 use super::quality::Quality;
+use super::settings::RebuiltMethod;
 use super::{
     Frame, FrameSink, IterationRecord, MorphError, MorphEvent, MorphSettings, Observer, Prepared,
     RunProgress, SegmentRecord, WorldFrame, checkpoint, run,
 };
 use crate::geometry::carried::{CarriedStats, CarriedSurface};
+use crate::geometry::cleanup::keep_volume;
 use crate::geometry::cleanup::{CleanReport, SurfaceQuality, clean, quality as surface_quality};
+use crate::geometry::fidelity::{Fidelity, Reference, fidelity, mesh_fidelity};
+use crate::geometry::surface::extract_deformed_surface;
 use crate::geometry::{Similarity, extract_surface};
 use crate::io::outdir::{self, Previous, Staging};
 use crate::io::{frames::write_points_ply, images, massgrid::MassGrid, sha256_file};
@@ -124,6 +128,29 @@ pub struct RebuiltStats {
     pub before: SurfaceQuality,
     pub after: SurfaceQuality,
     pub cleanup: CleanReport,
+    /// How true the written surface is to the reference of its frame: the source on the
+    /// first frame, the target on the last ([`crate::geometry::fidelity`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fidelity: Option<Fidelity>,
+}
+
+/// The surfaces' figures a viewer judges a run by (see docs/geometry.md "Surface measures"):
+/// the rebuilt surface against the source on the first frame and against the target on the
+/// last, the carried one against the target on the last, and how much the carried one folds.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SurfaceSummary {
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rebuilt_first: Option<Fidelity>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rebuilt_last: Option<Fidelity>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub carried_last: Option<Fidelity>,
+    /// The source's own fold share (the carried surface on the first frame) and the largest
+    /// over the frames.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub source_fold_share: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_carried_fold_share: Option<f64>,
 }
 
 /// The worst of every frame's [`FrameStats`], for the manifest and the summary.
@@ -154,6 +181,9 @@ pub struct FramesSummary {
     /// Largest `|surface_volume_error|` over the frames (when surfaces are written).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub max_surface_volume_error: Option<f64>,
+    /// What the surfaces measure against the source and the target (when written).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub surfaces: Option<SurfaceSummary>,
 }
 
 /// The rebuilt surfaces of a run, summed up (see [`FramesSummary::rebuilt`]).
@@ -183,6 +213,7 @@ impl FramesSummary {
             carried: None,
             rebuilt: None,
             max_surface_volume_error: None,
+            surfaces: None,
         };
         for f in stats {
             s.min_j = s.min_j.min(f.min_j);
@@ -216,6 +247,7 @@ impl FramesSummary {
                 w.max_stretch = w.max_stretch.max(c.max_stretch);
                 w.min_stretch = w.min_stretch.min(c.min_stretch);
                 w.detached = w.detached.max(c.detached);
+                w.fold_share = w.fold_share.max(c.fold_share);
             }
             if let Some(j) = f.rms_jerk {
                 s.max_rms_jerk = Some(s.max_rms_jerk.unwrap_or(0.0).max(j));
@@ -224,6 +256,20 @@ impl FramesSummary {
                 let worst = s.max_surface_volume_error.unwrap_or(0.0).max(e.abs());
                 s.max_surface_volume_error = Some(worst);
             }
+        }
+        let last = stats.last().expect("not empty");
+        let surfaces = SurfaceSummary {
+            rebuilt_first: first.rebuilt.and_then(|r| r.fidelity),
+            rebuilt_last: last.rebuilt.and_then(|r| r.fidelity),
+            carried_last: last.carried.and_then(|c| c.fidelity),
+            source_fold_share: first.carried.map(|c| c.fold_share),
+            max_carried_fold_share: s.carried.map(|c| c.fold_share),
+        };
+        if surfaces.rebuilt_first.is_some() || surfaces.source_fold_share.is_some() {
+            s.surfaces = Some(surfaces);
+        }
+        if let Some(c) = &mut s.carried {
+            c.fidelity = None;
         }
         Some(s)
     }
@@ -747,15 +793,21 @@ fn sha256_hex(bytes: &[u8]) -> String {
 pub struct PlyObjSink {
     pub dir: PathBuf,
     pub n_frames: usize,
-    /// Write the surface rebuilt from the particles (`meshes/`).
+    /// Write the surface rebuilt from the particles (`meshes/`), and how it is made.
     pub rebuilt: bool,
+    pub method: RebuiltMethod,
     /// The source's surface carried through the morph, and the particles' rest positions it
     /// was bound to (`carried/`).
     pub carried: Option<(CarriedSurface, Vec<Vector3<f64>>)>,
     /// Particle spacing (simulation units) and rest volume, for the surface.
     pub spacing: f64,
     pub rest_volume: f64,
+    /// The source mesh's volume, simulation units.
+    pub body_volume: f64,
     pub to_world: Similarity,
+    /// The source and the target surfaces (world units), which the first and the last
+    /// frames' surfaces are measured against.
+    pub references: Option<(Reference, Reference)>,
 }
 
 impl PlyObjSink {
@@ -783,6 +835,15 @@ impl PlyObjSink {
         let WorldFrame { x, v, j } = world;
         let points = self.dir.join("frames").join(format!("{name}.ply"));
         write_points_ply(&points, x, v, j).map_err(|e| out_err("frame", &points, e))?;
+        // The reference this frame is measured against: the source on the first frame (the
+        // carried surface is the source there), the target on the last.
+        let world_spacing = self.spacing * self.to_world.scale;
+        let last = index + 1 == self.n_frames;
+        let reference = match &self.references {
+            Some((source, _)) if index == 0 => Some(source),
+            Some((_, target)) if last => Some(target),
+            _ => None,
+        };
         let carried = match &self.carried {
             Some((surface, rest)) => {
                 let on_frame = surface.carry(rest, &state.x, &state.f);
@@ -790,17 +851,34 @@ impl PlyObjSink {
                 surface
                     .write_obj(&path, &on_frame)
                     .map_err(|e| out_err("carried surface", &path, e))?;
-                Some(surface.stats(&on_frame, &state.x, self.spacing))
+                let mut stats = surface.stats(&on_frame, &state.x, self.spacing);
+                stats.fidelity = reference
+                    .filter(|_| last)
+                    .map(|r| fidelity(&on_frame.positions, &surface.triangles, r, world_spacing));
+                Some(stats)
             }
             None => None,
         };
         if !self.rebuilt {
             return Ok((None, carried, None));
         }
-        let volumes: Vec<f64> = j.iter().map(|j| self.rest_volume * j.max(0.0)).collect();
-        let raw = extract_surface(&state.x, &volumes, self.spacing)
-            .map_err(|e| MorphError::Output(e.to_string()))?;
-        let (surface, cleanup) = clean(&raw, self.spacing);
+        let raw = match self.method {
+            RebuiltMethod::Lattice => {
+                let volumes: Vec<f64> = j.iter().map(|j| self.rest_volume * j.max(0.0)).collect();
+                extract_surface(&state.x, &volumes, self.spacing)
+            }
+            RebuiltMethod::Deformed => {
+                extract_deformed_surface(&state.x, &state.f, self.rest_volume, self.spacing)
+            }
+        }
+        .map_err(|e| MorphError::Output(e.to_string()))?;
+        let (mut surface, cleanup) = clean(&raw, self.spacing);
+        if self.method == RebuiltMethod::Deformed {
+            // The wide kernel rounds the body by a thin layer: put it back evenly, to the
+            // body's volume times the particles' mean volume change.
+            let mean_j = j.iter().map(|j| j.max(0.0)).sum::<f64>() / j.len().max(1) as f64;
+            keep_volume(&mut surface, self.body_volume * mean_j);
+        }
         let path = self.dir.join("meshes").join(format!("{name}.obj"));
         let world = self.to_world.apply_mesh(&surface);
         world
@@ -810,6 +888,7 @@ impl PlyObjSink {
             before: surface_quality(&raw),
             after: surface_quality(&surface),
             cleanup,
+            fidelity: reference.map(|r| mesh_fidelity(&world, r, world_spacing)),
         };
         Ok((Some(world.signed_volume()), carried, Some(rebuilt)))
     }
@@ -1148,9 +1227,18 @@ fn write_run(
     let resumed_from = resume
         .as_ref()
         .map(|p| checkpoint::describe(p, settings.passes, prep.settings.segments));
+    let source = Path::new(&identity.inputs[0].path);
+    let loaded = crate::geometry::load_mesh(source)?;
+    let references = match (
+        Reference::new(&loaded.mesh),
+        Reference::new(&to_world.apply_mesh(&prep.geometry.target_sim)),
+    ) {
+        (Some(s), Some(t)) if settings.surfaces.rebuilt() || settings.surfaces.carried() => {
+            Some((s, t))
+        }
+        _ => None,
+    };
     let carried = if settings.surfaces.carried() {
-        let source = Path::new(&identity.inputs[0].path);
-        let loaded = crate::geometry::load_mesh(source)?;
         let surface = CarriedSurface::bind(
             source,
             &loaded.mesh,
@@ -1172,10 +1260,13 @@ fn write_run(
         dir: dir.to_path_buf(),
         n_frames,
         rebuilt: settings.surfaces.rebuilt(),
+        method: settings.rebuilt_method,
         carried,
         spacing,
         rest_volume: prep.geometry.source.volume,
+        body_volume: prep.geometry.source_solid.volume / to_world.scale.powi(3),
         to_world,
+        references,
     };
     let (work, queue) = sync_channel(WRITE_QUEUE);
     let (answers, done) = channel();

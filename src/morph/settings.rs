@@ -162,6 +162,27 @@ pub struct MorphSettings {
     pub initial_velocity: [f64; 3],
     /// Which surfaces each frame gets besides its points (`--surface`).
     pub surfaces: Surfaces,
+    /// How the rebuilt surface is made from the particles (`--rebuilt-method`).
+    #[serde(default)]
+    pub rebuilt_method: RebuiltMethod,
+}
+
+/// How the rebuilt surface is made (docs/geometry.md "Surfaces out").
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum RebuiltMethod {
+    /// Each particle's kernel deformed by its `F` (an ellipsoid that follows the material),
+    /// two spacings wide, and the volume kept (since 0.3.0).
+    #[default]
+    Deformed,
+    /// A narrow round kernel of one spacing per particle (0.2.0: shows the particle lattice
+    /// as bumps).
+    Lattice,
+}
+
+impl RebuiltMethod {
+    /// Every value, in declaration order (the command line lists them by their serde names).
+    pub const ALL: [RebuiltMethod; 2] = [RebuiltMethod::Deformed, RebuiltMethod::Lattice];
 }
 
 /// The surfaces written per frame.
@@ -316,6 +337,7 @@ impl MorphSettings {
             walls: WallSettings::default(),
             initial_velocity: [0.0; 3],
             surfaces: Surfaces::default(),
+            rebuilt_method: RebuiltMethod::default(),
         }
     }
 

@@ -1,0 +1,232 @@
+//! How true a written surface is to a reference surface, and whether it folds.
+//!
+//! - [`fidelity`]: for every face of the surface, the angle between its normal and the
+//!   reference's normal at the closest point of the reference (the normal of the reference
+//!   face that point lies on), and its distance to the reference: area-weighted means, the
+//!   share of the area beyond 20 degrees, and the largest distance over faces and vertices.
+//!   Distances are in particle spacings, what a viewer compares a bump with.
+//! - [`fold_share`]: the share of faces whose normal turns more than 60 degrees from the mean
+//!   normal of their edge neighbours: a crease or a fold, not a smooth bend.
+//!
+//! The closest-point queries go through parry's bounding-volume hierarchy (`parry3d-f64`,
+//! the dimforge collision library beside nalgebra).
+
+use super::mesh::TriMesh;
+use nalgebra::Vector3;
+use parry3d_f64::math::Vector as PVector;
+use parry3d_f64::query::PointQueryWithLocation;
+use rayon::prelude::*;
+use rustc_hash::FxHashMap;
+use serde::{Deserialize, Serialize};
+
+/// Normals farther than this from the reference's count as visibly wrong.
+pub const OFF_DEGREES: f64 = 20.0;
+/// A face whose normal turns more than this from its neighbours' mean is a fold.
+pub const FOLD_DEGREES: f64 = 60.0;
+
+/// A reference surface ready for closest-point queries.
+pub struct Reference {
+    mesh: parry3d_f64::shape::TriMesh,
+    normals: Vec<Vector3<f64>>,
+}
+
+impl Reference {
+    /// `None` for a mesh without a triangle of non-zero area.
+    pub fn new(mesh: &TriMesh) -> Option<Reference> {
+        let vertices: Vec<PVector> = mesh
+            .vertices
+            .iter()
+            .map(|v| PVector::new(v.x, v.y, v.z))
+            .collect();
+        let normals = mesh
+            .triangles
+            .iter()
+            .map(|t| {
+                let [a, b, c] = t.map(|i| mesh.vertices[i as usize]);
+                (b - a)
+                    .cross(&(c - a))
+                    .try_normalize(0.0)
+                    .unwrap_or_default()
+            })
+            .collect::<Vec<_>>();
+        if normals.iter().all(|n| *n == Vector3::zeros()) {
+            return None;
+        }
+        let mesh = parry3d_f64::shape::TriMesh::new(vertices, mesh.triangles.clone()).ok()?;
+        Some(Reference { mesh, normals })
+    }
+
+    /// The closest point of the reference to `p`, and the normal there.
+    fn closest(&self, p: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
+        let (proj, (face, _)) = self
+            .mesh
+            .project_local_point_and_get_location(PVector::new(p.x, p.y, p.z), false);
+        let q = Vector3::new(proj.point.x, proj.point.y, proj.point.z);
+        (q, self.normals[face as usize])
+    }
+}
+
+/// What [`fidelity`] measures.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Fidelity {
+    /// Area-weighted mean angle between the faces' normals and the reference's, degrees.
+    pub mean_normal_deg: f64,
+    /// Share of the area whose normal is more than [`OFF_DEGREES`] off.
+    pub off_share: f64,
+    /// Area-weighted mean distance of the faces' centres to the reference, in spacings.
+    pub mean_distance: f64,
+    /// Largest distance of a face centre or a vertex to the reference, in spacings.
+    pub max_distance: f64,
+}
+
+/// How true the surface (`vertices`, `triangles`) is to `reference`; `spacing` is the
+/// particle spacing in the same units. The same for any thread count.
+pub fn fidelity(
+    vertices: &[Vector3<f64>],
+    triangles: &[[usize; 3]],
+    reference: &Reference,
+    spacing: f64,
+) -> Fidelity {
+    // Per face: area, angle, centre distance (sums are taken in face order below).
+    let faces: Vec<(f64, f64, f64)> = triangles
+        .par_iter()
+        .map(|t| {
+            let [a, b, c] = t.map(|i| vertices[i]);
+            let cross = (b - a).cross(&(c - a));
+            let area = 0.5 * cross.norm();
+            if area == 0.0 {
+                return (0.0, 0.0, 0.0);
+            }
+            let centre = (a + b + c) / 3.0;
+            let (q, n_ref) = reference.closest(&centre);
+            let cos = (cross / (2.0 * area)).dot(&n_ref).clamp(-1.0, 1.0);
+            (area, cos.acos().to_degrees(), (centre - q).norm())
+        })
+        .collect();
+    let vertex_max = vertices
+        .par_iter()
+        .map(|v| (v - reference.closest(v).0).norm())
+        .reduce(|| 0.0, f64::max);
+    let total: f64 = faces.iter().map(|f| f.0).sum();
+    let total = total.max(f64::MIN_POSITIVE);
+    let weighted = |pick: &dyn Fn(&(f64, f64, f64)) -> f64| {
+        faces.iter().map(|f| f.0 * pick(f)).sum::<f64>() / total
+    };
+    Fidelity {
+        mean_normal_deg: weighted(&|f| f.1),
+        off_share: weighted(&|f| if f.1 > OFF_DEGREES { 1.0 } else { 0.0 }),
+        mean_distance: weighted(&|f| f.2) / spacing,
+        max_distance: faces.iter().map(|f| f.2).fold(vertex_max, f64::max) / spacing,
+    }
+}
+
+/// [`fidelity`] of a [`TriMesh`].
+pub fn mesh_fidelity(mesh: &TriMesh, reference: &Reference, spacing: f64) -> Fidelity {
+    let triangles: Vec<[usize; 3]> = mesh
+        .triangles
+        .iter()
+        .map(|t| t.map(|i| i as usize))
+        .collect();
+    fidelity(&mesh.vertices, &triangles, reference, spacing)
+}
+
+/// Share of the faces (of non-zero area, with a neighbour) whose normal turns more than
+/// [`FOLD_DEGREES`] from the mean unit normal of the faces sharing an edge with them.
+pub fn fold_share(vertices: &[Vector3<f64>], triangles: &[[usize; 3]]) -> f64 {
+    let normals: Vec<Option<Vector3<f64>>> = triangles
+        .iter()
+        .map(|t| {
+            let [a, b, c] = t.map(|i| vertices[i]);
+            (b - a).cross(&(c - a)).try_normalize(0.0)
+        })
+        .collect();
+    let mut by_edge: FxHashMap<(usize, usize), Vec<usize>> = FxHashMap::default();
+    for (f, t) in triangles.iter().enumerate() {
+        for e in 0..3 {
+            let (u, v) = (t[e], t[(e + 1) % 3]);
+            by_edge.entry((u.min(v), u.max(v))).or_default().push(f);
+        }
+    }
+    let cos_fold = FOLD_DEGREES.to_radians().cos();
+    let (mut counted, mut folded) = (0usize, 0usize);
+    for (f, t) in triangles.iter().enumerate() {
+        let Some(n) = normals[f] else { continue };
+        let mut mean = Vector3::zeros();
+        for e in 0..3 {
+            let (u, v) = (t[e], t[(e + 1) % 3]);
+            for &g in &by_edge[&(u.min(v), u.max(v))] {
+                if g != f
+                    && let Some(m) = normals[g]
+                {
+                    mean += m;
+                }
+            }
+        }
+        let Some(mean) = mean.try_normalize(0.0) else {
+            continue;
+        };
+        counted += 1;
+        if n.dot(&mean) < cos_fold {
+            folded += 1;
+        }
+    }
+    folded as f64 / counted.max(1) as f64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::assets;
+
+    #[test]
+    fn a_surface_measured_against_itself_is_exact() {
+        let sphere = assets::uv_sphere(1.0, 24, 48, |_, _| 1.0);
+        let reference = Reference::new(&sphere).unwrap();
+        let f = mesh_fidelity(&sphere, &reference, 0.1);
+        assert!(f.mean_normal_deg < 1e-6 && f.off_share == 0.0, "{f:?}");
+        assert!(f.max_distance < 1e-9, "{f:?}");
+    }
+
+    #[test]
+    fn a_shifted_surface_is_that_far_and_a_flipped_one_is_off() {
+        let sphere = assets::uv_sphere(1.0, 24, 48, |_, _| 1.0);
+        let reference = Reference::new(&sphere).unwrap();
+        let mut bigger = sphere.clone();
+        bigger.vertices.iter_mut().for_each(|v| *v *= 1.05);
+        let f = mesh_fidelity(&bigger, &reference, 0.01);
+        // 0.05 out, give or take the facets: about 5 spacings of 0.01.
+        assert!((f.mean_distance - 5.0).abs() < 0.6, "{f:?}");
+        let mut flipped = sphere.clone();
+        flipped.triangles.iter_mut().for_each(|t| t.swap(1, 2));
+        let f = mesh_fidelity(&flipped, &reference, 0.01);
+        assert!(f.mean_normal_deg > 170.0 && f.off_share > 0.99, "{f:?}");
+    }
+
+    #[test]
+    fn a_crease_folds_and_a_sphere_does_not() {
+        let sphere = assets::uv_sphere(1.0, 24, 48, |_, _| 1.0);
+        let tris: Vec<[usize; 3]> = sphere
+            .triangles
+            .iter()
+            .map(|t| t.map(|i| i as usize))
+            .collect();
+        assert_eq!(fold_share(&sphere.vertices, &tris), 0.0);
+        // A flat sheet with one vertex dragged past its neighbours: the faces it drags over
+        // turn upside down, a fold.
+        let n = 10;
+        let mut sheet: Vec<Vector3<f64>> = (0..n * n)
+            .map(|i| Vector3::new((i % n) as f64, (i / n) as f64, 0.0))
+            .collect();
+        let mut tris = Vec::new();
+        for y in 0..n - 1 {
+            for x in 0..n - 1 {
+                let v = y * n + x;
+                tris.extend([[v, v + 1, v + n + 1], [v, v + n + 1, v + n]]);
+            }
+        }
+        assert_eq!(fold_share(&sheet, &tris), 0.0);
+        sheet[5 * n + 5].x += 1.6;
+        let share = fold_share(&sheet, &tris);
+        assert!(share > 0.0 && share < 0.1, "{share}");
+    }
+}
