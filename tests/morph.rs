@@ -301,6 +301,7 @@ fn command_line_errors() {
         (vec!["--volume-weight", "-1"], 2, "--volume-weight"),
         (vec!["--fine-weight", "nan"], 2, "--fine-weight"),
         (vec!["--path-weight", "-0.5"], 2, "--path-weight"),
+        (vec!["--rebuilt-method", "splat"], 2, "splat"),
         (vec!["--control", "multiplicative"], 2, "multiplicative"),
         (vec!["--control-resolution", "voxel"], 2, "voxel"),
         (vec!["--memory-limit", "12Q"], 2, "--memory-limit"),

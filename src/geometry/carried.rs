@@ -55,6 +55,8 @@ pub struct CarriedSurface {
     normals: Vec<(Vector3<f64>, Option<usize>)>,
     /// Faces fan-triangulated, by vertex index (for the stretch measure).
     pub triangles: Vec<[usize; 3]>,
+    /// Each triangle's edge neighbours (the topology is fixed: found once, for the fold share).
+    neighbours: Vec<Vec<usize>>,
     /// Texture coordinates (`vt` lines).
     pub uvs: usize,
     /// Binding: vertex `i`'s particles and weights are `bind[offsets[i]..offsets[i + 1]]`.
@@ -114,6 +116,7 @@ impl CarriedSurface {
             from_mesh(fallback)
         };
         surface.to_sim = to_sim;
+        surface.neighbours = super::fidelity::edge_neighbours(&surface.triangles);
         let (offsets, bind) = binding(&surface.rest, to_sim, particles, spacing);
         surface.offsets = offsets;
         surface.bind = bind;
@@ -179,7 +182,11 @@ impl CarriedSurface {
             max_stretch,
             min_stretch,
             detached: detached(&sim, x, DETACHED_SPACINGS * spacing),
-            fold_share: super::fidelity::fold_share(&frame.positions, &self.triangles),
+            fold_share: super::fidelity::fold_share(
+                &frame.positions,
+                &self.triangles,
+                &self.neighbours,
+            ),
             fidelity: None,
         }
     }
@@ -457,6 +464,7 @@ fn empty() -> CarriedSurface {
         rest: Vec::new(),
         normals: Vec::new(),
         triangles: Vec::new(),
+        neighbours: Vec::new(),
         uvs: 0,
         offsets: Vec::new(),
         bind: Vec::new(),

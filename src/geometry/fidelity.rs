@@ -130,16 +130,8 @@ pub fn mesh_fidelity(mesh: &TriMesh, reference: &Reference, spacing: f64) -> Fid
     fidelity(&mesh.vertices, &triangles, reference, spacing)
 }
 
-/// Share of the faces (of non-zero area, with a neighbour) whose normal turns more than
-/// [`FOLD_DEGREES`] from the mean unit normal of the faces sharing an edge with them.
-pub fn fold_share(vertices: &[Vector3<f64>], triangles: &[[usize; 3]]) -> f64 {
-    let normals: Vec<Option<Vector3<f64>>> = triangles
-        .iter()
-        .map(|t| {
-            let [a, b, c] = t.map(|i| vertices[i]);
-            (b - a).cross(&(c - a)).try_normalize(0.0)
-        })
-        .collect();
+/// The triangles sharing an edge with each triangle, in triangle order.
+pub fn edge_neighbours(triangles: &[[usize; 3]]) -> Vec<Vec<usize>> {
     let mut by_edge: FxHashMap<(usize, usize), Vec<usize>> = FxHashMap::default();
     for (f, t) in triangles.iter().enumerate() {
         for e in 0..3 {
@@ -147,21 +139,41 @@ pub fn fold_share(vertices: &[Vector3<f64>], triangles: &[[usize; 3]]) -> f64 {
             by_edge.entry((u.min(v), u.max(v))).or_default().push(f);
         }
     }
+    triangles
+        .iter()
+        .enumerate()
+        .map(|(f, t)| {
+            (0..3)
+                .flat_map(|e| {
+                    let (u, v) = (t[e], t[(e + 1) % 3]);
+                    by_edge[&(u.min(v), u.max(v))].iter().copied()
+                })
+                .filter(|&g| g != f)
+                .collect()
+        })
+        .collect()
+}
+
+/// Share of the faces (of non-zero area, with a neighbour) whose normal turns more than
+/// [`FOLD_DEGREES`] from the mean unit normal of the faces sharing an edge with them
+/// (`neighbours`: [`edge_neighbours`] of `triangles`).
+pub fn fold_share(
+    vertices: &[Vector3<f64>],
+    triangles: &[[usize; 3]],
+    neighbours: &[Vec<usize>],
+) -> f64 {
+    let normals: Vec<Option<Vector3<f64>>> = triangles
+        .iter()
+        .map(|t| {
+            let [a, b, c] = t.map(|i| vertices[i]);
+            (b - a).cross(&(c - a)).try_normalize(0.0)
+        })
+        .collect();
     let cos_fold = FOLD_DEGREES.to_radians().cos();
     let (mut counted, mut folded) = (0usize, 0usize);
-    for (f, t) in triangles.iter().enumerate() {
+    for (f, near) in neighbours.iter().enumerate() {
         let Some(n) = normals[f] else { continue };
-        let mut mean = Vector3::zeros();
-        for e in 0..3 {
-            let (u, v) = (t[e], t[(e + 1) % 3]);
-            for &g in &by_edge[&(u.min(v), u.max(v))] {
-                if g != f
-                    && let Some(m) = normals[g]
-                {
-                    mean += m;
-                }
-            }
-        }
+        let mean: Vector3<f64> = near.iter().filter_map(|&g| normals[g]).sum();
         let Some(mean) = mean.try_normalize(0.0) else {
             continue;
         };
@@ -210,7 +222,10 @@ mod tests {
             .iter()
             .map(|t| t.map(|i| i as usize))
             .collect();
-        assert_eq!(fold_share(&sphere.vertices, &tris), 0.0);
+        assert_eq!(
+            fold_share(&sphere.vertices, &tris, &edge_neighbours(&tris)),
+            0.0
+        );
         // A flat sheet with one vertex dragged past its neighbours: the faces it drags over
         // turn upside down, a fold.
         let n = 10;
@@ -224,9 +239,10 @@ mod tests {
                 tris.extend([[v, v + 1, v + n + 1], [v, v + n + 1, v + n]]);
             }
         }
-        assert_eq!(fold_share(&sheet, &tris), 0.0);
+        let near = edge_neighbours(&tris);
+        assert_eq!(fold_share(&sheet, &tris, &near), 0.0);
         sheet[5 * n + 5].x += 1.6;
-        let share = fold_share(&sheet, &tris);
+        let share = fold_share(&sheet, &tris, &near);
         assert!(share > 0.0 && share < 0.1, "{share}");
     }
 }

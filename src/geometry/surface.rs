@@ -209,7 +209,7 @@ impl FillField {
         let s = DEFORMED_KERNEL_WIDTH as f64 * h;
         let weight = rest_volume / (s * s * s);
         // Per particle: the map from a lattice offset to rest-frame kernel coordinates, and the
-        // box of nodes its ellipsoid reaches (clipped to `reach`).
+        // box of nodes its kernel reaches.
         let kernels: Vec<(Matrix3<f64>, [usize; 3], [usize; 3])> = positions
             .iter()
             .zip(deformation)
@@ -230,7 +230,7 @@ impl FillField {
             .collect();
         let [nx, ny, nz] = dims;
         let mut values = vec![0.0; nx * ny * nz];
-        // Particles by the first slab they reach, then each slab gathers those that reach it.
+        // Each chunk of `slab` x-layers lists the particles whose box reaches it, in order.
         let slab = 4usize;
         let chunks: Vec<(usize, Vec<usize>)> = (0..nx.div_ceil(slab))
             .map(|c| {
@@ -345,7 +345,7 @@ impl FillField {
 }
 
 /// `f` with its singular values clipped to [1 / MAX_KERNEL_STRETCH, MAX_KERNEL_STRETCH]
-/// (unchanged, and no SVD, when its norm says they already are).
+/// (unchanged when they already are: then only the singular values are computed).
 fn clip_stretch(f: &Matrix3<f64>) -> Matrix3<f64> {
     let norm = f.norm();
     if norm <= MAX_KERNEL_STRETCH && f.determinant() > 0.0 {

@@ -174,8 +174,9 @@ pub struct Schedule {
     /// The nodal masses (simulation grid, fine loss grid) of each keyframe target before the
     /// last, in order; the last one's are the loss's target.
     pub keyframes: Vec<(Vec<f64>, Option<Vec<f64>>)>,
-    /// Where the body would be on its own, by morph step: the source's positions at each frame
-    /// before the first keyframe, from a run without controls. Empty
+    /// Where the body would be on its own, by morph step: the source's positions at the end of
+    /// each segment that ends before the first keyframe (and at each frame before it when the
+    /// path term is on), from a run without controls. Empty
     /// when nothing moves a body at rest (no gravity, no initial velocity): it stays where it
     /// starts.
     pub passive: Vec<(usize, Vec<Vector3<f64>>)>,
@@ -426,12 +427,24 @@ impl Prepared {
             .map(|f| (f - 1) * settings.frame_every)
             .collect();
         // Where the body goes on its own, up to the first keyframe: a run without controls,
-        // when anything moves a body at rest, kept at every frame (the segments' ends and
-        // their path points).
+        // when anything moves a body at rest, kept at the segments' ends (and at every frame
+        // when the path term needs it there).
         let mut passive = Vec::new();
         if settings.gravity.is_some() || v0 != Vector3::zeros() {
-            let every = settings.frame_every;
-            let ends: Vec<usize> = (1..steps[0]).filter(|s| s.is_multiple_of(every)).collect();
+            let mut ends = Vec::new();
+            let mut end = 0;
+            for &n in &shot.segment_steps {
+                if settings.path_weight > 0.0 {
+                    let every = settings.frame_every;
+                    ends.extend((end + 1..end + n).filter(|s| s.is_multiple_of(every)));
+                }
+                end += n;
+                if end >= steps[0] {
+                    break;
+                }
+                ends.push(end);
+            }
+            ends.retain(|&s| s < steps[0]);
             if let Some(&last) = ends.last() {
                 let mut state = initial.clone();
                 let mut on_step = |k: usize, st: &State| {

@@ -18,7 +18,7 @@ use super::memory::{MemoryLimit, MemoryPlan};
 use super::metrics::{FillMetrics, fill_metrics};
 use super::motion::MotionMeasures;
 use super::quality::Quality;
-use super::settings::RebuiltMethod;
+use super::settings::{RebuiltMethod, Surfaces};
 use super::{
     Frame, FrameSink, IterationRecord, MorphError, MorphEvent, MorphSettings, Observer, Prepared,
     RunProgress, SegmentRecord, WorldFrame, checkpoint, run,
@@ -1228,17 +1228,16 @@ fn write_run(
         .as_ref()
         .map(|p| checkpoint::describe(p, settings.passes, prep.settings.segments));
     let source = Path::new(&identity.inputs[0].path);
-    let loaded = crate::geometry::load_mesh(source)?;
-    let references = match (
-        Reference::new(&loaded.mesh),
-        Reference::new(&to_world.apply_mesh(&prep.geometry.target_sim)),
-    ) {
-        (Some(s), Some(t)) if settings.surfaces.rebuilt() || settings.surfaces.carried() => {
-            Some((s, t))
-        }
-        _ => None,
+    // The source as read, for the carried surface and as the first frame's reference.
+    let loaded = match settings.surfaces {
+        Surfaces::None => None,
+        _ => Some(crate::geometry::load_mesh(source)?),
     };
-    let carried = if settings.surfaces.carried() {
+    let references = loaded.as_ref().and_then(|l| {
+        let target = to_world.apply_mesh(&prep.geometry.target_sim);
+        Some((Reference::new(&l.mesh)?, Reference::new(&target)?))
+    });
+    let carried = if let Some(loaded) = loaded.as_ref().filter(|_| settings.surfaces.carried()) {
         let surface = CarriedSurface::bind(
             source,
             &loaded.mesh,
