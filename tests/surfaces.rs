@@ -199,11 +199,9 @@ fn a_body_at_rest_is_rebuilt_true_to_its_mesh() {
 }
 
 /// The carried surface must not fold where the body compresses (sphere -> fandisk): no
-/// frame's fold share above the source's own (plus one face in a thousand). Fails today
-/// (0.25% of the faces fold on this run; 3.3% on sphere -> spot): the fix is open work of
-/// issue 28.
+/// frame's fold share above the source's own (plus one face in a thousand). 0.3.0's binding
+/// (each particle's own `F` within 2.5 spacings) folded 0.25% of the faces on this run.
 #[test]
-#[ignore = "issue 28: the carried surface still creases under compression"]
 fn the_carried_surface_does_not_fold_under_compression() {
     let out = scratch_in("surface-tests", "fold");
     ok(&morph(&[

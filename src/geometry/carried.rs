@@ -3,13 +3,24 @@
 //! frame a vertex at rest position `X` is at
 //!
 //! ```text
-//!   x = X + sum_p w_p [ (x_p - X_p) + (F_p - I) (X - X_p) ]
+//!   x = X + sum_p w_p (x_p - X_p) + G (X - C),   G = sum_p w_p (F_p - I),   C = sum_p w_p X_p
 //! ```
 //!
 //! (sim units; `x_p`, `F_p` the particle's position and deformation gradient, `X_p` its rest
-//! position; `w_p` the binding's weights, summing to 1). At rest every term is exactly zero,
-//! so frame 1 is the source asset, bit for bit: its vertex lines are written as they were read.
-//! Normals follow the deformation too: `n' ~ F^-T n` with `F = sum_p w_p F_p` at their vertex.
+//! position; `w_p` the binding's weights, summing to 1): the particles' mean motion, plus their
+//! mean deformation applied to the vertex's offset from their rest centroid. It is exact for
+//! any affine motion of the particles, and at rest every term is exactly zero, so frame 1 is
+//! the source asset, bit for bit: its vertex lines are written as they were read.
+//!
+//! Why this form and this radius ([`BIND_SPACINGS`]): where the body's surface compresses
+//! (sphere -> spot's neck, 30x in one direction) neighbouring vertices come closer than the
+//! particles' own jitter, and the carried mesh creases. 0.3.0 applied each particle's own
+//! `F_p` to the vertex's offset from that particle, `sum_p w_p F_p (X - X_p)`, within 2.5
+//! spacings: the jitter of the particles' motion, and their `F_p` times offsets up to the
+//! radius, folded 3.3% of sphere -> spot's faces. Averaging motion and deformation first, over
+//! 4.5 spacings, folds none there (docs/geometry.md, "Carried surface").
+//!
+//! Normals follow the deformation too: `n' ~ F^-T n` with `F = I + G` at their vertex.
 //!
 //! An OBJ source is rewritten line by line: `v` and `vn` lines get their new values, every
 //! other line (`vt`, faces, groups, materials, smoothing, comments) is kept as it was, so the
@@ -27,7 +38,7 @@ use std::io::Write;
 use std::path::Path;
 
 /// Binding radius, in particle spacings: particles within it carry a vertex.
-const BIND_SPACINGS: f64 = 2.5;
+const BIND_SPACINGS: f64 = 4.5;
 
 /// A carried vertex farther than this many particle spacings from every particle is counted
 /// as detached.
@@ -62,6 +73,8 @@ pub struct CarriedSurface {
     /// Binding: vertex `i`'s particles and weights are `bind[offsets[i]..offsets[i + 1]]`.
     offsets: Vec<usize>,
     bind: Vec<(u32, f64)>,
+    /// Each vertex's offset from its particles' weighted rest centroid (sim units).
+    offset: Vec<Vector3<f64>>,
     /// World -> sim map the binding was made with.
     to_sim: super::Similarity,
 }
@@ -118,6 +131,7 @@ impl CarriedSurface {
         surface.to_sim = to_sim;
         surface.neighbours = super::fidelity::edge_neighbours(&surface.triangles);
         let (offsets, bind) = binding(&surface.rest, to_sim, particles, spacing);
+        surface.offset = centroid_offsets(&surface.rest, to_sim, particles, &offsets, &bind);
         surface.offsets = offsets;
         surface.bind = bind;
         Ok(surface)
@@ -143,16 +157,15 @@ impl CarriedSurface {
         let back = 1.0 / self.to_sim.scale;
         let (positions, deformation) = (0..self.rest.len())
             .map(|i| {
-                let at = self.to_sim.apply(&self.rest[i]);
-                let mut u = Vector3::zeros();
-                let mut fv = Matrix3::zeros();
+                let mut motion = Vector3::zeros();
+                let mut g = Matrix3::zeros();
                 for &(p, w) in &self.bind[self.offsets[i]..self.offsets[i + 1]] {
                     let p = p as usize;
-                    let rest = rest_particles[p];
-                    u += w * ((x[p] - rest) + (f[p] - Matrix3::identity()) * (at - rest));
-                    fv += w * f[p];
+                    motion += w * (x[p] - rest_particles[p]);
+                    g += w * (f[p] - Matrix3::identity());
                 }
-                (self.rest[i] + back * u, fv)
+                let u = motion + g * self.offset[i];
+                (self.rest[i] + back * u, g + Matrix3::identity())
             })
             .unzip();
         CarriedFrame {
@@ -289,6 +302,26 @@ fn binding(
         offsets.push(bind.len());
     }
     (offsets, bind)
+}
+
+/// Each vertex's offset (sim units) from the weighted rest centroid of its particles.
+fn centroid_offsets(
+    rest: &[Vector3<f64>],
+    to_sim: super::Similarity,
+    particles: &[Vector3<f64>],
+    offsets: &[usize],
+    bind: &[(u32, f64)],
+) -> Vec<Vector3<f64>> {
+    rest.iter()
+        .enumerate()
+        .map(|(i, v)| {
+            let centre: Vector3<f64> = bind[offsets[i]..offsets[i + 1]]
+                .iter()
+                .map(|&(p, w)| w * particles[p as usize])
+                .sum();
+            to_sim.apply(v) - centre
+        })
+        .collect()
 }
 
 /// Points hashed into cubic cells, for radius queries.
@@ -468,6 +501,7 @@ fn empty() -> CarriedSurface {
         uvs: 0,
         offsets: Vec::new(),
         bind: Vec::new(),
+        offset: Vec::new(),
         to_sim: super::Similarity::identity(),
     }
 }
@@ -500,6 +534,7 @@ mod tests {
         let mut s = parse_obj(Path::new("/a/b.obj"), text);
         let to_sim = crate::geometry::Similarity::identity();
         (s.offsets, s.bind) = binding(&s.rest, to_sim, &particles, 0.5);
+        s.offset = centroid_offsets(&s.rest, to_sim, &particles, &s.offsets, &s.bind);
         let f0 = vec![Matrix3::identity(); particles.len()];
         let at_rest = s.carry(&particles, &particles, &f0);
         assert_eq!(at_rest.positions, s.rest);
