@@ -1,8 +1,9 @@
 #!/usr/bin/env bash
 # Checks a morph's output with the clients studios use: Pixar's USD library (usd-core, and the
 # validators usdchecker runs) and Blender 4.5 as a Python module (bpy), installed into a cached
-# venv outside the repo. Usage: scripts/client-check.sh [OUT]; without OUT it makes a small
-# morph of the built-in assets first. Needs python3.11 (bpy 4.5's).
+# venv outside the repo; then renders OUT/contact.png (scripts/contact_sheet.py). Usage:
+# scripts/client-check.sh [OUT]; without OUT it makes a small morph of the built-in assets
+# first. Needs python3.11 (bpy 4.5's).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 venv="${MORPH_CLIENT_VENV:-${XDG_CACHE_HOME:-$HOME/.cache}/morph-client-venv}"
@@ -21,3 +22,6 @@ if [ -z "$out" ]; then
     --preset draft --resolution 16 --quiet
 fi
 "$venv/bin/python" scripts/check_clients.py "$out"
+# What a person looks at: frame 1, halfway, arrival and the last frame of the carried and the
+# rebuilt surface next to the target, rendered by Blender (Cycles, CPU) into OUT/contact.png.
+"$venv/bin/python" scripts/contact_sheet.py "$out" --width 1000 --samples 16

@@ -206,7 +206,7 @@ pub struct MorphArgs {
     at: Vec<usize>,
     #[arg(long, value_parser = choice(&Surfaces::ALL), help = format!("Surfaces per frame: carried (the source mesh itself, with its UVs and groups, following the body; carried/), rebuilt (a closed surface made from the particles, which follows any change of topology; meshes/), both, or none [default {}]", name(&defaults().surfaces)))]
     surface: Option<Surfaces>,
-    #[arg(long, value_parser = choice(&RebuiltMethod::ALL), help = format!("How the rebuilt surface is made: deformed (each particle's kernel follows its deformation; smooth) or lattice (0.2.0's narrow round kernels; shows the particles as bumps) [default {}]", name(&defaults().rebuilt_method)))]
+    #[arg(long, value_parser = choice(&RebuiltMethod::ALL), help = format!("How the rebuilt surface is made: deformed (each particle's kernel follows its deformation; smooth), lattice (0.2.0's narrow round kernels; shows the particles as bumps) or splashsurf (the fluid surfacer's pipeline, recommended settings; positions only) [default {}]", name(&defaults().rebuilt_method)))]
     rebuilt_method: Option<RebuiltMethod>,
     /// Points only: the same as --surface none.
     #[arg(long, conflicts_with = "surface")]

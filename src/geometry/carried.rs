@@ -104,6 +104,9 @@ pub struct CarriedStats {
     /// ([`crate::geometry::fidelity`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fidelity: Option<super::fidelity::Fidelity>,
+    /// Seconds spent carrying, writing and measuring it (the frame writer's thread).
+    #[serde(default)]
+    pub seconds: f64,
 }
 
 impl CarriedSurface {
@@ -201,6 +204,7 @@ impl CarriedSurface {
                 &self.neighbours,
             ),
             fidelity: None,
+            seconds: 0.0,
         }
     }
 

@@ -34,6 +34,8 @@ pub enum SurfaceError {
         "surface extraction: the particles spread over {0} lattice nodes (limit {MAX_NODES}); use a larger spacing"
     )]
     TooLarge(usize),
+    #[error("surface extraction: {0}")]
+    External(String),
 }
 
 /// A closed surface around `positions`, each of which stands for volume `volumes[p]`

@@ -28,6 +28,7 @@ use crate::geometry::cleanup::keep_volume;
 use crate::geometry::cleanup::{CleanReport, SurfaceQuality, clean, quality as surface_quality};
 use crate::geometry::fidelity::{Fidelity, Reference, fidelity, mesh_fidelity};
 use crate::geometry::surface::extract_deformed_surface;
+use crate::geometry::splashsurf::extract_splashsurf_surface;
 use crate::geometry::{Similarity, extract_surface};
 use crate::io::outdir::{self, Previous, Staging};
 use crate::io::{frames::write_points_ply, images, massgrid::MassGrid, sha256_file};
@@ -132,6 +133,9 @@ pub struct RebuiltStats {
     /// first frame, the target on the last ([`crate::geometry::fidelity`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fidelity: Option<Fidelity>,
+    /// Seconds spent making, cleaning, writing and measuring it (the frame writer's thread).
+    #[serde(default)]
+    pub seconds: f64,
 }
 
 /// The surfaces' figures a viewer judges a run by (see docs/geometry.md "Surface measures"):
@@ -151,6 +155,11 @@ pub struct SurfaceSummary {
     pub source_fold_share: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub max_carried_fold_share: Option<f64>,
+    /// Seconds the carried and the rebuilt surfaces took over all frames (this process's).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub carried_s: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rebuilt_s: Option<f64>,
 }
 
 /// The worst of every frame's [`FrameStats`], for the manifest and the summary.
@@ -264,6 +273,12 @@ impl FramesSummary {
             carried_last: last.carried.and_then(|c| c.fidelity),
             source_fold_share: first.carried.map(|c| c.fold_share),
             max_carried_fold_share: s.carried.map(|c| c.fold_share),
+            carried_s: first
+                .carried
+                .map(|_| stats.iter().filter_map(|f| f.carried).map(|c| c.seconds).sum()),
+            rebuilt_s: first
+                .rebuilt
+                .map(|_| stats.iter().filter_map(|f| f.rebuilt).map(|r| r.seconds).sum()),
         };
         if surfaces.rebuilt_first.is_some() || surfaces.source_fold_share.is_some() {
             s.surfaces = Some(surfaces);
@@ -485,6 +500,11 @@ pub struct Timings {
     pub setup_s: f64,
     pub optimize_s: f64,
     pub total_s: f64,
+    /// Writing the USD sequence, and the previews (PNG, GIF), after the frames.
+    #[serde(default)]
+    pub usd_s: f64,
+    #[serde(default)]
+    pub previews_s: f64,
 }
 
 /// What the caller prints at the end.
@@ -846,6 +866,7 @@ impl PlyObjSink {
         };
         let carried = match &self.carried {
             Some((surface, rest)) => {
+                let clock = std::time::Instant::now();
                 let on_frame = surface.carry(rest, &state.x, &state.f);
                 let path = self.dir.join("carried").join(format!("{name}.obj"));
                 surface
@@ -855,6 +876,7 @@ impl PlyObjSink {
                 stats.fidelity = reference
                     .filter(|_| last)
                     .map(|r| fidelity(&on_frame.positions, &surface.triangles, r, world_spacing));
+                stats.seconds = clock.elapsed().as_secs_f64();
                 Some(stats)
             }
             None => None,
@@ -862,6 +884,7 @@ impl PlyObjSink {
         if !self.rebuilt {
             return Ok((None, carried, None));
         }
+        let clock = std::time::Instant::now();
         let raw = match self.method {
             RebuiltMethod::Lattice => {
                 let volumes: Vec<f64> = j.iter().map(|j| self.rest_volume * j.max(0.0)).collect();
@@ -870,11 +893,12 @@ impl PlyObjSink {
             RebuiltMethod::Deformed => {
                 extract_deformed_surface(&state.x, &state.f, self.rest_volume, self.spacing)
             }
+            RebuiltMethod::Splashsurf => extract_splashsurf_surface(&state.x, self.spacing),
         }
         .map_err(|e| MorphError::Output(e.to_string()))?;
         let (mut surface, cleanup) = clean(&raw, self.spacing);
-        if self.method == RebuiltMethod::Deformed {
-            // The wide kernel rounds the body by a thin layer: put it back evenly, to the
+        if self.method != RebuiltMethod::Lattice {
+            // A wide kernel (and smoothing) rounds the body by a thin layer: put it back evenly, to the
             // body's volume times the particles' mean volume change.
             let mean_j = j.iter().map(|j| j.max(0.0)).sum::<f64>() / j.len().max(1) as f64;
             keep_volume(&mut surface, self.body_volume * mean_j);
@@ -889,6 +913,7 @@ impl PlyObjSink {
             after: surface_quality(&surface),
             cleanup,
             fidelity: reference.map(|r| mesh_fidelity(&world, r, world_spacing)),
+            seconds: clock.elapsed().as_secs_f64(),
         };
         Ok((Some(world.signed_volume()), carried, Some(rebuilt)))
     }
@@ -1383,6 +1408,7 @@ fn write_run(
             .map(|n| Path::new(folder).join(format!("{n}.{ext}")))
             .collect()
     };
+    let usd_clock = std::time::Instant::now();
     let usd_path = dir.join(crate::io::usd::FILE);
     let fps = 1.0 / (prep.sim_frame_every() as f64 * prep.model().dt);
     crate::io::usd::write_usda(
@@ -1397,6 +1423,7 @@ fn write_run(
         },
     )
     .map_err(|e| out_err("USD file", &usd_path, e))?;
+    let usd_s = usd_clock.elapsed().as_secs_f64();
 
     // Final nodal mass grid, on world coordinates.
     let s = to_world.scale;
@@ -1421,6 +1448,7 @@ fn write_run(
         .iter()
         .map(|r| (r.seconds, r.loss))
         .collect();
+    let previews_clock = std::time::Instant::now();
     let loss_png = dir.join("loss.png");
     images::write_loss_plot(&loss_png, &losses).map_err(|e| out_err("plot", &loss_png, e))?;
     let preview_png = dir.join("preview.png");
@@ -1449,6 +1477,7 @@ fn write_run(
     )
     .map_err(|e| out_err("preview", &preview_gif, e))?;
 
+    let previews_s = previews_clock.elapsed().as_secs_f64();
     let frames: Vec<FrameEntry> = (0..n_frames)
         .map(|i| {
             let name = frame_name(i, n_frames);
@@ -1504,6 +1533,8 @@ fn write_run(
             setup_s,
             optimize_s,
             total_s,
+            usd_s,
+            previews_s,
         },
         frames,
         final_mass: "final_mass.mgrid".into(),

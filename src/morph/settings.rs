@@ -178,11 +178,17 @@ pub enum RebuiltMethod {
     /// A narrow round kernel of one spacing per particle (0.2.0: shows the particle lattice
     /// as bumps).
     Lattice,
+    /// splashsurf's reconstruction pipeline with its recommended settings (positions only).
+    Splashsurf,
 }
 
 impl RebuiltMethod {
     /// Every value, in declaration order (the command line lists them by their serde names).
-    pub const ALL: [RebuiltMethod; 2] = [RebuiltMethod::Deformed, RebuiltMethod::Lattice];
+    pub const ALL: [RebuiltMethod; 3] = [
+        RebuiltMethod::Deformed,
+        RebuiltMethod::Lattice,
+        RebuiltMethod::Splashsurf,
+    ];
 }
 
 /// The surfaces written per frame.
