@@ -174,6 +174,8 @@ def main():
     scene.render.resolution_x = args.width
     scene.render.resolution_y = int(args.width * height / width)
     scene.render.image_settings.file_format = "PNG"
+    scene.render.image_settings.color_mode = "RGB"
+    scene.render.image_settings.compression = 100
     png = args.png or os.path.join(out, "contact.png")
     partial = png + ".part.png"
     scene.render.filepath = partial

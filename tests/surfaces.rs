@@ -72,7 +72,7 @@ fn the_carried_surface_keeps_the_source_topology_and_uvs() {
 /// has the surfaces before cleaning too (the narrow lattice kernel leaves voids to drop).
 #[test]
 fn rebuilt_surfaces_have_one_shell_and_no_slivers() {
-    for method in ["deformed", "lattice"] {
+    for method in ["deformed", "lattice", "splashsurf"] {
         let out = scratch_in("surface-tests", &format!("rebuilt-{method}"));
         ok(&morph(&[
             "assets/sphere.obj",
@@ -106,11 +106,11 @@ fn rebuilt_surfaces_have_one_shell_and_no_slivers() {
                 .unwrap()
                 .mesh;
             assert!(mesh.topology().is_closed(), "{method}: {}", f["mesh"]);
-            // The deformed surface keeps the particles' volume (the body's times their mean
-            // J) within 0.5%; the narrow kernel's stays within 4%.
+            // The deformed and splashsurf surfaces keep the particles' volume (the body's
+            // times their mean J) within 0.5%; the narrow kernel's stays within 4%.
             let e = f["surface_volume_error"].as_f64().unwrap();
             let against_particles = (1.0 + e) / f["mean_j"].as_f64().unwrap() - 1.0;
-            let bound = if method == "deformed" { 0.005 } else { 0.04 };
+            let bound = if method == "lattice" { 0.04 } else { 0.005 };
             assert!(
                 against_particles.abs() <= bound,
                 "{method}: volume off the particles' by {against_particles}"
@@ -121,6 +121,35 @@ fn rebuilt_surfaces_have_one_shell_and_no_slivers() {
                 voids_before > 0,
                 "the narrow kernel leaves void shells for cleaning to drop"
             );
+        }
+        if method == "splashsurf" {
+            // splashsurf works in parallel subdomains: the same files on one thread.
+            let one = scratch_in("surface-tests", "rebuilt-splashsurf-1");
+            ok(&morph(&[
+                "assets/sphere.obj",
+                "assets/two-lobes.obj",
+                "-o",
+                one.to_str().unwrap(),
+                "--preset",
+                "draft",
+                "--resolution",
+                "20",
+                "--surface",
+                "rebuilt",
+                "--rebuilt-method",
+                method,
+                "--threads",
+                "1",
+                "--quiet",
+            ]));
+            for f in m["frames"].as_array().unwrap() {
+                let name = f["mesh"].as_str().unwrap();
+                assert!(
+                    std::fs::read(out.join(name)).unwrap()
+                        == std::fs::read(one.join(name)).unwrap(),
+                    "{name} differs between 1 thread and all"
+                );
+            }
         }
     }
 }

@@ -33,7 +33,10 @@ pub fn extract_splashsurf_surface(
     if !(spacing.is_finite() && spacing > 0.0) {
         return Err(SurfaceError::BadSpacing(spacing));
     }
-    if let Some(p) = positions.iter().position(|x| !x.iter().all(|c| c.is_finite())) {
+    if let Some(p) = positions
+        .iter()
+        .position(|x| !x.iter().all(|c| c.is_finite()))
+    {
         return Err(SurfaceError::NonFinite(p));
     }
     if positions.is_empty() {
@@ -52,8 +55,10 @@ pub fn extract_splashsurf_surface(
     post.mesh_smoothing_iters = Some(SMOOTHING_STEPS);
     post.mesh_smoothing_weights = true;
     post.mesh_smoothing_weights_normalization = WEIGHT_NORMALIZATION;
-    let particles: Vec<SsVector3<f64>> =
-        positions.iter().map(|p| SsVector3::new(p.x, p.y, p.z)).collect();
+    let particles: Vec<SsVector3<f64>> = positions
+        .iter()
+        .map(|p| SsVector3::new(p.x, p.y, p.z))
+        .collect();
     let result = reconstruction_pipeline::<i64, f64>(&particles, &[], &params, &post)
         .map_err(|e| SurfaceError::External(format!("{e:#}")))?;
     let mesh = result
@@ -61,11 +66,11 @@ pub fn extract_splashsurf_surface(
         .ok_or_else(|| SurfaceError::External("splashsurf returned no triangle mesh".into()))?
         .mesh;
     Ok(TriMesh {
-        vertices: mesh.vertices.iter().map(|v| Vector3::new(v.x, v.y, v.z)).collect(),
-        triangles: mesh
-            .triangles
+        vertices: mesh
+            .vertices
             .iter()
-            .map(|t| t.map(|i| i as u32))
+            .map(|v| Vector3::new(v.x, v.y, v.z))
             .collect(),
+        triangles: mesh.triangles.iter().map(|t| t.map(|i| i as u32)).collect(),
     })
 }

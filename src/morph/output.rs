@@ -27,8 +27,8 @@ use crate::geometry::carried::{CarriedStats, CarriedSurface};
 use crate::geometry::cleanup::keep_volume;
 use crate::geometry::cleanup::{CleanReport, SurfaceQuality, clean, quality as surface_quality};
 use crate::geometry::fidelity::{Fidelity, Reference, fidelity, mesh_fidelity};
-use crate::geometry::surface::extract_deformed_surface;
 use crate::geometry::splashsurf::extract_splashsurf_surface;
+use crate::geometry::surface::extract_deformed_surface;
 use crate::geometry::{Similarity, extract_surface};
 use crate::io::outdir::{self, Previous, Staging};
 use crate::io::{frames::write_points_ply, images, massgrid::MassGrid, sha256_file};
@@ -273,12 +273,20 @@ impl FramesSummary {
             carried_last: last.carried.and_then(|c| c.fidelity),
             source_fold_share: first.carried.map(|c| c.fold_share),
             max_carried_fold_share: s.carried.map(|c| c.fold_share),
-            carried_s: first
-                .carried
-                .map(|_| stats.iter().filter_map(|f| f.carried).map(|c| c.seconds).sum()),
-            rebuilt_s: first
-                .rebuilt
-                .map(|_| stats.iter().filter_map(|f| f.rebuilt).map(|r| r.seconds).sum()),
+            carried_s: first.carried.map(|_| {
+                stats
+                    .iter()
+                    .filter_map(|f| f.carried)
+                    .map(|c| c.seconds)
+                    .sum()
+            }),
+            rebuilt_s: first.rebuilt.map(|_| {
+                stats
+                    .iter()
+                    .filter_map(|f| f.rebuilt)
+                    .map(|r| r.seconds)
+                    .sum()
+            }),
         };
         if surfaces.rebuilt_first.is_some() || surfaces.source_fold_share.is_some() {
             s.surfaces = Some(surfaces);
