@@ -119,12 +119,14 @@ pub fn run(args: &StudyArgs) -> ExitCode {
             StudyEvent::Measured { index, of, row } => {
                 if let Some(q) = &row.quality {
                     println!(
-                        "[{}/{of}] {}: IoU {:.3}, fill {:.3}, surface gap {:.2}, {} particles, {:.1} s wall, {} evaluations",
+                        "[{}/{of}] {}: IoU {:.3}, fill {:.3}, surface gap {:.2}, reach {:.2}/{:.2}, {} particles, {:.1} s wall, {} evaluations",
                         index + 1,
                         row.id,
                         q.iou,
                         q.fill,
                         q.surface_gap,
+                        q.reach_p99,
+                        q.reach_max,
                         row.particles,
                         row.wall_s,
                         row.evaluations

@@ -56,6 +56,13 @@ pub struct Quality {
     pub ejected: f64,
     /// Mean distance from the target's surface to the nearest particle, in spacings.
     pub surface_gap: f64,
+    /// Reach: the same distance's 99th percentile over the target's area, and its largest
+    /// (capped at [`GAP_CAP`]), in spacings. A horn or an ear no particle reaches shows here,
+    /// not in the IoU.
+    #[serde(default)]
+    pub reach_p99: f64,
+    #[serde(default)]
+    pub reach_max: f64,
     pub min_j: f64,
     #[serde(default)]
     pub mean_j: f64,
@@ -210,12 +217,56 @@ fn covered(lattice: &Lattice, particles: &[Vector3<f64>], radius: f64) -> Vec<bo
 pub struct Judge {
     lattice: Lattice,
     inside: Vec<bool>,
-    /// Area-weighted surface samples (triangle centroids) of the target.
+    /// Area-weighted samples of the target's surface, at most [`SAMPLE_SPACINGS`] apart.
     surface: Vec<(Vector3<f64>, f64)>,
     spacing: f64,
     /// The perfect fill's IoU: the target lattice particles judged the same way.
     perfect_iou: f64,
     target_lattice: Vec<Vector3<f64>>,
+}
+
+/// Target surface samples are at most this many initial spacings apart (reach must see a
+/// horn a particle spacing wide on a mesh of large triangles).
+const SAMPLE_SPACINGS: f64 = 0.5;
+
+/// Points spread evenly over `mesh`'s surface, each with the area it stands for: each
+/// triangle is cut into `n^2` equal sub-triangles (`n` from its longest edge over `gap`, at
+/// most 64) and sampled at their centroids.
+fn area_samples(mesh: &TriMesh, gap: f64) -> Vec<(Vector3<f64>, f64)> {
+    let mut samples = Vec::new();
+    for t in &mesh.triangles {
+        let [a, b, c] = t.map(|i| mesh.vertices[i as usize]);
+        let (u, v) = (b - a, c - a);
+        let longest = u.norm().max(v.norm()).max((c - b).norm());
+        let n = ((longest / gap).ceil() as usize).clamp(1, 64);
+        let share = 0.5 * u.cross(&v).norm() / (n * n) as f64;
+        let at = |i: f64, j: f64| a + u * (i / n as f64) + v * (j / n as f64);
+        for i in 0..n {
+            for j in 0..n - i {
+                samples.push((at(i as f64 + 1.0 / 3.0, j as f64 + 1.0 / 3.0), share));
+                if i + j + 1 < n {
+                    samples.push((at(i as f64 + 2.0 / 3.0, j as f64 + 2.0 / 3.0), share));
+                }
+            }
+        }
+    }
+    samples
+}
+
+/// The area-weighted 99th percentile and the largest of distances `(distance, area)`.
+fn reach(mut gaps: Vec<(f64, f64)>) -> (f64, f64) {
+    gaps.sort_by(|p, q| p.0.total_cmp(&q.0));
+    let total: f64 = gaps.iter().map(|g| g.1).sum();
+    let mut below = 0.0;
+    let mut p99 = gaps.last().map_or(0.0, |g| g.0);
+    for &(d, a) in &gaps {
+        below += a;
+        if below >= 0.99 * total {
+            p99 = d;
+            break;
+        }
+    }
+    (p99, gaps.last().map_or(0.0, |g| g.0))
 }
 
 impl Judge {
@@ -224,14 +275,7 @@ impl Judge {
     pub fn new(target: &TriMesh, spacing: f64, target_lattice: &[Vector3<f64>]) -> Judge {
         let lattice = Lattice::covering(&target.bounds(), JUDGE_ACROSS);
         let inside = voxelize(target, &lattice).inside;
-        let surface = target
-            .triangles
-            .iter()
-            .map(|t| {
-                let [a, b, c] = t.map(|i| target.vertices[i as usize]);
-                ((a + b + c) / 3.0, 0.5 * (b - a).cross(&(c - a)).norm())
-            })
-            .collect();
+        let surface = area_samples(target, SAMPLE_SPACINGS * spacing);
         let mut judge = Judge {
             lattice,
             inside,
@@ -261,16 +305,19 @@ impl Judge {
         // Surface gap: the area-weighted mean distance to the nearest particle.
         let particles = PointGrid::new(x, self.spacing);
         let rings = GAP_CAP.ceil() as i64;
-        let (weighted, area) = self
+        let gaps: Vec<(f64, f64)> = self
             .surface
             .par_iter()
             .map(|(c, a)| {
                 let d = particles
                     .nearest(c, rings)
                     .map_or(GAP_CAP, |d| (d / self.spacing).min(GAP_CAP));
-                (a * d, *a)
+                (d, *a)
             })
-            .reduce(|| (0.0, 0.0), |p, q| (p.0 + q.0, p.1 + q.1));
+            .collect();
+        let area: f64 = gaps.iter().map(|g| g.1).sum();
+        let weighted: f64 = gaps.iter().map(|(d, a)| d * a).sum();
+        let (reach_p99, reach_max) = reach(gaps);
         let n = x.len().max(1) as f64;
         Quality {
             fill: iou_final / self.perfect_iou.max(1e-300),
@@ -278,6 +325,8 @@ impl Judge {
             perfect_iou: self.perfect_iou,
             ejected: ejected as f64 / n,
             surface_gap: weighted / area.max(1e-300),
+            reach_p99,
+            reach_max,
             min_j: j.iter().copied().fold(f64::INFINITY, f64::min),
             mean_j: j.iter().sum::<f64>() / n,
             close_share: close_neighbour_share(x, self.spacing),
@@ -297,6 +346,27 @@ mod tests {
     fn sphere() -> (TriMesh, GridSpec) {
         let mesh = assets::uv_sphere(5.0, 24, 48, |_, _| 1.0);
         (mesh, GridSpec::centred_cube(16, 1.0))
+    }
+
+    /// A horn the particles do not reach: the sphere's own particles judged against the
+    /// sphere with a horn (2.5 units long, 5 spacings) have a small mean gap but a reach of
+    /// the horn's length; the horned target's own lattice reaches it.
+    #[test]
+    fn reach_sees_a_horn_the_particles_miss() {
+        let (plain, grid) = sphere();
+        let horned = assets::uv_sphere(5.0, 48, 96, |theta, _| {
+            1.0 + 0.5 * (-(theta / 0.2).powi(2)).exp()
+        });
+        let ball = particles_in(&plain, &grid, 2, None).positions;
+        let lattice = particles_in(&horned, &grid, 2, None).positions;
+        let judge = Judge::new(&horned, 0.5, &lattice);
+        let missed = judge.judge(&ball, &vec![1.0; ball.len()]);
+        let reached = judge.judge(&lattice, &vec![1.0; lattice.len()]);
+        assert!(missed.reach_max > 4.0, "{missed:?}");
+        assert!(reached.reach_max < 1.5, "{reached:?}");
+        assert!(reached.reach_p99 <= reached.reach_max, "{reached:?}");
+        // The mean hardly moves: what the horn costs is in the reach.
+        assert!(missed.surface_gap < 1.0, "{missed:?}");
     }
 
     #[test]

@@ -199,7 +199,7 @@ pub struct StudyRow {
 }
 
 /// The CSV columns, in order.
-pub const CSV_COLUMNS: [&str; 23] = [
+pub const CSV_COLUMNS: [&str; 25] = [
     "id",
     "preset",
     "resolution",
@@ -219,6 +219,8 @@ pub const CSV_COLUMNS: [&str; 23] = [
     "iou",
     "ejected",
     "surface_gap",
+    "reach_p99",
+    "reach_max",
     "min_j",
     "max_j",
     "pareto",
@@ -252,6 +254,8 @@ impl StudyRow {
             quality(|q| q.iou),
             quality(|q| q.ejected),
             quality(|q| q.surface_gap),
+            quality(|q| q.reach_p99),
+            quality(|q| q.reach_max),
             quality(|q| q.min_j),
             quality(|q| q.max_j),
             self.pareto.to_string(),
