@@ -7,9 +7,9 @@ frame, and the target as the run placed it, in one picture a person can look at.
 
 Writes OUT/contact.png unless --png says where (written to a temporary name, then renamed).
 The frames default to 1, the first keyframe's halfway frame, the last keyframe's arrival
-frame and the last frame, read from OUT/manifest.json. The target is the last keyframe's
-mesh, placed by the manifest's `target` map; a relative path is looked up from the current
-folder, then from OUT's parent. A missing surface folder leaves its row out.
+frame and the last frame, read from OUT/manifest.json, as are the surfaces' files. The target
+is the last keyframe's mesh, placed by the manifest's `target` map; a relative path is looked
+up from the current folder, then from OUT's parent. A surface the run did not write leaves its row out.
 
 Everything is one Blender scene: each tile is a copy of its mesh moved onto a grid in the
 camera's plane, under one orthographic camera, so the tiles share a scale and a light and
@@ -69,7 +69,12 @@ def main():
     ap.add_argument("--samples", type=int, default=24)
     args = ap.parse_args(sys.argv[sys.argv.index("--") + 1:] if "--" in sys.argv else None)
     out = args.out
-    manifest = json.load(open(os.path.join(out, "manifest.json")))
+    try:
+        with open(os.path.join(out, "manifest.json")) as f:
+            manifest = json.load(f)
+        manifest["frames"]
+    except (OSError, ValueError, KeyError, TypeError) as e:
+        raise SystemExit(f"contact sheet: error: {out}: not a finished morph output ({e})")
     last = len(manifest["frames"])
     keys = manifest.get("keyframes") or []
     if args.frames:
@@ -86,17 +91,23 @@ def main():
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
     rows = []
-    for label, sub, rgb in (("carried", "carried", (0.78, 0.47, 0.32)),
-                            ("rebuilt", "meshes", (0.35, 0.55, 0.78))):
-        if os.path.isdir(os.path.join(out, sub)):
-            rows.append((label, sub, material(label, rgb)))
+    # Each row's files as the manifest lists them per frame.
+    for label, key, rgb in (("carried", "carried_mesh", (0.78, 0.47, 0.32)),
+                            ("rebuilt", "mesh", (0.35, 0.55, 0.78))):
+        if manifest["frames"] and manifest["frames"][0].get(key):
+            rows.append((label, key, material(label, rgb)))
     if not rows:
-        raise SystemExit(f"contact sheet: error: {out}: no carried/ or meshes/ folder")
+        raise SystemExit(f"contact sheet: error: {out}: the run wrote no surfaces (--no-surfaces)")
 
     tiles = []  # (object, row, column)
-    for r, (label, sub, mat) in enumerate(rows):
+    for r, (label, key, mat) in enumerate(rows):
         for c, f in enumerate(frames):
-            ob = load_obj(os.path.join(out, sub, f"frame_{f:04d}.obj"), f"{label}_{f}")
+            if not 1 <= f <= last:
+                raise SystemExit(f"contact sheet: error: frame {f} is not in 1..{last}")
+            path = os.path.join(out, manifest["frames"][f - 1][key])
+            if not os.path.exists(path):
+                raise SystemExit(f"contact sheet: error: {path}: missing")
+            ob = load_obj(path, f"{label}_{f}")
             ob.data.materials.clear()
             ob.data.materials.append(mat)
             tiles.append((ob, r, c))
