@@ -72,23 +72,38 @@ fn the_carried_surface_keeps_the_source_topology_and_uvs() {
 /// has the surfaces before cleaning too (the narrow lattice kernel leaves voids to drop).
 #[test]
 fn rebuilt_surfaces_have_one_shell_and_no_slivers() {
+    // The README job at draft, resolution 20, rebuilt surface only, on `threads` ("0": all).
+    let run = |name: &str, method: &str, threads: &str| {
+        let out = scratch_in("surface-tests", name);
+        ok(&morph(
+            &[
+                "assets/sphere.obj",
+                "assets/two-lobes.obj",
+                "-o",
+                out.to_str().unwrap(),
+                "--preset",
+                "draft",
+                "--resolution",
+                "20",
+                "--surface",
+                "rebuilt",
+                "--rebuilt-method",
+                method,
+                "--quiet",
+            ]
+            .into_iter()
+            .chain(
+                (threads != "0")
+                    .then_some(["--threads", threads])
+                    .into_iter()
+                    .flatten(),
+            )
+            .collect::<Vec<_>>(),
+        ));
+        out
+    };
     for method in ["deformed", "lattice", "splashsurf"] {
-        let out = scratch_in("surface-tests", &format!("rebuilt-{method}"));
-        ok(&morph(&[
-            "assets/sphere.obj",
-            "assets/two-lobes.obj",
-            "-o",
-            out.to_str().unwrap(),
-            "--preset",
-            "draft",
-            "--resolution",
-            "20",
-            "--surface",
-            "rebuilt",
-            "--rebuilt-method",
-            method,
-            "--quiet",
-        ]));
+        let out = run(&format!("rebuilt-{method}"), method, "0");
         let m = manifest(&out);
         let mut voids_before = 0;
         for f in m["frames"].as_array().unwrap() {
@@ -129,24 +144,7 @@ fn rebuilt_surfaces_have_one_shell_and_no_slivers() {
         }
         if method == "splashsurf" {
             // splashsurf works in parallel subdomains: the same files on one thread.
-            let one = scratch_in("surface-tests", "rebuilt-splashsurf-1");
-            ok(&morph(&[
-                "assets/sphere.obj",
-                "assets/two-lobes.obj",
-                "-o",
-                one.to_str().unwrap(),
-                "--preset",
-                "draft",
-                "--resolution",
-                "20",
-                "--surface",
-                "rebuilt",
-                "--rebuilt-method",
-                method,
-                "--threads",
-                "1",
-                "--quiet",
-            ]));
+            let one = run("rebuilt-splashsurf-1", method, "1");
             for f in m["frames"].as_array().unwrap() {
                 let name = f["mesh"].as_str().unwrap();
                 assert!(

@@ -18,7 +18,7 @@
 //! `F_p` to the vertex's offset from that particle, `sum_p w_p F_p (X - X_p)`, within 2.5
 //! spacings: the jitter of the particles' motion, and their `F_p` times offsets up to the
 //! radius, folded 3.3% of sphere -> spot's faces. Averaging motion and deformation first, over
-//! 4.5 spacings, folds none there (docs/geometry.md, "Carried surface").
+//! 4.5 spacings, folds none there (docs/geometry.md, "The carried surface").
 //!
 //! Normals follow the deformation too: `n' ~ F^-T n` with `F = I + G` at their vertex.
 //!
