@@ -24,4 +24,5 @@ fi
 "$venv/bin/python" scripts/check_clients.py "$out"
 # What a person looks at: frame 1, halfway, arrival and the last frame of the carried and the
 # rebuilt surface next to the target, rendered by Blender (Cycles, CPU) into OUT/contact.png.
+# (morph --overwrite/--resume then refuse OUT until contact.png is moved: not morph's file.)
 "$venv/bin/python" scripts/contact_sheet.py "$out" --width 1000 --samples 16

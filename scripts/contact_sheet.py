@@ -6,6 +6,8 @@ frame, and the target as the run placed it, in one picture a person can look at.
     python scripts/contact_sheet.py OUT [--png PATH] [--frames 1,30,59,73] [--width 1400]
 
 Writes OUT/contact.png unless --png says where (written to a temporary name, then renamed).
+A file in OUT that morph did not write makes `morph --overwrite` and `--resume` refuse OUT
+until it is moved away: give --png a path outside OUT where OUT will be run again.
 The frames default to 1, the first keyframe's halfway frame, the last keyframe's arrival
 frame and the last frame, read from OUT/manifest.json, as are the surfaces' files. The target
 is the last keyframe's mesh, placed by the manifest's `target` map; a relative path is looked

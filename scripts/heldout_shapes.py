@@ -9,7 +9,8 @@ meshes of star-shaped bodies: r(theta, phi) along each direction, on a UV sphere
   leaves the source fewer particles at a fixed resolution);
 - `lumpy.obj`: a ball with many shallow bumps (detail at the scale of a few spacings).
 
-Plain Python, no packages: deterministic, the same files every time.
+Plain Python, no packages: deterministic, the same files every time. An existing file of
+the same name is left alone when it is the same, and refused when it differs.
 """
 import math
 import os
@@ -39,13 +40,18 @@ def star(path, shape, rings=96, segments=192, stretch=(1.0, 1.0, 1.0)):
     last = len(verts) - 1
     for j in range(segments):
         faces.append((last, ring(rings - 1, j), ring(rings - 1, j + 1)))
+    text = "# morph held-out shape (scripts/heldout_shapes.py)\n"
+    text += "".join("v %.6f %.6f %.6f\n" % v for v in verts)
+    text += "".join("f %d %d %d\n" % (a + 1, b + 1, c + 1) for a, b, c in faces)
+    if os.path.exists(path):
+        # Never replace a file this script did not write the same way.
+        with open(path) as f:
+            if f.read() != text:
+                sys.exit(f"heldout_shapes: error: {path} exists and differs; choose another folder")
+        return
     tmp = path + ".part"
     with open(tmp, "w") as f:
-        f.write("# morph held-out shape (scripts/heldout_shapes.py)\n")
-        for v in verts:
-            f.write("v %.6f %.6f %.6f\n" % v)
-        for a, b, c in faces:
-            f.write("f %d %d %d\n" % (a + 1, b + 1, c + 1))
+        f.write(text)
     os.replace(tmp, path)
 
 

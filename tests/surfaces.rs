@@ -164,7 +164,7 @@ fn world_spacing(m: &serde_json::Value) -> f64 {
 }
 
 /// Frame 1 is the body at rest: its rebuilt surface is true to the source sphere (mean normal
-/// deviation <= 3.5 degrees: issue 28's goal is 3, measured 3.3; <= 1% of the area beyond 20;
+/// deviation <= 3.5 degrees: issue 28's goal is 3, measured 3.2-3.5; <= 1% of the area beyond 20;
 /// mean distance <= 0.15 spacings); the old narrow kernel is not (what the measure must tell
 /// apart). On fandisk (flat faces, sharp edges) neither meets the goal at the default
 /// resolution (docs/geometry.md): the test holds its figures where they are measured. The

@@ -906,8 +906,8 @@ impl PlyObjSink {
         .map_err(|e| MorphError::Output(e.to_string()))?;
         let (mut surface, cleanup) = clean(&raw, self.spacing);
         if self.method != RebuiltMethod::Lattice {
-            // A wide kernel (and smoothing) rounds the body by a thin layer: put it back evenly, to the
-            // body's volume times the particles' mean volume change.
+            // A wide kernel (and smoothing) rounds the body by a thin layer: put it back
+            // evenly, to the body's volume times the particles' mean volume change.
             let mean_j = j.iter().map(|j| j.max(0.0)).sum::<f64>() / j.len().max(1) as f64;
             keep_volume(&mut surface, self.body_volume * mean_j);
         }
