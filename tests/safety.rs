@@ -823,6 +823,45 @@ fn resume_with_a_shorter_last_segment_is_bitwise_identical() {
     assert_eq!(m["settings"]["segments"].as_u64(), Some(5));
 }
 
+/// Coarse-to-fine (`--levels 2`): interrupted after a checkpoint of the finest level, the
+/// resumed run solves the coarse level again and finishes bitwise like an uninterrupted run.
+#[test]
+fn resume_with_levels_is_bitwise_identical() {
+    const SHOT: &[&str] = &[
+        "--preset",
+        "draft",
+        "--resolution",
+        "20",
+        "--levels",
+        "2",
+        "--frames",
+        "25",
+        "--iterations",
+        "4",
+        "--quiet",
+    ];
+    let reference = reference("levels-ref", SHOT);
+    let dir = scratch("levels-resume");
+    let (s, t) = (asset("sphere.obj"), asset("two-lobes.obj"));
+    let mut child = command(&dir, &morph_args(&s, &t, "out", SHOT))
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    wait_for_checkpoint(&dir, &mut child);
+    send(&child, "INT");
+    let o = child.wait_with_output().unwrap();
+    assert_eq!(o.status.code(), Some(130), "{}", stderr(&o));
+    let mut args = SHOT.to_vec();
+    args.push("--resume");
+    let o = run(&dir, &morph_args(&s, &t, "out", &args));
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    assert_same_results(&reference, &dir.join("out"));
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("out/manifest.json")).unwrap()).unwrap();
+    assert_eq!(m["levels"].as_array().unwrap().len(), 1);
+    assert_eq!(m["segments"].as_array().unwrap().len(), 4);
+}
+
 // ---------------------------------------------------------------------------------------
 // Never lose data, part two: one test per case found by the second round of hostile use.
 // ---------------------------------------------------------------------------------------

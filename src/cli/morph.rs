@@ -143,6 +143,10 @@ pub struct MorphArgs {
     passes: Option<usize>,
     #[arg(long, help = help("Optimizer evaluations per segment (Adam) or per control layer (line search)", Some(limits::ITERATIONS), by_preset(|s| s.optimizer.iterations)))]
     iterations: Option<usize>,
+    #[arg(long, help = help("Coarse-to-fine levels: n > 1 solves the morph on grids 2^(n-1), ..., 2 times coarser first, each level starting from the one below (docs/morph.md)", Some(limits::LEVELS), by_preset(|s| s.levels)))]
+    levels: Option<usize>,
+    #[arg(long, help = help("Optimizer evaluations per segment on the finest level when --levels > 1 (the coarser levels take --iterations)", Some(limits::ITERATIONS), "the same as --iterations"))]
+    refine_iterations: Option<usize>,
     /// Optimizer [default adam].
     #[arg(long, value_parser = choice(&Optimizer::ALL))]
     optimizer: Option<Optimizer>,
@@ -292,6 +296,10 @@ impl MorphArgs {
         set(&mut s.control_stride, self.control_stride);
         set(&mut s.passes, self.passes);
         set(&mut s.optimizer.iterations, self.iterations);
+        set(&mut s.levels, self.levels);
+        if self.refine_iterations.is_some() {
+            s.refine_iterations = self.refine_iterations;
+        }
         set(&mut s.particles_per_cell, self.particles_per_cell);
         if let Some(n) = self.frame_every {
             // A frame every n steps replaces the frame rate.
@@ -495,6 +503,23 @@ pub fn run(args: &MorphArgs) -> ExitCode {
                     pass + 1,
                     segment + 1
                 ));
+            }
+            MorphEvent::Level {
+                level,
+                levels,
+                particles,
+                grid_cells,
+                segments,
+                iterations,
+            } => {
+                if show_bar {
+                    bar.set_position(0);
+                    bar.set_length((segments * iterations) as u64);
+                    bar.println(format!(
+                        "morph: level {level} of {levels}: {particles} particles on a {}x{}x{} grid",
+                        grid_cells[0], grid_cells[1], grid_cells[2]
+                    ));
+                }
             }
             MorphEvent::Segment { .. } | MorphEvent::Done { .. } => {}
         }

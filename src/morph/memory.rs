@@ -179,6 +179,42 @@ pub fn fixed_bytes(
         + fine_nodes * (FINE_NODE_BYTES + 8 * keyframes)
         + working_bytes(settings, particles as usize)
         + (super::output::WRITE_QUEUE as u64 + 2) * particles * FRAME_PARTICLE_BYTES
+        + coarse_level_bytes(settings, particles, targets, nodes, keyframes)
+}
+
+/// Bytes a coarser level keeps while the finer one runs (`settings.levels > 1`): its own
+/// setup, the controls it found for every segment, and the map carrying them up (a
+/// quadratic B-spline stencil of coarse particles per fine particle). A level has an eighth
+/// of the particles and nodes of the one above.
+fn coarse_level_bytes(
+    settings: &MorphSettings,
+    particles: u64,
+    targets: u64,
+    nodes: u64,
+    keyframes: u64,
+) -> u64 {
+    if settings.levels <= 1 {
+        return 0;
+    }
+    let mut below = settings.clone();
+    below.levels -= 1;
+    below.passes = 1;
+    let (n, t, g) = (
+        particles.div_ceil(8),
+        targets.div_ceil(8),
+        nodes.div_ceil(8),
+    );
+    let stride = settings.control_stride.max(1);
+    let layers: u64 = settings
+        .shot()
+        .segment_steps
+        .iter()
+        .map(|k| k.div_ceil(stride) as u64)
+        .sum();
+    let prolongation = particles * 27 * 16;
+    fixed_bytes(&below, n, t, g, keyframes)
+        + layers * n * size_of::<Matrix3<f64>>() as u64
+        + prolongation
 }
 
 /// Estimated bytes the run needs besides the tapes and the setup: the controls of the
@@ -287,6 +323,13 @@ impl Prepared {
             )));
         }
         self.tape_budget = tape_budget;
+        // A coarser level runs before this one and its tapes are gone when this one's are
+        // made: the same budget holds it (its steps are an eighth the size).
+        let mut level = self.coarse.as_deref_mut();
+        while let Some(c) = level {
+            c.tape_budget = tape_budget;
+            level = c.coarse.as_deref_mut();
+        }
         Ok(MemoryPlan {
             limit: limit_bytes,
             fixed,

@@ -8,6 +8,7 @@
 
 pub mod basis;
 pub mod checkpoint;
+pub mod levels;
 pub mod memory;
 pub mod metrics;
 pub mod motion;
@@ -24,7 +25,7 @@ use crate::mpm::model::Model;
 use crate::mpm::{SimError, State};
 use crate::scene::{EffectConfig, SceneConfig};
 use nalgebra::{Matrix3, Vector3};
-use segment::{Layers, PathPoint, Segment};
+use segment::{Layers, OptimizerSettings, PathPoint, Segment};
 use serde::{Deserialize, Serialize};
 pub use settings::{MorphSettings, Preset};
 use std::path::{Path, PathBuf};
@@ -60,6 +61,16 @@ pub enum MorphEvent {
         loss: f64,
         evaluations: usize,
         seconds: f64,
+    },
+    /// A coarse-to-fine level starts (when `levels > 1`): level 1 is the coarsest, level
+    /// `levels` the morph's own grid, the one whose frames are written.
+    Level {
+        level: usize,
+        levels: usize,
+        particles: usize,
+        grid_cells: [usize; 3],
+        segments: usize,
+        iterations: usize,
     },
     Done {
         seconds: f64,
@@ -143,6 +154,9 @@ pub struct Prepared {
     /// Bytes the tape of one segment rollout may hold (`usize::MAX`: no cap); set by
     /// [`Prepared::plan_memory`].
     pub tape_budget: usize,
+    /// The same morph on a grid half as fine, solved first when `settings.levels > 1`
+    /// (itself with its own coarser level when more remain).
+    pub coarse: Option<Box<Prepared>>,
 }
 
 /// Why a morph failed.
@@ -457,6 +471,26 @@ impl Prepared {
                 })?;
             }
         }
+        let coarse = if settings.levels > 1 {
+            let mut below = settings.clone();
+            below.resolution = settings.resolution.div_ceil(2);
+            below.particles = None;
+            below.levels -= 1;
+            below.refine_iterations = None;
+            below.surfaces = settings::Surfaces::None;
+            let min = *settings::limits::RESOLUTION.start();
+            if below.resolution < min {
+                return Err(MorphError::Settings(format!(
+                    "--levels {} solves the morph on a grid of {} cells first, below the least resolution {min}: use fewer levels or a finer grid",
+                    settings.levels, below.resolution
+                )));
+            }
+            Some(Box::new(Prepared::from_keyframe_meshes(
+                &below, source, targets,
+            )?))
+        } else {
+            None
+        };
         Ok(Prepared {
             settings: settings.clone(),
             geometry,
@@ -472,6 +506,7 @@ impl Prepared {
                 passive,
             },
             tape_budget: usize::MAX,
+            coarse,
         })
     }
 
@@ -555,10 +590,21 @@ impl Prepared {
         let start: usize = self.segment_steps[..k].iter().sum();
         let arrival = self.schedule.steps.last().copied().unwrap_or(0);
         if start >= arrival {
-            self.settings.arrival_weight
+            self.settings.arrival_weight * self.weight_scale().arrival
         } else {
             0.0
         }
+    }
+
+    /// What the settings' weights are multiplied by on this grid, so that they weigh the same
+    /// against the mass loss at any resolution (see [`WeightScale`]).
+    pub fn weight_scale(&self) -> WeightScale {
+        WeightScale::at(self.settings.resolution)
+    }
+
+    /// The volume cost's weight on this grid.
+    pub fn volume_weight(&self) -> f64 {
+        self.settings.volume_weight * self.weight_scale().volume
     }
 
     /// Keyframe `i`'s nodal masses on the simulation grid, and on the fine grid when `fine`
@@ -853,6 +899,30 @@ impl Job {
     }
 }
 
+/// What the volume and arrival weights are multiplied by on a grid of `r` cells across,
+/// so that a morph asks the same of its optimizer at any resolution. The simulation measures
+/// lengths in cells of the [`settings::TUNED_RESOLUTION`] grid whatever `r`, so the body's
+/// mass and the mass loss stay about the same while each particle carries `(32/r)^3` of the
+/// mass: the volume cost, a sum over particles of their own `(ln J)^2`, grows as `r^3`
+/// against the rest and is scaled by `(32/r)^3`. The arrival term is scaled alike: measured
+/// on sphere -> spot (draft, r48), scaling volume alone lifted the fill from 0.727 to 0.828,
+/// both together to 0.870 (r32 is unchanged, 0.911; docs/accuracy.md).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct WeightScale {
+    pub volume: f64,
+    pub arrival: f64,
+}
+
+impl WeightScale {
+    pub fn at(resolution: usize) -> WeightScale {
+        let ratio = settings::TUNED_RESOLUTION as f64 / resolution as f64;
+        WeightScale {
+            volume: ratio.powi(3),
+            arrival: ratio.powi(3),
+        }
+    }
+}
+
 /// One frame in world units, see [`Prepared::world_frame`].
 #[derive(Clone, Debug)]
 pub struct WorldFrame {
@@ -904,12 +974,140 @@ pub trait Observer {
 
 /// Result of a whole morph.
 pub struct MorphResult {
+    /// The coarse-to-fine levels solved before the last (none when `levels` is 1).
+    pub levels: Vec<LevelRecord>,
     pub final_state: State,
     pub iterations: Vec<IterationRecord>,
     pub segments: Vec<SegmentRecord>,
     pub initial_loss: f64,
     pub final_loss: f64,
     pub seconds: f64,
+}
+
+/// One coarse level's solve, as the manifest reports it.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct LevelRecord {
+    /// 1 is the coarsest.
+    pub level: usize,
+    pub resolution: usize,
+    pub particles: usize,
+    pub evaluations: usize,
+    pub initial_loss: f64,
+    pub final_loss: f64,
+    pub seconds: f64,
+}
+
+/// A finer level's start: the controls the level below found for each segment, and the map
+/// that carries them to this level's particles.
+struct WarmStart {
+    controls: Vec<Layers>,
+    prolongation: levels::Prolongation,
+}
+
+/// Passes a coarser level's optimization progress on; its frames and completed segments
+/// are nobody's business (the checkpoint and the files belong to the finest level).
+struct LevelObserver<'a> {
+    inner: &'a mut dyn Observer,
+}
+
+impl Observer for LevelObserver<'_> {
+    fn event(&mut self, event: &MorphEvent) {
+        if matches!(
+            event,
+            MorphEvent::Iteration { .. } | MorphEvent::Segment { .. }
+        ) {
+            self.inner.event(event);
+        }
+    }
+
+    fn stop_requested(&self) -> usize {
+        self.inner.stop_requested()
+    }
+}
+
+impl Prepared {
+    /// The event that starts this level of a morph of `levels` levels.
+    fn level_event(&self, levels: usize) -> MorphEvent {
+        let s = &self.settings;
+        MorphEvent::Level {
+            level: s.levels,
+            levels,
+            particles: self.initial.len(),
+            grid_cells: self.model().grid.cells,
+            segments: s.segments,
+            iterations: self.level_iterations(),
+        }
+    }
+
+    /// Evaluations per segment on this level.
+    pub fn level_iterations(&self) -> usize {
+        let s = &self.settings;
+        match s.refine_iterations {
+            Some(n) if s.levels > 1 => n,
+            _ => s.optimizer.iterations,
+        }
+    }
+}
+
+/// The start of `prep`'s segments from its coarser level: that level solved (its own
+/// coarser ones first), its controls, and the map carrying them up in material space.
+/// `levels` is the whole morph's count (for the events).
+fn warm_start(
+    prep: &Prepared,
+    levels: usize,
+    observer: &mut dyn Observer,
+    records: &mut Vec<LevelRecord>,
+) -> Result<Option<WarmStart>, MorphError> {
+    let Some(coarse) = prep.coarse.as_deref() else {
+        return Ok(None);
+    };
+    let below = warm_start(coarse, levels, observer, records)?;
+    observer.event(&coarse.level_event(levels));
+    let clock = Instant::now();
+    let progress = RunProgress::start(coarse);
+    let mut quiet = LevelObserver { inner: observer };
+    let (result, controls) = crate::with_integrator!(&coarse.engine, sim => {
+        chain(coarse, sim, progress, clock, &mut quiet, below.as_ref(), true)
+    })?;
+    records.push(LevelRecord {
+        level: coarse.settings.levels,
+        resolution: coarse.settings.resolution,
+        particles: coarse.initial.len(),
+        evaluations: result.segments.iter().map(|r| r.evaluations).sum(),
+        initial_loss: result.initial_loss,
+        final_loss: result.final_loss,
+        seconds: result.seconds,
+    });
+    // Both levels' rest positions in this level's simulation units (the grids are placed
+    // apart by their padding, and scaled by their resolutions).
+    let to_here = prep
+        .geometry
+        .placement
+        .world_to_sim
+        .after(&coarse.geometry.placement.sim_to_world());
+    let rest: Vec<Vector3<f64>> = coarse.initial.x.iter().map(|x| to_here.apply(x)).collect();
+    let spacing = to_here.scale / coarse.settings.particles_per_cell as f64;
+    let prolongation = levels::Prolongation::new(&rest, &prep.initial.x, spacing);
+    Ok(Some(WarmStart {
+        controls,
+        prolongation,
+    }))
+}
+
+impl RunProgress {
+    /// A chain not yet started.
+    fn start(prep: &Prepared) -> RunProgress {
+        RunProgress {
+            pass: 0,
+            segments_done: 0,
+            state: prep.initial.clone(),
+            controls: vec![Vec::new(); prep.settings.segments],
+            iterations: Vec::new(),
+            segments: Vec::new(),
+            frames: 0,
+            elapsed_s: 0.0,
+        }
+    }
 }
 
 /// Runs the chain, from the start or from `resume` (a checkpoint of an earlier run with the
@@ -935,30 +1133,33 @@ pub fn run(
         frames: prep.frame_count(),
         warnings: prep.geometry.warnings.clone(),
     });
-    let initial_loss = prep.loss_of(&prep.initial)?;
     let mut progress = match resume {
         Some(p) => {
             p.check(prep)?;
             p
         }
-        None => RunProgress {
-            pass: 0,
-            segments_done: 0,
-            state: prep.initial.clone(),
-            controls: vec![Vec::new(); s.segments],
-            iterations: Vec::new(),
-            segments: Vec::new(),
-            frames: 0,
-            elapsed_s: 0.0,
-        },
+        None => RunProgress::start(prep),
     };
     if progress.segments_done == s.segments && progress.pass + 1 < s.passes {
         progress.pass += 1;
         progress.segments_done = 0;
     }
-    crate::with_integrator!(&prep.engine, sim => {
-        chain(prep, sim, progress, initial_loss, clock, observer)
-    })
+    // Coarse-to-fine: the levels below are solved again on a resume (deterministic, and an
+    // eighth of the cost each) while some segment of the first pass has yet to start.
+    let mut levels = Vec::new();
+    let warm = if progress.pass == 0 && progress.segments_done < s.segments {
+        warm_start(prep, s.levels, observer, &mut levels)?
+    } else {
+        None
+    };
+    if s.levels > 1 {
+        observer.event(&prep.level_event(s.levels));
+    }
+    let (mut result, _) = crate::with_integrator!(&prep.engine, sim => {
+        chain(prep, sim, progress, clock, observer, warm.as_ref(), false)
+    })?;
+    result.levels = levels;
+    Ok(result)
 }
 
 /// The passes over the chain of segments, with the integrator the settings chose.
@@ -966,11 +1167,17 @@ fn chain<I: Integrator>(
     prep: &Prepared,
     sim: &I,
     mut progress: RunProgress,
-    initial_loss: f64,
     clock: Instant,
     observer: &mut dyn Observer,
-) -> Result<MorphResult, MorphError> {
+    warm: Option<&WarmStart>,
+    keep_controls: bool,
+) -> Result<(MorphResult, Vec<Layers>), MorphError> {
     let s = &prep.settings;
+    let initial_loss = prep.loss_of(&prep.initial)?;
+    let optimizer = OptimizerSettings {
+        iterations: prep.level_iterations(),
+        ..s.optimizer.clone()
+    };
     let offset_s = progress.elapsed_s;
     let seconds = |clock: &Instant| offset_s + clock.elapsed().as_secs_f64();
     let (first_pass, first_segment) = (progress.pass, progress.segments_done);
@@ -999,21 +1206,22 @@ fn chain<I: Integrator>(
                 steps: prep.sim_segment_steps(k),
                 stride: prep.sim_control_stride(),
                 arrival_weight: prep.segment_arrival_weight(k),
-                volume_weight: s.volume_weight,
+                volume_weight: prep.volume_weight(),
                 path: &path,
                 path_weight: s.path_weight,
                 resolution: s.control_resolution,
                 tape_budget: prep.tape_budget,
             };
-            let init = match &progress.controls[k] {
-                l if l.is_empty() => {
+            let init = match (&progress.controls[k], warm) {
+                (l, None) if l.is_empty() => {
                     vec![vec![Matrix3::zeros(); prep.initial.len()]; segment.num_layers()]
                 }
-                l => l.clone(),
+                (l, Some(w)) if l.is_empty() => w.prolongation.apply(&w.controls[k]),
+                (l, _) => l.clone(),
             };
             let mut stop = observer.stop_requested();
             let iterations = &mut progress.iterations;
-            let result = segment.optimize(init, &s.optimizer, |iteration, loss| {
+            let result = segment.optimize(init, &optimizer, |iteration, loss| {
                 let at = seconds(&clock);
                 iterations.push(IterationRecord {
                     pass,
@@ -1079,7 +1287,7 @@ fn chain<I: Integrator>(
             progress.segments_done = k + 1;
             progress.elapsed_s = seconds(&clock);
             observer.segment_done(&progress, k)?;
-            if last_pass {
+            if last_pass && !keep_controls {
                 progress.controls[k] = Vec::new();
             }
         }
@@ -1091,14 +1299,18 @@ fn chain<I: Integrator>(
         loss: final_loss,
         frames: progress.frames,
     });
-    Ok(MorphResult {
-        final_state: progress.state,
-        iterations: progress.iterations,
-        segments: progress.segments,
-        initial_loss,
-        final_loss,
-        seconds,
-    })
+    Ok((
+        MorphResult {
+            levels: Vec::new(),
+            final_state: progress.state,
+            iterations: progress.iterations,
+            segments: progress.segments,
+            initial_loss,
+            final_loss,
+            seconds,
+        },
+        progress.controls,
+    ))
 }
 
 /// The most drag may damp the body between two frames, as an exponent: `e^-10` leaves

@@ -466,6 +466,9 @@ struct Manifest {
     #[serde(default)]
     motion: Option<MotionMeasures>,
     iterations: Vec<IterationRecord>,
+    /// The coarse-to-fine levels solved before the morph's own grid (none with one level).
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    levels: Vec<super::LevelRecord>,
     segments: Vec<SegmentRecord>,
     timings: Timings,
     frames: Vec<FrameEntry>,
@@ -1536,6 +1539,7 @@ fn write_run(
         frames_summary,
         motion,
         iterations: result.iterations,
+        levels: result.levels,
         segments: result.segments,
         timings: Timings {
             setup_s,

@@ -190,6 +190,7 @@ impl SceneFile {
 fn schema() -> toml::Table {
     let s = MorphSettings {
         particles: Some(1),
+        refine_iterations: Some(1),
         dt: Some(1.0),
         frames: Some(2),
         gravity: Some([0.0; 3]),

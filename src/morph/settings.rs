@@ -20,6 +20,8 @@ pub mod limits {
     pub const SEGMENTS: RangeInclusive<usize> = 1..=10_000;
     pub const STEPS: RangeInclusive<usize> = 1..=10_000;
     pub const PASSES: RangeInclusive<usize> = 1..=100;
+    /// `--levels`: coarse-to-fine levels, the finest included.
+    pub const LEVELS: RangeInclusive<usize> = 1..=4;
     pub const ITERATIONS: RangeInclusive<usize> = 1..=100_000;
     pub const FRAME_EVERY: RangeInclusive<usize> = 1..=1_000_000;
     /// `--frames`: the rest shape and at least one more; at most an hour at 24 fps.
@@ -93,6 +95,16 @@ pub struct MorphSettings {
     #[serde(default)]
     pub control_resolution: ControlResolution,
     pub passes: usize,
+    /// Coarse-to-fine levels, the morph's own grid included: 1 solves the morph on its grid
+    /// alone; `n > 1` solves it first on a grid `2^(n-1)` times coarser, then on each grid
+    /// twice as fine, every level's segments starting from the controls the level below
+    /// found (`morph::levels`, docs/morph.md).
+    #[serde(default = "one_level")]
+    pub levels: usize,
+    /// Evaluations per segment on the finest level when `levels > 1` (the coarser levels
+    /// take `optimizer.iterations`). `None`: the same as the coarser levels.
+    #[serde(default)]
+    pub refine_iterations: Option<usize>,
     pub optimizer: OptimizerSettings,
     pub loss: MassLossKind,
     /// Weight of the kinetic energy at the end of each segment that ends after the final
@@ -226,6 +238,10 @@ impl Surfaces {
     }
 }
 
+fn one_level() -> usize {
+    1
+}
+
 /// Friction of a ground or collider when a scene does not give one.
 pub const DEFAULT_FRICTION: f64 = 0.5;
 
@@ -276,6 +292,10 @@ impl Default for WallSettings {
     }
 }
 
+/// The resolution the objective's weights were tuned at: on other grids they are scaled to
+/// weigh the same against the mass loss ([`super::WeightScale`]).
+pub const TUNED_RESOLUTION: usize = 32;
+
 /// The frame the last target is reached by default: 80% of the way through the sequence,
 /// leaving the rest to hold the shape and settle.
 pub fn default_arrival(frames: usize) -> usize {
@@ -311,6 +331,8 @@ impl MorphSettings {
             control: ControlForm::default(),
             control_resolution: ControlResolution::default(),
             passes,
+            levels: 1,
+            refine_iterations: None,
             optimizer: OptimizerSettings {
                 kind: Optimizer::Adam,
                 iterations,
@@ -398,6 +420,10 @@ impl MorphSettings {
         )?;
         range("passes", self.passes, limits::PASSES)?;
         range("iterations", self.optimizer.iterations, limits::ITERATIONS)?;
+        range("levels", self.levels, limits::LEVELS)?;
+        if let Some(n) = self.refine_iterations {
+            range("refine-iterations", n, limits::ITERATIONS)?;
+        }
         range("frame-every", self.frame_every, limits::FRAME_EVERY)?;
         let positive = |name: &str, v: f64| {
             if v.is_finite() && v > 0.0 {
