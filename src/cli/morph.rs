@@ -51,7 +51,8 @@ OUTPUT (folder -o, written in the locked OUT.partial and put in place when compl
 PRESETS (resolution, segments x steps, passes, iterations per segment; measured quality and
 time from docs/morph.md, 2 cores):
 {presets}
-  Any of --resolution --segments --steps --passes --iterations overrides its preset value.
+  Any of --resolution --particles --segments --steps --passes --iterations --levels
+  --refine-iterations overrides its preset value (--resolution replaces a budget).
 
 EXIT CODES:
   0    success (every written file checked finite)
@@ -289,8 +290,14 @@ impl MorphArgs {
                 *dst = v;
             }
         };
-        set(&mut s.resolution, self.resolution);
-        s.particles = self.particles;
+        // A resolution replaces the preset's particle budget; a budget replaces both.
+        if let Some(r) = self.resolution {
+            s.resolution = r;
+            s.particles = None;
+        }
+        if self.particles.is_some() {
+            s.particles = self.particles;
+        }
         set(&mut s.segments, self.segments);
         set(&mut s.steps_per_segment, self.steps);
         set(&mut s.control_stride, self.control_stride);
