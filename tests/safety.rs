@@ -779,6 +779,29 @@ fn compare_reports_non_finite_and_frame_names_sort() {
     assert_eq!(listed, sorted);
 }
 
+/// Sphere -> two-lobes with `shot` into `NAME/out`, interrupted by SIGINT after its first
+/// checkpoint and resumed: asserts the results are bitwise an uninterrupted run's, and
+/// returns the manifest.
+fn interrupt_resume_and_compare(name: &str, shot: &[&str]) -> serde_json::Value {
+    let reference = reference(&format!("{name}-ref"), shot);
+    let dir = scratch(name);
+    let (s, t) = (asset("sphere.obj"), asset("two-lobes.obj"));
+    let mut child = command(&dir, &morph_args(&s, &t, "out", shot))
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    wait_for_checkpoint(&dir, &mut child);
+    send(&child, "INT");
+    let o = child.wait_with_output().unwrap();
+    assert_eq!(o.status.code(), Some(130), "{}", stderr(&o));
+    let mut args = shot.to_vec();
+    args.push("--resume");
+    let o = run(&dir, &morph_args(&s, &t, "out", &args));
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    assert_same_results(&reference, &dir.join("out"));
+    serde_json::from_slice(&std::fs::read(dir.join("out/manifest.json")).unwrap()).unwrap()
+}
+
 /// `--frames` with a last segment shorter than the others (and with fewer control layers):
 /// interrupted after a checkpoint, `--resume` finishes bitwise like an uninterrupted run.
 #[test]
@@ -801,24 +824,7 @@ fn resume_with_a_shorter_last_segment_is_bitwise_identical() {
         "4",
         "--quiet",
     ];
-    let reference = reference("short-last-ref", SHOT);
-    let dir = scratch("short-last");
-    let (s, t) = (asset("sphere.obj"), asset("two-lobes.obj"));
-    let mut child = command(&dir, &morph_args(&s, &t, "out", SHOT))
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    wait_for_checkpoint(&dir, &mut child);
-    send(&child, "INT");
-    let o = child.wait_with_output().unwrap();
-    assert_eq!(o.status.code(), Some(130), "{}", stderr(&o));
-    let mut args = SHOT.to_vec();
-    args.push("--resume");
-    let o = run(&dir, &morph_args(&s, &t, "out", &args));
-    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
-    assert_same_results(&reference, &dir.join("out"));
-    let m: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(dir.join("out/manifest.json")).unwrap()).unwrap();
+    let m = interrupt_resume_and_compare("short-last", SHOT);
     assert_eq!(m["frames"].as_array().unwrap().len(), 41);
     assert_eq!(m["settings"]["segments"].as_u64(), Some(5));
 }
@@ -840,24 +846,7 @@ fn resume_with_levels_is_bitwise_identical() {
         "4",
         "--quiet",
     ];
-    let reference = reference("levels-ref", SHOT);
-    let dir = scratch("levels-resume");
-    let (s, t) = (asset("sphere.obj"), asset("two-lobes.obj"));
-    let mut child = command(&dir, &morph_args(&s, &t, "out", SHOT))
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    wait_for_checkpoint(&dir, &mut child);
-    send(&child, "INT");
-    let o = child.wait_with_output().unwrap();
-    assert_eq!(o.status.code(), Some(130), "{}", stderr(&o));
-    let mut args = SHOT.to_vec();
-    args.push("--resume");
-    let o = run(&dir, &morph_args(&s, &t, "out", &args));
-    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
-    assert_same_results(&reference, &dir.join("out"));
-    let m: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(dir.join("out/manifest.json")).unwrap()).unwrap();
+    let m = interrupt_resume_and_compare("levels-resume", SHOT);
     assert_eq!(m["levels"].as_array().unwrap().len(), 1);
     assert_eq!(m["segments"].as_array().unwrap().len(), 4);
 }

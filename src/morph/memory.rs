@@ -204,17 +204,20 @@ fn coarse_level_bytes(
         targets.div_ceil(8),
         nodes.div_ceil(8),
     );
-    let stride = settings.control_stride.max(1);
-    let layers: u64 = settings
-        .shot()
-        .segment_steps
-        .iter()
-        .map(|k| k.div_ceil(stride) as u64)
-        .sum();
+    let layers: u64 = segment_layers(settings).map(|l| l as u64).sum();
     let prolongation = particles * 27 * 16;
     fixed_bytes(&below, n, t, g, keyframes)
         + layers * n * size_of::<Matrix3<f64>>() as u64
         + prolongation
+}
+
+/// The control layers of each segment of the shot `s` makes.
+fn segment_layers(s: &MorphSettings) -> impl Iterator<Item = usize> {
+    let stride = s.control_stride.max(1);
+    s.shot()
+        .segment_steps
+        .into_iter()
+        .map(move |k| k.div_ceil(stride))
 }
 
 /// Estimated bytes the run needs besides the tapes and the setup: the controls of the
@@ -222,14 +225,7 @@ fn coarse_level_bytes(
 /// Adam's moments and saved values, and the states a segment holds at once (start, the one
 /// advancing, last, best, adjoints, the reverse step's scratch).
 fn working_bytes(s: &MorphSettings, n: usize) -> u64 {
-    let stride = s.control_stride.max(1);
-    let layers = s
-        .shot()
-        .segment_steps
-        .iter()
-        .map(|k| k.div_ceil(stride))
-        .max()
-        .unwrap_or(0);
+    let layers = segment_layers(s).max().unwrap_or(0);
     let layer = n * size_of::<Matrix3<f64>>();
     let kept = if s.passes > 1 { s.segments } else { 0 };
     let controls = (kept + 6) * layers * layer;
