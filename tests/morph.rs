@@ -335,6 +335,14 @@ fn command_line_errors() {
             2,
             "--resolution",
         ),
+        (vec!["--levels", "0"], 2, "--levels"),
+        (vec!["--levels", "9"], 2, "--levels"),
+        (vec!["--refine-iterations", "0"], 2, "--refine-iterations"),
+        (
+            vec!["--levels", "3", "--resolution", "20"],
+            2,
+            "--levels 3 solves the morph on a grid of 5 cells first",
+        ),
     ] {
         let mut args = vec!["assets/sphere.obj", "assets/cube.obj", "-o", o];
         args.extend(extra.iter().copied());

@@ -478,11 +478,13 @@ impl Prepared {
             below.levels -= 1;
             below.refine_iterations = None;
             below.surfaces = settings::Surfaces::None;
+            // The coarsest level, checked here so the message names the levels asked for.
+            let coarsest = (1..settings.levels).fold(settings.resolution, |r, _| r.div_ceil(2));
             let min = *settings::limits::RESOLUTION.start();
-            if below.resolution < min {
+            if coarsest < min {
                 return Err(MorphError::Settings(format!(
-                    "--levels {} solves the morph on a grid of {} cells first, below the least resolution {min}: use fewer levels or a finer grid",
-                    settings.levels, below.resolution
+                    "--levels {} solves the morph on a grid of {coarsest} cells first, below the least resolution {min}: use fewer levels or a finer grid",
+                    settings.levels
                 )));
             }
             Some(Box::new(Prepared::from_keyframe_meshes(
