@@ -301,6 +301,7 @@ fn command_line_errors() {
         (vec!["--volume-weight", "-1"], 2, "--volume-weight"),
         (vec!["--fine-weight", "nan"], 2, "--fine-weight"),
         (vec!["--path-weight", "-0.5"], 2, "--path-weight"),
+        (vec!["--inbetween", "morph"], 2, "--inbetween"),
         (vec!["--rebuilt-method", "splat"], 2, "splat"),
         (vec!["--control", "multiplicative"], 2, "multiplicative"),
         (vec!["--control-resolution", "voxel"], 2, "voxel"),
@@ -635,6 +636,27 @@ fn path_term_changes_the_result_and_keeps_it_thread_independent() {
         grids.push(std::fs::read(out.join("final_mass.mgrid")).unwrap());
     }
     assert_ne!(grids[0], grids[1], "the path term must act");
+    assert_eq!(grids[1], grids[2], "bitwise the same on 1 and 2 threads");
+}
+
+/// The shape in-between (signed distances blended) runs end to end, is recorded, changes the
+/// result, and keeps it independent of the thread count.
+#[test]
+fn shape_inbetween_changes_the_result_and_keeps_it_thread_independent() {
+    let mut grids = Vec::new();
+    for (threads, inbetween) in [("1", "crossfade"), ("1", "shape"), ("2", "shape")] {
+        let out = scratch(&format!("inbetween-{threads}-{inbetween}"));
+        let mut args = vec!["--threads", threads, "--inbetween", inbetween];
+        args.extend_from_slice(SMALL);
+        args.extend_from_slice(&["-o", out.to_str().unwrap(), "--quiet"]);
+        let r = morph(&args);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        let m = manifest(&out);
+        assert_eq!(m["settings"]["inbetween"].as_str(), Some(inbetween));
+        assert!(m["final_loss"].as_f64().unwrap().is_finite());
+        grids.push(std::fs::read(out.join("final_mass.mgrid")).unwrap());
+    }
+    assert_ne!(grids[0], grids[1], "the shape in-between must act");
     assert_eq!(grids[1], grids[2], "bitwise the same on 1 and 2 threads");
 }
 

@@ -12,7 +12,7 @@ use morph::morph::basis::ControlResolution;
 use morph::morph::memory::MemoryLimit;
 use morph::morph::scene_file::SceneFile;
 use morph::morph::segment::Optimizer;
-use morph::morph::settings::{RebuiltMethod, Surfaces, limits};
+use morph::morph::settings::{Inbetween, RebuiltMethod, Surfaces, limits};
 use morph::morph::{MorphError, MorphEvent, MorphSettings, Preset};
 use morph::mpm::ControlForm;
 use std::path::PathBuf;
@@ -213,6 +213,8 @@ pub struct MorphArgs {
     surface: Option<Surfaces>,
     #[arg(long, value_parser = choice(&RebuiltMethod::ALL), help = format!("How the rebuilt surface is made: deformed (each particle's kernel follows its deformation; smooth), lattice (0.2.0's narrow round kernels; shows the particles as bumps) or splashsurf (the fluid surfacer's pipeline, recommended settings; positions only) [default {}]", name(&defaults().rebuilt_method)))]
     rebuilt_method: Option<RebuiltMethod>,
+    #[arg(long, value_parser = choice(&Inbetween::ALL), help = format!("What a segment aims at between two keyframes: crossfade (their nodal masses faded into each other) or shape (their signed distances blended: a boundary that sweeps from one to the other) [default {}]", name(&defaults().inbetween)))]
+    inbetween: Option<Inbetween>,
     /// Points only: the same as --surface none.
     #[arg(long, conflicts_with = "surface")]
     no_surfaces: bool,
@@ -395,6 +397,9 @@ impl MorphArgs {
         }
         if let Some(fit) = self.target_fit {
             s.target_fit = fit;
+        }
+        if let Some(m) = self.inbetween {
+            s.inbetween = m;
         }
         if let Some(m) = self.rebuilt_method {
             s.rebuilt_method = m;

@@ -106,7 +106,9 @@ mod tests {
     fn jittered_ball(n: i32) -> Vec<Vector3<f64>> {
         let mut seed = 0x9e37_79b9_7f4a_7c15_u64;
         let mut jitter = || {
-            seed = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             ((seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 0.3
         };
         let mut out = Vec::new();

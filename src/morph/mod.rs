@@ -8,6 +8,7 @@
 
 pub mod basis;
 pub mod checkpoint;
+pub mod inbetween;
 pub mod levels;
 pub mod memory;
 pub mod metrics;
@@ -660,17 +661,33 @@ impl Prepared {
         }
         let (a, a_fine) = self.keyframe_masses(from, step, fine)?;
         let (b, b_fine) = self.keyframe_masses(to, step, fine)?;
-        let blend = |src: &[f64], tgt: &[f64]| -> Vec<f64> {
-            src.iter()
-                .zip(tgt)
-                .map(|(s, t)| (1.0 - w) * s + w * t)
-                .collect()
-        };
-        let fine = match (a_fine, b_fine) {
-            (Some(a), Some(b)) => Some(blend(&a, &b)),
+        let blend =
+            |grid: &crate::mpm::grid::GridSpec, a: &[f64], b: &[f64]| match self.settings.inbetween
+            {
+                settings::Inbetween::Crossfade => a
+                    .iter()
+                    .zip(b)
+                    .map(|(s, t)| (1.0 - w) * s + w * t)
+                    .collect(),
+                settings::Inbetween::Shape => {
+                    inbetween::in_between(grid.nodes(), a, b, w, self.full_nodal_mass(grid.dx))
+                }
+            };
+        let coarse = blend(&self.model().grid, &a, &b);
+        let fine = match (a_fine, b_fine, &self.fine_loss) {
+            (Some(a), Some(b), Some(f)) => Some(blend(&f.grid, &a, &b)),
             _ => None,
         };
-        Ok((blend(&a, &b), fine))
+        Ok((coarse, fine))
+    }
+
+    /// The nodal mass of a node deep inside the body at rest on a grid of spacing `dx`
+    /// (simulation units): the particles' mean mass times the particles per cell.
+    fn full_nodal_mass(&self, dx: f64) -> f64 {
+        let mass = &self.model().mass;
+        let mean = mass.iter().sum::<f64>() / mass.len().max(1) as f64;
+        let spacing = self.model().grid.dx / self.settings.particles_per_cell as f64;
+        mean * (dx / spacing).powi(3)
     }
 
     /// The losses segment `k` optimizes at its end: against the nodal masses of

@@ -177,6 +177,26 @@ pub struct MorphSettings {
     /// How the rebuilt surface is made from the particles (`--rebuilt-method`).
     #[serde(default)]
     pub rebuilt_method: RebuiltMethod,
+    /// What a segment aims at between two keyframes (`--inbetween`).
+    #[serde(default)]
+    pub inbetween: Inbetween,
+}
+
+/// The shape the schedule puts the body at between two keyframes (docs/morph.md, "Motion").
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Inbetween {
+    /// The two keyframes' nodal masses cross-faded by the easing weight (0.3.0).
+    #[default]
+    Crossfade,
+    /// Their signed distances blended, at the cross-fade's mass (`morph/inbetween.rs`): a
+    /// boundary that sweeps from one shape to the other.
+    Shape,
+}
+
+impl Inbetween {
+    /// Every value, in declaration order (the command line lists them by their serde names).
+    pub const ALL: [Inbetween; 2] = [Inbetween::Crossfade, Inbetween::Shape];
 }
 
 /// How the rebuilt surface is made (docs/geometry.md "Surfaces out").
@@ -366,6 +386,7 @@ impl MorphSettings {
             initial_velocity: [0.0; 3],
             surfaces: Surfaces::default(),
             rebuilt_method: RebuiltMethod::default(),
+            inbetween: Inbetween::default(),
         }
     }
 
