@@ -3,8 +3,8 @@
 
     python scripts/check_clients.py OUT
 
-OUT is a folder written by `morph SOURCE TARGET -o OUT` with the default surfaces (carried and
-rebuilt). Needs the PyPI packages `usd-core` (Pixar's USD) and `bpy` (Blender 4.5 as a module);
+OUT is a folder written by `morph SOURCE TARGET -o OUT`; the checks of a surface the run did not
+write (`--surface carried|rebuilt|none`) are skipped and say so. Needs the PyPI packages `usd-core` (Pixar's USD) and `bpy` (Blender 4.5 as a module);
 `.ci/run` installs both into a cached venv and runs this on a small morph.
 
 Checks, each printed with what was read:
@@ -66,6 +66,32 @@ def check_usd(out, manifest):
     check("usd ids", list(pts.GetIdsAttr().Get()) == list(range(count)))
     j = UsdGeom.PrimvarsAPI(pts).GetPrimvar("J")
     check("usd primvars:J per point", j.GetInterpolation() == "vertex" and len(j.Get(n)) == count)
+    has_carried, has_rebuilt = surfaces_of(manifest)
+    if has_carried:
+        check_usd_carried(out, manifest, stage, n)
+    else:
+        print("     (no carried surface in this output: its checks skipped)")
+    if has_rebuilt:
+        rebuilt = UsdGeom.Mesh(stage.GetPrimAtPath("/Morph/rebuilt"))
+        check("usd rebuilt mesh: points on every frame",
+              all(len(rebuilt.GetPointsAttr().Get(t)) > 0 for t in range(1, n + 1)))
+    else:
+        print("     (no rebuilt surface in this output: its checks skipped)")
+    validators = UsdValidation.ValidationRegistry().GetOrLoadAllValidators()
+    errors = UsdValidation.ValidationContext(validators).Validate(stage)
+    check(f"usd validators ({len(validators)}, what usdchecker runs): no errors", len(errors) == 0,
+          [e.GetMessage() for e in errors][:5])
+
+
+def surfaces_of(manifest):
+    """Whether the output has a carried and a rebuilt surface (--surface decides)."""
+    first = manifest["frames"][0]
+    return "carried_mesh" in first, "mesh" in first
+
+
+def check_usd_carried(out, manifest, stage, n):
+    from pxr import UsdGeom
+
     carried = UsdGeom.Mesh(stage.GetPrimAtPath("/Morph/carried"))
     sv, svt, sf = obj_counts(out / manifest["frames"][0]["carried_mesh"])
     check("usd carried mesh: source's vertex and face counts",
@@ -75,13 +101,6 @@ def check_usd(out, manifest):
     check("usd carried mesh: st primvar (faceVarying) with the source's UVs",
           st.GetInterpolation() == "faceVarying" and len(st.Get()) == svt, svt)
     check("usd carried mesh: velocities", len(carried.GetVelocitiesAttr().Get(2)) == sv)
-    rebuilt = UsdGeom.Mesh(stage.GetPrimAtPath("/Morph/rebuilt"))
-    check("usd rebuilt mesh: points on every frame",
-          all(len(rebuilt.GetPointsAttr().Get(t)) > 0 for t in range(1, n + 1)))
-    validators = UsdValidation.ValidationRegistry().GetOrLoadAllValidators()
-    errors = UsdValidation.ValidationContext(validators).Validate(stage)
-    check(f"usd validators ({len(validators)}, what usdchecker runs): no errors", len(errors) == 0,
-          [e.GetMessage() for e in errors][:5])
 
 
 def check_blender(out, manifest):
@@ -108,10 +127,13 @@ def check_blender(out, manifest):
               manifest["particles"])
         names = [a.name for a in data.attributes]
         check("blender velocity attribute on the points", "velocity" in names, names)
+    has_carried, has_rebuilt = surfaces_of(manifest)
     carried = objects.get("carried")
-    sv, svt, sf = obj_counts(out / manifest["frames"][0]["carried_mesh"])
-    check("blender carried mesh", carried is not None)
-    if carried is not None:
+    sv = None
+    if has_carried:
+        sv, svt, sf = obj_counts(out / manifest["frames"][0]["carried_mesh"])
+        check("blender carried mesh", carried is not None)
+    if carried is not None and has_carried:
         mesh = carried.evaluated_get(depsgraph).data
         check("blender carried mesh: the source's vertex count", len(mesh.vertices) == sv, (len(mesh.vertices), sv))
         check("blender carried mesh: a UV layer", len(mesh.uv_layers) >= 1, [u.name for u in mesh.uv_layers])
@@ -119,14 +141,18 @@ def check_blender(out, manifest):
     # The loose files: a carried OBJ keeps its UVs; a rebuilt OBJ and a PLY frame import.
     bpy.ops.wm.read_factory_settings(use_empty=True)
     last = manifest["frames"][-1]
-    bpy.ops.wm.obj_import(filepath=str(out / last["carried_mesh"]))
-    obj = bpy.context.selected_objects[0]
-    check("blender carried OBJ: vertex count and UVs", len(obj.data.vertices) == sv and len(obj.data.uv_layers) == 1,
-          (len(obj.data.vertices), len(obj.data.uv_layers)))
-    bpy.ops.wm.obj_import(filepath=str(out / last["mesh"]))
-    obj = bpy.context.selected_objects[0]
-    check("blender rebuilt OBJ imports", len(obj.data.vertices) > 0, len(obj.data.vertices))
-    rebuilt_obj = obj
+    if has_carried:
+        bpy.ops.wm.obj_import(filepath=str(out / last["carried_mesh"]))
+        obj = bpy.context.selected_objects[0]
+        check("blender carried OBJ: vertex count and UVs",
+              len(obj.data.vertices) == sv and len(obj.data.uv_layers) == 1,
+              (len(obj.data.vertices), len(obj.data.uv_layers)))
+    rebuilt_obj = None
+    if has_rebuilt:
+        bpy.ops.wm.obj_import(filepath=str(out / last["mesh"]))
+        obj = bpy.context.selected_objects[0]
+        check("blender rebuilt OBJ imports", len(obj.data.vertices) > 0, len(obj.data.vertices))
+        rebuilt_obj = obj
     bpy.ops.wm.ply_import(filepath=str(out / last["points"]), forward_axis="NEGATIVE_Z", up_axis="Y")
     obj = bpy.context.selected_objects[0]
     names = [a.name for a in obj.data.attributes]
@@ -141,10 +167,11 @@ def check_blender(out, manifest):
         pts = [o.matrix_world @ v.co for v in o.data.vertices]
         return [sum(p[i] for p in pts) / len(pts) for i in range(3)]
 
-    a, b = centre(obj), centre(rebuilt_obj)
-    size = max(rebuilt_obj.dimensions)
-    check("blender PLY (forward -Z, up Y, as the README says) lines up with the OBJ surface",
-          max(abs(a[i] - b[i]) for i in range(3)) < 0.05 * size, (a, b))
+    if rebuilt_obj is not None:
+        a, b = centre(obj), centre(rebuilt_obj)
+        size = max(rebuilt_obj.dimensions)
+        check("blender PLY (forward -Z, up Y, as the README says) lines up with the OBJ surface",
+              max(abs(a[i] - b[i]) for i in range(3)) < 0.05 * size, (a, b))
 
 
 def main():
@@ -155,7 +182,8 @@ def main():
     check_usd(out, manifest)
     check_blender(out, manifest)
     usd = (out / "morph.usda").stat().st_size
-    loose = sum(p.stat().st_size for d in ("frames", "meshes", "carried") for p in (out / d).glob("*"))
+    loose = sum(p.stat().st_size for d in ("frames", "meshes", "carried") if (out / d).is_dir()
+                for p in (out / d).glob("*"))
     print(f"     sizes: morph.usda {usd / 1e6:.1f} MB, frames/ meshes/ carried/ {loose / 1e6:.1f} MB")
     print(f"clients: {len(passed)} passed, {len(failures)} failed")
     if failures:
