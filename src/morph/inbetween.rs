@@ -260,7 +260,7 @@ mod tests {
         let mask: Vec<bool> = (0..n).map(|i| i % 17 == 3 || i == 40).collect();
         let d = squared_distance_to(nodes, &mask);
         let at = |i: usize| [i / 30, (i / 6) % 5, i % 6];
-        for q in 0..n {
+        for (q, got) in d.iter().enumerate() {
             let brute = (0..n)
                 .filter(|&p| mask[p])
                 .map(|p| {
@@ -270,7 +270,7 @@ mod tests {
                         .sum::<f64>()
                 })
                 .fold(f64::INFINITY, f64::min);
-            assert_eq!(d[q], brute, "node {q}");
+            assert_eq!(*got, brute, "node {q}");
         }
         assert!(squared_distance_to(nodes, &vec![false; n])[0].is_infinite());
     }
