@@ -241,7 +241,7 @@ fn reverse_pass_matches_fd_quadratic_log() {
     check_case(
         KernelKind::Quadratic,
         MassLossKind::Log,
-        vec![EffectConfig::Drag { coefficient: 0.5 }],
+        vec![EffectConfig::drag(0.5)],
     );
 }
 
@@ -250,7 +250,7 @@ fn reverse_pass_matches_fd_quadratic_l2() {
     check_case(
         KernelKind::Quadratic,
         MassLossKind::L2,
-        vec![EffectConfig::Drag { coefficient: 0.5 }],
+        vec![EffectConfig::drag(0.5)],
     );
 }
 
@@ -259,7 +259,7 @@ fn reverse_pass_matches_fd_cubic_log() {
     check_case(
         KernelKind::Cubic,
         MassLossKind::Log,
-        vec![EffectConfig::Drag { coefficient: 0.5 }],
+        vec![EffectConfig::drag(0.5)],
     );
 }
 
@@ -268,7 +268,7 @@ fn reverse_pass_matches_fd_cubic_l2() {
     check_case(
         KernelKind::Cubic,
         MassLossKind::L2,
-        vec![EffectConfig::Drag { coefficient: 0.5 }],
+        vec![EffectConfig::drag(0.5)],
     );
 }
 
@@ -277,7 +277,7 @@ fn reverse_pass_matches_fd_cubic_l2() {
 fn reverse_pass_matches_fd_stable_neo_hookean() {
     let mut scene = small_scene(
         KernelKind::Cubic,
-        vec![EffectConfig::Drag { coefficient: 0.5 }],
+        vec![EffectConfig::drag(0.5)],
     );
     scene.material.model = morph::material::MaterialModel::StableNeoHookean;
     check_scene(scene, MassLossKind::Log, STEPS, H, |_| {});
@@ -416,7 +416,7 @@ fn gravity_parameter_gradient_matches_fd() {
 fn segment_objective_gradient_matches_finite_differences() {
     let scene = small_scene(
         KernelKind::Cubic,
-        vec![EffectConfig::Drag { coefficient: 0.5 }],
+        vec![EffectConfig::drag(0.5)],
     );
     for integrator in IntegratorKind::ALL {
         let (engine, init) = ball_engine(&scene, 3.2, integrator);
@@ -716,7 +716,7 @@ fn rk4_reverse_pass_matches_fd_with_effects() {
     let scene = small_scene(
         KernelKind::Cubic,
         vec![
-            EffectConfig::Drag { coefficient: 0.5 },
+            EffectConfig::drag(0.5),
             EffectConfig::Gravity {
                 acceleration: [0.0, -9.8, 0.0],
             },
@@ -736,6 +736,28 @@ fn rk4_reverse_pass_matches_fd_with_effects() {
     );
 }
 
+/// Drag that switches on part-way through the run, eased in over a few steps (the morph's
+/// settle drag after the final arrival): the reverse pass sees the same coefficient at each
+/// step as the forward pass, with both integrators.
+#[test]
+fn drag_switched_on_mid_run_reverse_pass_matches_fd() {
+    let dt = small_scene(KernelKind::Cubic, Vec::new()).dt;
+    for integrator in IntegratorKind::ALL {
+        let scene = small_scene(
+            KernelKind::Cubic,
+            vec![
+                EffectConfig::drag(0.5),
+                EffectConfig::Drag {
+                    coefficient: 30.0,
+                    start: 3.0 * dt,
+                    ramp: 4.5 * dt,
+                },
+            ],
+        );
+        check_scene_on(scene, integrator, MassLossKind::Log, STEPS, H, |_| {});
+    }
+}
+
 /// The reference paper's additive control (`Fe = F + Fc`, kept for comparison) through the
 /// same checks, with both integrators.
 #[test]
@@ -744,7 +766,7 @@ fn additive_control_reverse_pass_matches_fd() {
         check_scene_form(
             small_scene(
                 KernelKind::Cubic,
-                vec![EffectConfig::Drag { coefficient: 0.5 }],
+                vec![EffectConfig::drag(0.5)],
             ),
             integrator,
             ControlForm::Additive,

@@ -152,7 +152,7 @@ fn drag_decays_momentum_geometrically() {
     let c = 0.5;
     let scene = small_scene(
         KernelKind::Cubic,
-        vec![EffectConfig::Drag { coefficient: c }],
+        vec![EffectConfig::drag(c)],
     );
     let (sim, mut init) = ball(&scene, 3.0);
     let mut rng = Lcg(3);

@@ -217,7 +217,7 @@ pub fn run(
 /// effect alone, and with everything.
 fn effect_costs(steps: usize, repeats: usize) -> anyhow::Result<()> {
     use crate::effects::WallMode;
-    let drag = EffectConfig::Drag { coefficient: 0.5 };
+    let drag = EffectConfig::drag(0.5);
     let gravity = EffectConfig::Gravity {
         acceleration: [0.0, -9.81, 0.0],
     };

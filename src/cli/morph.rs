@@ -157,6 +157,8 @@ pub struct MorphArgs {
     loss: Option<MassLossKind>,
     #[arg(long, help = help("Weight of the kinetic energy left at the end of each segment after the final target's arrival (the held shape comes to rest), >= 0", None, defaults().arrival_weight))]
     arrival_weight: Option<f64>,
+    #[arg(long, help = help("Drag per second added once the final target is reached, eased in over six frames (the held shape comes to rest), >= 0 (0: off)", None, defaults().settle_drag))]
+    settle_drag: Option<f64>,
     #[arg(long, help = help("Weight of the volume cost (sum 1/2 (ln J)^2 per particle, and the whole body's) averaged over every step, >= 0 (keeps the body at its volume)", None, defaults().volume_weight))]
     volume_weight: Option<f64>,
     #[arg(long, help = help("Weight of the scheduled path: the mass loss at every frame inside a segment against where the easing curve puts the body then, >= 0 (0: each segment's end alone)", None, defaults().path_weight))]
@@ -333,6 +335,9 @@ impl MorphArgs {
         }
         if let Some(w) = self.arrival_weight {
             s.arrival_weight = w;
+        }
+        if let Some(d) = self.settle_drag {
+            s.settle_drag = d;
         }
         if let Some(j) = self.jitter {
             s.jitter = j;

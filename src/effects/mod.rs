@@ -41,8 +41,9 @@ pub struct GridContext<'a> {
 pub trait Effect: Send + Sync + std::fmt::Debug {
     fn name(&self) -> &'static str;
 
-    /// Factor applied to each particle's momentum `m v` in P2G (1 = no effect).
-    fn momentum_retention(&self, _dt: f64) -> f64 {
+    /// Factor applied to each particle's momentum `m v` in P2G of the step that starts at
+    /// `time` (1 = no effect).
+    fn momentum_retention(&self, _dt: f64, _time: f64) -> f64 {
         1.0
     }
 

@@ -357,7 +357,7 @@ impl Prepared {
             dt: settings.dt.unwrap_or(shot.step),
             kernel: settings.kernel,
             material: settings.material.clone(),
-            effects: scene_effects(settings, &geometry.placement),
+            effects: scene_effects(settings, &geometry.placement, &shot),
         };
         let volumes = vec![geometry.source.volume; geometry.source.positions.len()];
         // Without a set dt, a morph step (1/120 s, or what --fps makes) is split into the
@@ -375,18 +375,23 @@ impl Prepared {
             )));
         }
         let frame_seconds = settings.dt.unwrap_or(shot.step) * shot.frame_every as f64;
-        if settings.drag * frame_seconds > MAX_DRAG_DAMPING {
-            return Err(MorphError::Settings(format!(
-                "drag {:.3e} leaves e^-{:.3e} of the body's speed from one frame to the next ({frame_seconds:.4} s apart), so nothing can move; use a drag of at most {:.3e}",
-                settings.drag,
-                settings.drag * frame_seconds,
-                MAX_DRAG_DAMPING / frame_seconds
-            )));
+        for (name, drag) in [
+            ("drag", settings.drag),
+            ("drag and settle drag", settings.drag + settings.settle_drag),
+        ] {
+            if drag * frame_seconds > MAX_DRAG_DAMPING {
+                return Err(MorphError::Settings(format!(
+                    "{name} {drag:.3e} leaves e^-{:.3e} of the body's speed from one frame to the next ({frame_seconds:.4} s apart), so nothing can move; use at most {:.3e}",
+                    drag * frame_seconds,
+                    MAX_DRAG_DAMPING / frame_seconds
+                )));
+            }
         }
         // The drag's explicit form keeps a share `1 - c dt` of the momentum each step: at
         // most half of it may go in one step.
-        let limit = if settings.drag > 0.0 {
-            limit.min(1.0 / settings.drag)
+        let most_drag = settings.drag + settings.settle_drag;
+        let limit = if most_drag > 0.0 {
+            limit.min(1.0 / most_drag)
         } else {
             limit
         };
@@ -1348,20 +1353,30 @@ pub const MORPH_STEP: f64 = 1.0 / 120.0;
 /// Substeps past which a morph is refused (the material is too stiff for its grid).
 pub const MAX_SUBSTEPS: usize = 10_000;
 
-/// The effects a morph's settings call for, in the order they act: drag on the particles;
+/// The effects a morph's settings call for, in the order they act: drag on the particles
+/// (and the settle drag after the final arrival);
 /// then on the grid gravity, the ground and the colliders, and last the walls. Nothing else
 /// runs. World quantities (gravity, the ground's height, collider meshes) are mapped into
 /// simulation units by `placement`.
 fn scene_effects(
     settings: &MorphSettings,
     placement: &crate::geometry::Placement,
+    shot: &settings::Shot,
 ) -> Vec<EffectConfig> {
     use crate::scene::ColliderConfig;
     let to_sim = placement.world_to_sim;
     let mut effects = Vec::new();
     if settings.drag > 0.0 {
+        effects.push(EffectConfig::drag(settings.drag));
+    }
+    if settings.settle_drag > 0.0 {
+        // From the final target's arrival frame on (frame 1 at time 0).
+        let frame_seconds = settings.dt.unwrap_or(shot.step) * shot.frame_every as f64;
+        let arrival = settings.at.last().copied().unwrap_or(1);
         effects.push(EffectConfig::Drag {
-            coefficient: settings.drag,
+            coefficient: settings.settle_drag,
+            start: (arrival - 1) as f64 * frame_seconds,
+            ramp: settings::SETTLE_RAMP_FRAMES * frame_seconds,
         });
     }
     if let Some(g) = settings.gravity {

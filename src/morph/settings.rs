@@ -37,6 +37,10 @@ pub mod limits {
 /// The frame rate a sequence plays at unless told otherwise: film's.
 pub const DEFAULT_FPS: f64 = 24.0;
 
+/// Frames over which `settle_drag` eases in after the final target's arrival: switched on at
+/// once it would be a jolt.
+pub const SETTLE_RAMP_FRAMES: f64 = 6.0;
+
 /// Named bundles of chain length and effort. See `docs/morph.md`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize, Default)]
 #[serde(rename_all = "lowercase")]
@@ -128,6 +132,10 @@ pub struct MorphSettings {
     pub material: MaterialConfig,
     /// Velocity damping per second (reference 0.5).
     pub drag: f64,
+    /// Drag per second added once the final target is reached, eased in over
+    /// [`SETTLE_RAMP_FRAMES`] frames: the held shape comes to rest (0: off).
+    #[serde(default)]
+    pub settle_drag: f64,
     /// Simulation time step in seconds, one per morph step; refused when above the elastic
     /// stability bound. `None` (the default): morph steps of 1/120 s (the reference's; with
     /// `fps`, see [`MorphSettings::shot`]), each simulated in the fewest equal substeps that
@@ -374,6 +382,7 @@ impl MorphSettings {
                 density: 40.0,
             },
             drag: 0.5,
+            settle_drag: 12.0,
             dt: None,
             frame_every: 3,
             fps: Some(DEFAULT_FPS),
@@ -488,6 +497,12 @@ impl MorphSettings {
         }
         if !(self.drag.is_finite() && self.drag >= 0.0) {
             return Err(format!("--drag must be >= 0, got {}", self.drag));
+        }
+        if !(self.settle_drag.is_finite() && self.settle_drag >= 0.0) {
+            return Err(format!(
+                "--settle-drag must be >= 0, got {}",
+                self.settle_drag
+            ));
         }
         if !(self.jitter.is_finite() && (0.0..=1.0).contains(&self.jitter)) {
             return Err(format!(

@@ -158,11 +158,12 @@ impl Simulator {
         }
     }
 
-    /// Product of the effects' momentum factors (1 when no drag is on).
-    fn momentum_retention(&self) -> f64 {
+    /// Product of the effects' momentum factors in global step `step` (1 when no drag is on).
+    fn momentum_retention(&self, step: usize) -> f64 {
+        let time = step as f64 * self.dt;
         self.effects
             .iter()
-            .map(|e| e.momentum_retention(self.dt))
+            .map(|e| e.momentum_retention(self.dt, time))
             .product()
     }
 
@@ -313,7 +314,7 @@ impl Simulator {
         // P2G (coloured scatter).
         ws.nodes.clear();
         ws.nodes.resize(self.grid.node_count(), Node::ZERO);
-        let retention = self.momentum_retention();
+        let retention = self.momentum_retention(step);
         let body = values.map(|v| self.body_accelerations(v));
         {
             let nodes = SharedMut::new(&mut ws.nodes);
@@ -650,7 +651,7 @@ impl Simulator {
 
         // P2G reverse (gather) and P1 reverse, in batches whose stress differentials share
         // interleaved SVDs.
-        let retention = self.momentum_retention();
+        let retention = self.momentum_retention(tape.step);
         let body = values.map(|v| self.body_accelerations(v));
         let mut grad_fc = vec![Matrix3::zeros(); n];
         // dL/d(scattered momentum) per particle, for the controls.

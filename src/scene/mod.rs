@@ -13,8 +13,14 @@ use std::sync::Arc;
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(tag = "type", rename_all = "lowercase")]
 pub enum EffectConfig {
+    /// Linear drag `c(t)`, per second; it may switch on at `start` (seconds), eased in over
+    /// `ramp` (see [`crate::effects::Drag`]).
     Drag {
         coefficient: f64,
+        #[serde(default)]
+        start: f64,
+        #[serde(default)]
+        ramp: f64,
     },
     Gravity {
         acceleration: [f64; 3],
@@ -45,6 +51,15 @@ pub enum ColliderConfig {
 }
 
 impl EffectConfig {
+    /// Drag of `coefficient` per second from the first step on.
+    pub fn drag(coefficient: f64) -> Self {
+        EffectConfig::Drag {
+            coefficient,
+            start: 0.0,
+            ramp: 0.0,
+        }
+    }
+
     /// The effect on `grid` (colliders find their boundary nodes on it).
     pub fn build(&self, grid: &GridSpec) -> Result<Box<dyn Effect>, SimError> {
         let bad = |why: String| Err(SimError::InvalidScene(why));
@@ -54,13 +69,26 @@ impl EffectConfig {
                 friction,
             } => Box::new(collider(shape, friction, grid)?),
 
-            EffectConfig::Drag { coefficient } => {
+            EffectConfig::Drag {
+                coefficient,
+                start,
+                ramp,
+            } => {
                 if !(coefficient.is_finite() && coefficient >= 0.0) {
                     return bad(format!(
                         "drag coefficient must be finite and >= 0, got {coefficient}"
                     ));
                 }
-                Box::new(Drag { coefficient })
+                if !(start.is_finite() && start >= 0.0 && ramp.is_finite() && ramp >= 0.0) {
+                    return bad(format!(
+                        "drag start and ramp must be finite and >= 0, got {start} and {ramp}"
+                    ));
+                }
+                Box::new(Drag {
+                    coefficient,
+                    start,
+                    ramp,
+                })
             }
             EffectConfig::Gravity { acceleration } => {
                 if acceleration.iter().any(|a| !a.is_finite()) {
@@ -173,7 +201,7 @@ impl SceneConfig {
                 lambda: 58333.0,
                 density: 40.0,
             },
-            effects: vec![EffectConfig::Drag { coefficient: 0.5 }],
+            effects: vec![EffectConfig::drag(0.5)],
         }
     }
 
