@@ -275,10 +275,7 @@ fn reverse_pass_matches_fd_cubic_l2() {
 /// The second material, stable Neo-Hookean, through the whole reverse pass.
 #[test]
 fn reverse_pass_matches_fd_stable_neo_hookean() {
-    let mut scene = small_scene(
-        KernelKind::Cubic,
-        vec![EffectConfig::drag(0.5)],
-    );
+    let mut scene = small_scene(KernelKind::Cubic, vec![EffectConfig::drag(0.5)]);
     scene.material.model = morph::material::MaterialModel::StableNeoHookean;
     check_scene(scene, MassLossKind::Log, STEPS, H, |_| {});
 }
@@ -414,10 +411,7 @@ fn gravity_parameter_gradient_matches_fd() {
 /// control layers at once: 12 steps, 3 layers, a moving start state, drag on.
 #[test]
 fn segment_objective_gradient_matches_finite_differences() {
-    let scene = small_scene(
-        KernelKind::Cubic,
-        vec![EffectConfig::drag(0.5)],
-    );
+    let scene = small_scene(KernelKind::Cubic, vec![EffectConfig::drag(0.5)]);
     for integrator in IntegratorKind::ALL {
         let (engine, init) = ball_engine(&scene, 3.2, integrator);
         morph::with_integrator!(&engine, sim => check_segment(sim, init));
@@ -764,10 +758,7 @@ fn drag_switched_on_mid_run_reverse_pass_matches_fd() {
 fn additive_control_reverse_pass_matches_fd() {
     for integrator in IntegratorKind::ALL {
         check_scene_form(
-            small_scene(
-                KernelKind::Cubic,
-                vec![EffectConfig::drag(0.5)],
-            ),
+            small_scene(KernelKind::Cubic, vec![EffectConfig::drag(0.5)]),
             integrator,
             ControlForm::Additive,
             MassLossKind::Log,

@@ -150,10 +150,7 @@ fn gravity_alone_gives_free_fall() {
 #[test]
 fn drag_decays_momentum_geometrically() {
     let c = 0.5;
-    let scene = small_scene(
-        KernelKind::Cubic,
-        vec![EffectConfig::drag(c)],
-    );
+    let scene = small_scene(KernelKind::Cubic, vec![EffectConfig::drag(c)]);
     let (sim, mut init) = ball(&scene, 3.0);
     let mut rng = Lcg(3);
     deform(&mut init, &mut rng);
