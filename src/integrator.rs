@@ -3,22 +3,16 @@
 //! optimizes deformation-gradient controls (the morph) is written once against
 //! [`Integrator`]; [`Engine`] holds whichever one the settings chose.
 
+use crate::mpm::ControlParams;
 use crate::mpm::model::Model;
 use crate::mpm::{Gradients, SimError, Simulator, State, StateGrad};
-use crate::ode::{ControlParams, OdeSystem};
-use nalgebra::Matrix3;
+use crate::ode::OdeSystem;
 use serde::{Deserialize, Serialize};
 use std::borrow::Cow;
 
 pub mod recompute;
 
-/// Per-step deformation-gradient controls: `controls[s]`, when present and `Some`, is the
-/// `Fc` (one per particle) of local step `s`. Shared: the steps of one control layer hold the
-/// same values without a copy each.
-pub type StepControls = [Option<StepControl>];
-
-/// One step's controls (see [`StepControls`]).
-pub type StepControl = std::sync::Arc<[Matrix3<f64>]>;
+pub use crate::mpm::control::{StepControl, StepControls};
 
 /// A cost on every state along a run: `seed(k, state, adj)` adds to `adj` the adjoint of the
 /// cost on the state after global step `k` (see [`Integrator::backward_seeded`]).
@@ -212,7 +206,7 @@ pub struct ControlGradient {
 }
 
 /// Runs driven by the model's boundary controls (body forces, prescribed velocities or
-/// positions, see [`crate::ode::controls`]) and the active-damping cost: the kinetic energy
+/// positions, see [`crate::mpm::boundary`]) and the active-damping cost: the kinetic energy
 /// of the motion summed over the steps. What the rope's controllers need, with either
 /// integrator.
 pub trait Controlled: Integrator {

@@ -10,8 +10,8 @@ use common::Lcg;
 use morph::control::rope::{Actuation, ClampMode, RopeConfig};
 use morph::integrator::{Controlled, Engine, IntegratorKind};
 use morph::material::MaterialModel;
+use morph::mpm::{ControlParams, Interpolation};
 use morph::mpm::{KernelKind, State};
-use morph::ode::{ControlParams, Interpolation};
 use nalgebra::{Matrix3, Vector3};
 
 const STEPS: usize = 12;

@@ -4,7 +4,7 @@
 
 use morph::control::compare::{RopeSettings, run_rope};
 use morph::integrator::Controlled;
-use morph::ode::{ControlParams, ControlPlan};
+use morph::mpm::{ControlParams, ControlPlan};
 use nalgebra::Vector3;
 use std::process::Command;
 

@@ -50,8 +50,8 @@ pub struct RopeArgs {
     clamp_mode: Option<ClampMode>,
     #[arg(long, help = h("Steps per control interval", d().rope.control_interval))]
     control_interval: Option<i64>,
-    #[arg(long, value_parser = choice(&morph::ode::Interpolation::ALL), help = h("Controls inside an interval: constant or linear", name(&d().rope.interpolation)))]
-    interpolation: Option<morph::ode::Interpolation>,
+    #[arg(long, value_parser = choice(&morph::mpm::Interpolation::ALL), help = h("Controls inside an interval: constant or linear", name(&d().rope.interpolation)))]
+    interpolation: Option<morph::mpm::Interpolation>,
     #[arg(long, help = h("Largest clamp offset per axis (m), clamp-mode position", d().rope.max_clamp_offset))]
     max_clamp_offset: Option<f64>,
     #[arg(long, help = h("Largest clamp speed per axis (m/s), clamp-mode velocity", d().rope.max_clamp_speed))]

@@ -8,9 +8,9 @@
 
 use super::{Committed, ControlEvent, free_knots};
 use crate::integrator::Controlled;
+use crate::mpm::ControlParams;
 use crate::mpm::SimError;
 use crate::mpm::State;
-use crate::ode::ControlParams;
 use crate::optim::Adam;
 use serde::Serialize;
 use std::time::Instant;

@@ -12,7 +12,7 @@ pub mod gradient;
 pub mod mppi;
 pub mod rope;
 
-use crate::ode::{Interpolation, Schedule};
+use crate::mpm::{Interpolation, Schedule};
 use serde::Serialize;
 use std::ops::Range;
 

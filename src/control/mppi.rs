@@ -10,9 +10,9 @@
 use super::gradient::ControllerRun;
 use super::{ControlEvent, free_knots};
 use crate::integrator::Controlled;
+use crate::mpm::ControlParams;
 use crate::mpm::SimError;
 use crate::mpm::State;
-use crate::ode::ControlParams;
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 use rand_pcg::Pcg64;

@@ -10,8 +10,8 @@ use crate::integrator::{Engine, IntegratorKind};
 use crate::material::{MaterialModel, lame_from_young_poisson};
 use crate::mpm::State;
 use crate::mpm::model::Model;
+use crate::mpm::{ControlEffect, ControlKind, ControlPlan, Interpolation, Schedule};
 use crate::mpm::{GridSpec, KernelKind, SimError};
-use crate::ode::{ControlEffect, ControlKind, ControlPlan, Interpolation, Schedule};
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 

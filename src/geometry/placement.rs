@@ -186,9 +186,13 @@ impl Default for PlacementOptions {
     }
 }
 
+/// Grid cells along the domain's longest side that a placement accepts (the morph's
+/// `--resolution` limits are these).
+pub const RESOLUTION_LIMITS: std::ops::RangeInclusive<usize> = 8..=256;
+
 impl PlacementOptions {
     pub fn validate(&self) -> Result<(), MeshError> {
-        let range = crate::morph::settings::limits::RESOLUTION;
+        let range = RESOLUTION_LIMITS;
         if !range.contains(&self.resolution) {
             return Err(MeshError::BadOption(format!(
                 "--resolution must be between {} and {} cells, got {}",

@@ -22,6 +22,10 @@ use nalgebra::Matrix3;
 use serde::Serialize;
 use std::str::FromStr;
 
+/// Frames the writer thread may hold queued before the optimizer waits for it (the plan
+/// counts them; `output.rs` sizes its channel with it).
+pub const WRITE_QUEUE: usize = 4;
+
 /// A cap on the process's peak memory.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum MemoryLimit {
@@ -53,7 +57,7 @@ pub const TARGET_PARTICLE_BYTES: u64 = 32;
 /// momentum, velocity) and its adjoint in the reverse pass; 8 more per keyframe target.
 pub const NODE_BYTES: u64 = 128;
 /// Bytes per particle of one frame on its way to disk (its world copy and its state, for
-/// the surfaces); the writer holds [`super::output::WRITE_QUEUE`] queued, one being
+/// the surfaces); the writer holds [`WRITE_QUEUE`] queued, one being
 /// written and one being made.
 pub const FRAME_PARTICLE_BYTES: u64 = 256;
 /// Bytes per node of the finer loss grid: its target, the rollout's masses and adjoint; 8
@@ -178,7 +182,7 @@ pub fn fixed_bytes(
         + nodes * (NODE_BYTES + 8 * keyframes + 8 * path_points)
         + fine_nodes * (FINE_NODE_BYTES + 8 * keyframes)
         + working_bytes(settings, particles as usize)
-        + (super::output::WRITE_QUEUE as u64 + 2) * particles * FRAME_PARTICLE_BYTES
+        + (WRITE_QUEUE as u64 + 2) * particles * FRAME_PARTICLE_BYTES
         + coarse_level_bytes(settings, particles, targets, nodes, keyframes)
 }
 

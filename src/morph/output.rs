@@ -1075,9 +1075,6 @@ fn write_frames(mut sink: PlyObjSink, work: Receiver<FrameWork>, done: Sender<Fr
     }
 }
 
-/// Frames the writer thread may hold queued before the optimizer waits for it.
-pub const WRITE_QUEUE: usize = 4;
-
 impl FolderWriter<'_> {
     /// Takes in the writer thread's answers: every one still owed when `all`, else those
     /// ready now. The first failed frame's error is returned.
@@ -1303,7 +1300,7 @@ fn write_run(
         to_world,
         references,
     };
-    let (work, queue) = sync_channel(WRITE_QUEUE);
+    let (work, queue) = sync_channel(super::memory::WRITE_QUEUE);
     let (answers, done) = channel();
     let mut writer = FolderWriter {
         dir,

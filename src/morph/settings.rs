@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 /// both read them.
 pub mod limits {
     use std::ops::RangeInclusive;
-    pub const RESOLUTION: RangeInclusive<usize> = 8..=256;
+    pub const RESOLUTION: RangeInclusive<usize> = crate::geometry::placement::RESOLUTION_LIMITS;
     /// Particle budget (`--particles`).
     pub const PARTICLES: RangeInclusive<usize> = 100..=20_000_000;
     pub const PARTICLES_PER_CELL: RangeInclusive<usize> = 1..=4;

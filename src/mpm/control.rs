@@ -16,6 +16,14 @@ use super::SimError;
 use nalgebra::Matrix3;
 use serde::{Deserialize, Serialize};
 
+/// Per-step deformation-gradient controls: `controls[s]`, when present and `Some`, is the
+/// `Fc` (one per particle) of local step `s`. Shared: the steps of one control layer hold the
+/// same values without a copy each.
+pub type StepControls = [Option<StepControl>];
+
+/// One step's controls (see [`StepControls`]).
+pub type StepControl = std::sync::Arc<[Matrix3<f64>]>;
+
 /// How `Fc` enters `F`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]

@@ -6,6 +6,7 @@
 //! together and records what the reverse pass needs.
 
 pub mod advance;
+pub mod boundary;
 pub mod control;
 pub mod error;
 pub mod grid;
@@ -18,6 +19,9 @@ pub mod step;
 pub mod stress;
 pub mod transfer;
 
+pub use boundary::{
+    ControlEffect, ControlKind, ControlParams, ControlPlan, Interpolation, Schedule,
+};
 pub use control::ControlForm;
 pub use error::SimError;
 pub use grid::GridSpec;

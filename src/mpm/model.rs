@@ -7,7 +7,7 @@ use super::transfer;
 use super::{GridSpec, KernelKind, SimError};
 use crate::effects::Effect;
 use crate::material::ConstitutiveModel;
-use crate::ode::{ControlKind, ControlParams, ControlPlan};
+use crate::mpm::{ControlKind, ControlParams, ControlPlan};
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 use std::sync::Arc;

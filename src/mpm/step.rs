@@ -11,7 +11,7 @@ use super::state::{State, StateGrad};
 use super::stress::StressInputs;
 use super::transfer::{self, Affine, Node};
 use crate::effects::GridContext;
-use crate::ode::ControlParams;
+use crate::mpm::ControlParams;
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 use std::sync::Arc;
@@ -143,7 +143,7 @@ pub struct Gradients {
 pub const CONTROL_THETA: f64 = 0.5;
 
 /// Control `Fc` for local step `s`, if any.
-fn control_at(controls: &crate::integrator::StepControls, s: usize) -> Option<&[Matrix3<f64>]> {
+fn control_at(controls: &super::control::StepControls, s: usize) -> Option<&[Matrix3<f64>]> {
     controls.get(s).and_then(|c| c.as_deref())
 }
 
@@ -193,7 +193,7 @@ impl Simulator {
     pub fn forward(
         &self,
         state: &mut State,
-        controls: &crate::integrator::StepControls,
+        controls: &super::control::StepControls,
         first_step: usize,
         n_steps: usize,
         tape: Option<&mut Tape>,
@@ -209,7 +209,7 @@ impl Simulator {
     pub fn forward_driven(
         &self,
         state: &mut State,
-        controls: &crate::integrator::StepControls,
+        controls: &super::control::StepControls,
         params: Option<&ControlParams>,
         first_step: usize,
         n_steps: usize,
@@ -408,7 +408,7 @@ impl Simulator {
     pub fn backward(
         &self,
         tape: &Tape,
-        controls: &crate::integrator::StepControls,
+        controls: &super::control::StepControls,
         grad_last: StateGrad,
     ) -> Gradients {
         self.backward_driven(tape, controls, None, grad_last, |_, _, _| {})
@@ -421,7 +421,7 @@ impl Simulator {
     pub fn backward_driven(
         &self,
         tape: &Tape,
-        controls: &crate::integrator::StepControls,
+        controls: &super::control::StepControls,
         params: Option<&ControlParams>,
         grad_last: StateGrad,
         mut seed_after: impl FnMut(usize, &State, &mut StateGrad),

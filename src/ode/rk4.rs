@@ -7,10 +7,10 @@
 //! `gk4 = h/6 gS'`, `gk3 = h/3 gS' + h gS4`, `gk2 = h/3 gS' + h/2 gS3`, `gk1 = h/6 gS' + h/2 gS2`,
 //! `gS = gS' + gS1 + gS2 + gS3 + gS4` with `gSi = f_rev(Si, gki)`.
 
-use super::controls::ControlParams;
 use super::rhs::{At, OdeSystem};
 use super::state::OdeState;
 use crate::integrator::{Integrator, OnStep, RunTape, SeedAfter, StepControls};
+use crate::mpm::ControlParams;
 use crate::mpm::SimError;
 use crate::mpm::model::Model;
 use crate::mpm::{Gradients, State, StateGrad};

@@ -5,11 +5,11 @@
 //! the velocity they move with, clamped ones at their prescribed velocity), the
 //! active-damping objective.
 
-use super::controls::ControlParams;
 use super::rhs::OdeSystem;
 use super::rk4::{Rk4Tape, from_ode, to_ode};
 use super::state::OdeState;
 use crate::integrator::{ControlGradient, Controlled};
+use crate::mpm::ControlParams;
 use crate::mpm::SimError;
 use crate::mpm::State;
 use crate::mpm::StateGrad;

@@ -1,6 +1,6 @@
-//! Controls of the ODE form, as effects a scene declares: body forces on a set of particles,
-//! and a prescribed velocity of a boundary region (e.g. the clamped end of a rope moved by
-//! the controller). Each control is a 3-vector sequence over control intervals, piecewise
+//! The model's boundary controls, for both integrators, as effects a scene declares: body
+//! forces on a set of particles, and a prescribed velocity of a boundary region (e.g. the
+//! clamped end of a rope moved by the controller). Each control is a 3-vector sequence over control intervals, piecewise
 //! constant or piecewise linear in time, bounded per component.
 
 use crate::mpm::SimError;
