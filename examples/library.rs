@@ -57,10 +57,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             name: "<sphere>".into(),
             mesh: sphere,
         },
-        target: MeshSource::Memory {
+        targets: vec![MeshSource::Memory {
             name: "<cube>".into(),
             mesh: cube,
-        },
+        }],
         settings,
     };
     let mut watcher = Watcher {

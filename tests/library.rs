@@ -7,6 +7,8 @@ use morph::{
 };
 use std::path::Path;
 
+mod common;
+
 /// A program's own output format: records each frame's time and its highest point.
 #[derive(Default)]
 struct TopSink {
@@ -64,10 +66,10 @@ fn job() -> Job {
             name: "<sphere>".into(),
             mesh: sphere,
         },
-        target: MeshSource::Memory {
+        targets: vec![MeshSource::Memory {
             name: "<cube>".into(),
             mesh: cube,
-        },
+        }],
         settings: s,
     }
 }
@@ -122,7 +124,7 @@ fn a_memory_budget_never_changes_the_morph() {
             let mut prep = morph::morph::Prepared::from_meshes(
                 &s,
                 (&src, Path::new("sphere")),
-                (&tgt, Path::new("lobes")),
+                &[(&tgt, Path::new("lobes"))],
             )
             .unwrap();
             prep.tape_budget = budget;
@@ -150,4 +152,54 @@ impl Observer for FrameStates {
         self.0.push(frame.state.clone());
         Ok(())
     }
+}
+
+/// The library does the keyframes the command line does: a `Job` through two targets, each
+/// at its frame, ends on bitwise the nodal masses the CLI writes for the same morph.
+#[test]
+fn a_keyframed_job_matches_the_command_line_bitwise() {
+    use common::cli::{ok, root, scratch_in};
+    use morph::io::massgrid::MassGrid;
+    let asset = |n: &str| root().join("assets").join(n);
+    let out = scratch_in("library", "keyframes");
+    let r = common::cli::morph(&[
+        asset("sphere.obj").to_str().unwrap(),
+        asset("cube.obj").to_str().unwrap(),
+        asset("two-lobes.obj").to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--preset",
+        "draft",
+        "--resolution",
+        "12",
+        "--frames",
+        "25",
+        "--at",
+        "10,19",
+        "--surface",
+        "none",
+        "--quiet",
+    ]);
+    ok(&r);
+    let cli = MassGrid::read(&out.join("final_mass.mgrid")).unwrap();
+
+    let mut settings = MorphSettings::preset(Preset::Draft);
+    settings.resolution = 12;
+    settings.frames = Some(25);
+    settings.at = vec![10, 19];
+    let job = Job {
+        source: MeshSource::File(asset("sphere.obj")),
+        targets: vec![
+            MeshSource::File(asset("cube.obj")),
+            MeshSource::File(asset("two-lobes.obj")),
+        ],
+        settings,
+    };
+    let (prep, result) = morph::run(&job, &mut Watch::default()).unwrap();
+    assert_eq!(prep.schedule.steps.len(), 2, "two keyframes");
+    let mass = prep.model().mass_grid(&result.final_state.x).unwrap();
+    assert!(
+        mass == cli.values,
+        "the library's final masses differ from the CLI's"
+    );
 }

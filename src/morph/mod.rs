@@ -198,48 +198,6 @@ pub struct Schedule {
 }
 
 impl Prepared {
-    /// Loads and places both meshes, fills them with particles, builds the simulator and the
-    /// loss against the target's nodal masses.
-    pub fn new(
-        settings: &MorphSettings,
-        source: &Path,
-        target: &Path,
-    ) -> Result<Prepared, MorphError> {
-        Prepared::with_keyframes(settings, source, &[target.to_path_buf()])
-    }
-
-    /// [`Prepared::new`] for a morph through several targets in turn, the last being the
-    /// final one; each is reached at its frame in [`MorphSettings::at`].
-    pub fn with_keyframes(
-        settings: &MorphSettings,
-        source: &Path,
-        targets: &[PathBuf],
-    ) -> Result<Prepared, MorphError> {
-        settings.validate().map_err(MorphError::Settings)?;
-        let src = crate::geometry::load_mesh(source)?;
-        let loaded = targets
-            .iter()
-            .map(|t| crate::geometry::load_mesh(t))
-            .collect::<Result<Vec<_>, _>>()?;
-        let targets: Vec<(&LoadedMesh, &Path)> = loaded
-            .iter()
-            .zip(targets)
-            .map(|(m, p)| (m, p.as_path()))
-            .collect();
-        Prepared::from_keyframe_meshes(settings, (&src, source), &targets)
-    }
-
-    /// [`Prepared::new`] for meshes a program holds in memory: pass each through
-    /// [`crate::geometry::prepare_mesh`] (the checks and repairs loading applies), with the
-    /// name its messages should use.
-    pub fn from_meshes(
-        settings: &MorphSettings,
-        source: (&LoadedMesh, &Path),
-        target: (&LoadedMesh, &Path),
-    ) -> Result<Prepared, MorphError> {
-        Prepared::from_keyframe_meshes(settings, source, &[target])
-    }
-
     /// The resolution whose source fill comes nearest `settings.particles` by the shapes'
     /// volumes ([`MorphGeometry::estimate`]; the fill then refines it).
     pub fn resolution_for_budget(
@@ -279,8 +237,13 @@ impl Prepared {
         )?)
     }
 
-    /// [`Prepared::from_meshes`] through several targets (see [`Prepared::with_keyframes`]).
-    pub fn from_keyframe_meshes(
+    /// Places the source and the targets (meshes a program holds: pass each through
+    /// [`crate::geometry::prepare_mesh`], the checks and repairs loading applies, with the name
+    /// its messages should use), fills the source with particles, builds the model and the
+    /// losses. The targets are reached in turn, each at its frame in [`MorphSettings::at`]
+    /// (spread over the shot when empty), the last being the final one. [`Job::prepare`] does
+    /// the same from files.
+    pub fn from_meshes(
         settings: &MorphSettings,
         source: (&LoadedMesh, &Path),
         targets: &[(&LoadedMesh, &Path)],
@@ -493,9 +456,7 @@ impl Prepared {
                     settings.levels
                 )));
             }
-            Some(Box::new(Prepared::from_keyframe_meshes(
-                &below, source, targets,
-            )?))
+            Some(Box::new(Prepared::from_meshes(&below, source, targets)?))
         } else {
             None
         };
@@ -875,6 +836,15 @@ pub enum MeshSource {
 }
 
 impl MeshSource {
+    /// The mesh itself: the one held in memory, or `file`, what loading this one gave.
+    fn mesh<'a>(&'a self, file: &'a Option<LoadedMesh>) -> &'a LoadedMesh {
+        match (self, file) {
+            (MeshSource::Memory { mesh, .. }, _) => mesh,
+            (MeshSource::File(_), Some(mesh)) => mesh,
+            (MeshSource::File(p), None) => unreachable!("'{}' was not loaded", p.display()),
+        }
+    }
+
     /// The name messages use for this mesh.
     fn name(&self) -> PathBuf {
         match self {
@@ -884,34 +854,44 @@ impl MeshSource {
     }
 }
 
-/// One morph: source, target and settings.
+/// One morph: a source, the targets it passes through in turn (the last is the final
+/// shape; each reached at its frame in `settings.at`, spread over the shot when empty), and
+/// the settings. What the command line runs, as a library call.
 pub struct Job {
     pub source: MeshSource,
-    pub target: MeshSource,
+    pub targets: Vec<MeshSource>,
     pub settings: MorphSettings,
 }
 
 impl Job {
     /// Loads and places the meshes, fills the source with particles, builds the model.
     pub fn prepare(&self) -> Result<Prepared, MorphError> {
-        self.settings.validate().map_err(MorphError::Settings)?;
-        let (src_file, tgt_file);
-        let src = match &self.source {
-            MeshSource::File(p) => {
-                src_file = crate::geometry::load_mesh(p)?;
-                &src_file
-            }
-            MeshSource::Memory { mesh, .. } => mesh,
+        let loaded = |m: &MeshSource| -> Result<Option<LoadedMesh>, MorphError> {
+            Ok(match m {
+                MeshSource::File(p) => Some(crate::geometry::load_mesh(p)?),
+                MeshSource::Memory { .. } => None,
+            })
         };
-        let tgt = match &self.target {
-            MeshSource::File(p) => {
-                tgt_file = crate::geometry::load_mesh(p)?;
-                &tgt_file
-            }
-            MeshSource::Memory { mesh, .. } => mesh,
-        };
-        let (src_name, tgt_name) = (self.source.name(), self.target.name());
-        Prepared::from_meshes(&self.settings, (src, &src_name), (tgt, &tgt_name))
+        let source_file = loaded(&self.source)?;
+        let target_files = self
+            .targets
+            .iter()
+            .map(loaded)
+            .collect::<Result<Vec<_>, _>>()?;
+        let names: Vec<PathBuf> = self.targets.iter().map(MeshSource::name).collect();
+        let targets: Vec<(&LoadedMesh, &Path)> = self
+            .targets
+            .iter()
+            .zip(&target_files)
+            .zip(&names)
+            .map(|((m, file), name)| (m.mesh(file), name.as_path()))
+            .collect();
+        let source_name = self.source.name();
+        Prepared::from_meshes(
+            &self.settings,
+            (self.source.mesh(&source_file), &source_name),
+            &targets,
+        )
     }
 
     /// Prepares and runs the morph; the observer sees events and frames (world units) and

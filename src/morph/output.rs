@@ -728,7 +728,7 @@ pub fn morph_to_folder(
             targets.len() - 1,
             request.memory_limit,
         )?;
-        let mut prep = Prepared::from_keyframe_meshes(settings, (&src, source), &meshes)?;
+        let mut prep = Prepared::from_meshes(settings, (&src, source), &meshes)?;
         let memory = prep.plan_memory(request.memory_limit)?;
         Ok((prep, memory))
     })();

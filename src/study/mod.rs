@@ -500,7 +500,7 @@ pub fn run(
 pub fn measure(source: &Path, target: &Path, config: &StudyConfig) -> StudyRow {
     let job = Job {
         source: MeshSource::File(source.into()),
-        target: MeshSource::File(target.into()),
+        targets: vec![MeshSource::File(target.into())],
         settings: config.settings(),
     };
     usage::reset_peak();
