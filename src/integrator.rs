@@ -1,12 +1,12 @@
-//! Integrators behind one trait: symplectic-Euler MLS-MPM ([`crate::mpm::Simulator`]) and RK4
-//! on the ODE form ([`crate::ode::OdeSystem`]), both over the same [`Model`]. A caller that
+//! Integrators behind one trait: symplectic-Euler MLS-MPM ([`crate::mpm::Euler`]) and RK4
+//! on the ODE form ([`crate::ode::Rk4`]), both over the same [`Model`]. A caller that
 //! optimizes deformation-gradient controls (the morph) is written once against
 //! [`Integrator`]; [`Engine`] holds whichever one the settings chose.
 
 use crate::mpm::ControlParams;
 use crate::mpm::model::Model;
-use crate::mpm::{Gradients, SimError, Simulator, State, StateGrad};
-use crate::ode::OdeSystem;
+use crate::mpm::{Euler, Gradients, SimError, State, StateGrad};
+use crate::ode::Rk4;
 use serde::{Deserialize, Serialize};
 use std::borrow::Cow;
 
@@ -154,7 +154,7 @@ impl RunTape for crate::mpm::Tape {
     }
 }
 
-impl Integrator for Simulator {
+impl Integrator for Euler {
     type Tape = crate::mpm::Tape;
 
     fn model(&self) -> &Model {
@@ -248,7 +248,7 @@ fn kinetic(mass: &[f64], v: &[nalgebra::Vector3<f64>]) -> f64 {
 
 /// The Euler step moves each particle with its state velocity (the grid's, or the prescribed
 /// one), so the motion's kinetic energy is that of the state's velocities.
-impl Controlled for Simulator {
+impl Controlled for Euler {
     fn run(
         &self,
         state: &mut State,
@@ -303,16 +303,16 @@ impl Controlled for Simulator {
 /// The integrator a run uses, chosen at run time.
 #[derive(Debug)]
 pub enum Engine {
-    Euler(Simulator),
-    Rk4(OdeSystem),
+    Euler(Euler),
+    Rk4(Rk4),
 }
 
 impl Engine {
     /// `model` advanced by the integrator `kind`.
     pub fn new(model: Model, kind: IntegratorKind) -> Result<Engine, SimError> {
         Ok(match kind {
-            IntegratorKind::Euler => Engine::Euler(Simulator::from(model)),
-            IntegratorKind::Rk4 => Engine::Rk4(OdeSystem::new(model)?),
+            IntegratorKind::Euler => Engine::Euler(Euler::from(model)),
+            IntegratorKind::Rk4 => Engine::Rk4(Rk4::new(model)?),
         })
     }
 

@@ -6,8 +6,8 @@
 
 use morph::material::{ConstitutiveModel, FixedCorotated};
 use morph::mpm::model::Model;
-use morph::mpm::{GridSpec, KernelKind, Simulator, State};
-use morph::ode::{OdeState, OdeSystem};
+use morph::mpm::{Euler, GridSpec, KernelKind, State};
+use morph::ode::{OdeState, Rk4};
 use nalgebra::{Matrix3, Vector3};
 use std::sync::Arc;
 use std::time::Instant;
@@ -61,7 +61,7 @@ fn kinetic(v: &[Vector3<f64>], m: f64) -> f64 {
 fn euler(b: &Bar, dt: f64) -> (f64, f64) {
     let n = b.x.len();
     let m = DENSITY * b.vol;
-    let sim = Simulator::from(
+    let sim = Euler::from(
         Model::new(
             b.grid.clone(),
             dt,
@@ -99,7 +99,7 @@ fn rk4(b: &Bar, dt: f64) -> (f64, f64) {
         vec![b.vol; n],
     )
     .unwrap();
-    let sys = OdeSystem::new(model).unwrap();
+    let sys = Rk4::new(model).unwrap();
     let mut s = OdeState::at_rest(b.x.clone());
     s.v = b.v.clone();
     let e0 = kinetic(&s.v, m) + sys.elastic_energy(&s);

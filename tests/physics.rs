@@ -7,7 +7,7 @@ use morph::mpm::{KernelKind, State};
 use morph::scene::EffectConfig;
 use nalgebra::{Matrix3, Vector3};
 
-fn run(sim: &morph::mpm::Simulator, state: &mut State, steps: usize) {
+fn run(sim: &morph::mpm::Euler, state: &mut State, steps: usize) {
     sim.forward(state, &[], 0, steps, None).expect("forward");
 }
 
@@ -203,7 +203,7 @@ fn sticky_wall_stops_a_body_slip_wall_does_not() {
     );
 }
 
-/// `Simulator::step` with a control of the wrong length, or a state of the wrong size, is an
+/// `Euler::step` with a control of the wrong length, or a state of the wrong size, is an
 /// error, not a panic.
 #[test]
 fn step_with_a_short_control_is_an_error() {

@@ -27,4 +27,4 @@ pub use error::SimError;
 pub use grid::GridSpec;
 pub use kernel::KernelKind;
 pub use state::{State, StateGrad};
-pub use step::{Gradients, Simulator, StepTape, Tape, Workspace};
+pub use step::{Euler, Gradients, StepTape, Tape, Workspace};

@@ -1,5 +1,5 @@
 //! Wall time per stage of the Euler step and its reverse pass, summed over the steps a
-//! [`super::Simulator`] runs while a [`StageClock`] is attached (`morph bench` reads it for
+//! [`super::Euler`] runs while a [`StageClock`] is attached (`morph bench` reads it for
 //! the per-stage table and the roofline). Without a clock the step takes no timings.
 
 use std::sync::atomic::{AtomicU64, Ordering};

@@ -4,7 +4,7 @@ use nalgebra::{Matrix3, Vector3};
 
 /// Particle state advanced by each step: position `x`, velocity `v`, APIC affine velocity `c`
 /// and deformation gradient `f`. Masses and rest volumes do not change and live in the
-/// [`super::Simulator`].
+/// [`super::Euler`].
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct State {
     pub x: Vec<Vector3<f64>>,

@@ -18,28 +18,28 @@ use std::sync::Arc;
 
 /// The symplectic-Euler MLS-MPM integrator over a [`Model`] (which it dereferences to).
 #[derive(Debug)]
-pub struct Simulator {
+pub struct Euler {
     pub model: Model,
     /// Per-stage timings, when attached (`morph bench`); `None` takes none.
     pub clock: Option<Arc<StageClock>>,
 }
 
-impl std::ops::Deref for Simulator {
+impl std::ops::Deref for Euler {
     type Target = Model;
     fn deref(&self) -> &Model {
         &self.model
     }
 }
 
-impl std::ops::DerefMut for Simulator {
+impl std::ops::DerefMut for Euler {
     fn deref_mut(&mut self) -> &mut Model {
         &mut self.model
     }
 }
 
-impl From<Model> for Simulator {
+impl From<Model> for Euler {
     fn from(model: Model) -> Self {
-        Simulator { model, clock: None }
+        Euler { model, clock: None }
     }
 }
 
@@ -65,9 +65,9 @@ struct ReverseWorkspace {
     grad_nodes: Vec<Node<1>>,
 }
 
-/// One step of the reverse pass for the model's kernel ([`Simulator::reverse_impl`]).
+/// One step of the reverse pass for the model's kernel ([`Euler::reverse_impl`]).
 type ReverseStep = fn(
-    &Simulator,
+    &Euler,
     &StepTape,
     &State,
     Option<&[Matrix3<f64>]>,
@@ -127,7 +127,7 @@ pub struct Tape {
     pub last: State,
 }
 
-/// Result of [`Simulator::backward`].
+/// Result of [`Euler::backward`].
 #[derive(Clone, Debug)]
 pub struct Gradients {
     /// dL/d(initial state).
@@ -147,7 +147,7 @@ fn control_at(controls: &super::control::StepControls, s: usize) -> Option<&[Mat
     controls.get(s).and_then(|c| c.as_deref())
 }
 
-impl Simulator {
+impl Euler {
     fn stress_inputs(&self, p: usize) -> StressInputs<'_> {
         StressInputs {
             model: self.material.as_ref(),
@@ -189,7 +189,7 @@ impl Simulator {
     }
 
     /// Runs `n_steps` steps from `state`; `controls[s]` (if present and `Some`) is the `Fc` of
-    /// local step `s`. Records a tape for [`Simulator::backward`] when `tape` is given.
+    /// local step `s`. Records a tape for [`Euler::backward`] when `tape` is given.
     pub fn forward(
         &self,
         state: &mut State,
@@ -201,7 +201,7 @@ impl Simulator {
         self.forward_driven(state, controls, None, first_step, n_steps, tape, |_, _| {})
     }
 
-    /// [`Simulator::forward`] with the model's boundary controls driven by the knots
+    /// [`Euler::forward`] with the model's boundary controls driven by the knots
     /// `params` (read at the middle of each step: a clamped particle moves by exactly
     /// `dt u(t + dt/2)`, a body force acts as `m b dt` on the momentum). `on_step(k, state)`
     /// sees the state after every global step `k`.
@@ -415,7 +415,7 @@ impl Simulator {
             .0
     }
 
-    /// Reverse of [`Simulator::forward_driven`]: also returns dL/d(control knots) (empty
+    /// Reverse of [`Euler::forward_driven`]: also returns dL/d(control knots) (empty
     /// without `params`). `seed_after(k, state, adj)` may add to `adj` the adjoint of a cost
     /// on the state after global step `k` before that step is reversed.
     pub fn backward_driven(

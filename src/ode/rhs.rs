@@ -25,14 +25,14 @@ use rayon::prelude::*;
 /// The RK4 integrator of the ODE form over a [`Model`] (which it dereferences to), with the
 /// declared controls.
 #[derive(Debug)]
-pub struct OdeSystem {
+pub struct Rk4 {
     pub model: Model,
     /// Effects that act on the grid rates, in model order.
     rate_effects: Vec<usize>,
     pool: BufferPool,
 }
 
-impl std::ops::Deref for OdeSystem {
+impl std::ops::Deref for Rk4 {
     type Target = Model;
     fn deref(&self) -> &Model {
         &self.model
@@ -71,11 +71,11 @@ pub struct RhsGrad {
     pub effect_params: Vec<Vec<f64>>,
 }
 
-impl OdeSystem {
+impl Rk4 {
     /// The RK4 integrator of `model` (with the boundary controls it declares). RK4's
     /// stability region on the imaginary axis (|h w| < 2.8) leaves a margin above the
     /// model's elastic bound.
-    pub fn new(model: Model) -> Result<OdeSystem, SimError> {
+    pub fn new(model: Model) -> Result<Rk4, SimError> {
         let rate_effects: Vec<usize> = (0..model.effects.len())
             .filter(|&e| model.effects[e].acts_on_rates())
             .collect();
@@ -85,7 +85,7 @@ impl OdeSystem {
                 rate_effects.len()
             )));
         }
-        Ok(OdeSystem {
+        Ok(Rk4 {
             model,
             rate_effects,
             pool: BufferPool::default(),
@@ -109,7 +109,7 @@ impl OdeSystem {
     }
 
     /// Kinetic energy of the particle velocities `1/2 sum m |v~|^2` (clamped particles at their
-    /// prescribed velocity). Unlike [`OdeSystem::motion_energy`] it includes the velocity modes
+    /// prescribed velocity). Unlike [`Rk4::motion_energy`] it includes the velocity modes
     /// the grid cannot see; the report gives both.
     pub fn kinetic_energy(&self, s: &OdeState, values: &[Vector3<f64>]) -> f64 {
         (0..s.len())
@@ -137,7 +137,7 @@ impl OdeSystem {
             .sum())
     }
 
-    /// Reverse of [`OdeSystem::motion_energy`] scaled by `weight`.
+    /// Reverse of [`Rk4::motion_energy`] scaled by `weight`.
     pub fn motion_energy_reverse(
         &self,
         s: &OdeState,
@@ -218,7 +218,7 @@ impl OdeSystem {
         }
     }
 
-    /// Reverse of [`OdeSystem::rhs`] at state `s`: `grad_out` is dL/d(dS/dt).
+    /// Reverse of [`Rk4::rhs`] at state `s`: `grad_out` is dL/d(dS/dt).
     pub fn rhs_reverse(&self, s: &OdeState, at: &At, grad_out: &OdeState) -> RhsGrad {
         match self.kernel {
             KernelKind::Quadratic => self.rhs_reverse_impl::<3>(s, at, grad_out),

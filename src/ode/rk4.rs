@@ -7,7 +7,7 @@
 //! `gk4 = h/6 gS'`, `gk3 = h/3 gS' + h gS4`, `gk2 = h/3 gS' + h/2 gS3`, `gk1 = h/6 gS' + h/2 gS2`,
 //! `gS = gS' + gS1 + gS2 + gS3 + gS4` with `gSi = f_rev(Si, gki)`.
 
-use super::rhs::{At, OdeSystem};
+use super::rhs::{At, Rk4};
 use super::state::OdeState;
 use crate::integrator::{Integrator, OnStep, RunTape, SeedAfter, StepControls};
 use crate::mpm::ControlParams;
@@ -33,7 +33,7 @@ fn stage_at(values: &[nalgebra::Vector3<f64>], step: usize, i: usize) -> At<'_> 
 /// The four stage inputs of one step.
 pub type StepStages = [OdeState; 4];
 
-impl OdeSystem {
+impl Rk4 {
     /// Advances `s` by one RK4 step (global index `step`, used for the control schedule and
     /// to label errors). Returns the stage inputs when asked (for the tape).
     pub fn rk4_step(
@@ -154,7 +154,7 @@ pub(crate) fn from_ode(s: OdeState) -> State {
     }
 }
 
-impl Integrator for OdeSystem {
+impl Integrator for Rk4 {
     type Tape = Rk4Tape;
 
     fn model(&self) -> &Model {
@@ -227,7 +227,7 @@ impl Integrator for OdeSystem {
     }
 }
 
-impl OdeSystem {
+impl Rk4 {
     /// The reverse pass of a taped run; `seed_after`, when given, seeds a cost on the state
     /// after every step (without one, no intermediate state is rebuilt from the tape).
     fn reverse_run(

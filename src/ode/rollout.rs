@@ -1,11 +1,11 @@
 //! Multi-step RK4 runs and the gradient of a kinetic-energy cost through them.
 //!
 //! The cost of a run of steps `k = first .. first + n` is `sum_k KE(S_{k+1})`, the kinetic
-//! energy of the motion at the end of every step ([`OdeSystem::motion_energy`]: particles at
+//! energy of the motion at the end of every step ([`Rk4::motion_energy`]: particles at
 //! the velocity they move with, clamped ones at their prescribed velocity), the
 //! active-damping objective.
 
-use super::rhs::OdeSystem;
+use super::rhs::Rk4;
 use super::rk4::{Rk4Tape, from_ode, to_ode};
 use super::state::OdeState;
 use crate::integrator::{ControlGradient, Controlled};
@@ -24,7 +24,7 @@ pub struct RunGradient {
     pub effect_params: Vec<Vec<f64>>,
 }
 
-impl OdeSystem {
+impl Rk4 {
     /// Runs `n_steps` RK4 steps from `s` (global steps `first_step..`), recording a tape when
     /// given one. Returns the kinetic energy at the end of each step; `on_step(k, state)` sees
     /// every state after step `k`.
@@ -125,7 +125,7 @@ impl OdeSystem {
 
 /// The ODE form through the common interface: states convert to and from [`OdeState`]
 /// (the APIC matrix `c` is not part of the ODE form).
-impl Controlled for OdeSystem {
+impl Controlled for Rk4 {
     fn run(
         &self,
         state: &mut State,

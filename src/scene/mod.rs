@@ -4,7 +4,7 @@
 use crate::effects::{Collider, ColliderShape, Drag, Effect, Gravity, WallMode, Walls};
 use crate::material::{ConstitutiveModel, MaterialModel};
 use crate::mpm::model::Model;
-use crate::mpm::{GridSpec, KernelKind, SimError, Simulator};
+use crate::mpm::{Euler, GridSpec, KernelKind, SimError};
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
@@ -213,8 +213,8 @@ impl SceneConfig {
     }
 
     /// Builds the Euler simulator for particles of the given rest volumes.
-    pub fn build(&self, volumes: Vec<f64>) -> Result<Simulator, SimError> {
-        self.model(volumes).map(Simulator::from)
+    pub fn build(&self, volumes: Vec<f64>) -> Result<Euler, SimError> {
+        self.model(volumes).map(Euler::from)
     }
 
     /// Builds the model for particles of the given rest volumes (mass = density x volume), in

@@ -7,7 +7,7 @@ pub mod cli;
 use morph::integrator::{Engine, Integrator, IntegratorKind};
 use morph::loss::{MassLoss, MassLossKind};
 use morph::mpm::model::Model;
-use morph::mpm::{GridSpec, KernelKind, Simulator, State, StateGrad};
+use morph::mpm::{Euler, GridSpec, KernelKind, State, StateGrad};
 use morph::scene::{EffectConfig, MaterialConfig, SceneConfig, ball_particles};
 use nalgebra::{Matrix3, Vector3};
 
@@ -29,7 +29,7 @@ pub fn small_scene(kernel: KernelKind, effects: Vec<EffectConfig>) -> SceneConfi
 
 /// A ball of `radius` cells with 2x2x2 particles per cell; returns the simulator and the state
 /// at rest.
-pub fn ball(scene: &SceneConfig, radius: f64) -> (Simulator, State) {
+pub fn ball(scene: &SceneConfig, radius: f64) -> (Euler, State) {
     let (x, vol) = ball_particles(&scene.grid, Vector3::new(0.1, -0.2, 0.05), radius, 2);
     let sim = scene.build(vol).expect("valid scene");
     (sim, State::at_rest(x))
