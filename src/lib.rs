@@ -45,8 +45,8 @@ pub mod scene;
 pub mod study;
 
 pub use morph::{
-    Frame, FrameSink, Job, MeshSource, MorphError, MorphEvent, MorphResult, MorphSettings,
-    Observer, Prepared, Preset,
+    Frame, FrameRecord, FrameSink, Job, MeshSource, MorphError, MorphEvent, MorphResult,
+    MorphSettings, Observer, Prepared, Preset, SinkFrame,
 };
 
 /// Runs `job`: loads and places the meshes, optimizes the morph, and hands every event and

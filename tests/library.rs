@@ -3,7 +3,8 @@
 
 use morph::geometry::{assets, prepare_mesh};
 use morph::{
-    Frame, FrameSink, Job, MeshSource, MorphError, MorphEvent, MorphSettings, Observer, Preset,
+    Frame, FrameRecord, FrameSink, Job, MeshSource, MorphError, MorphEvent, MorphSettings,
+    Observer, Preset, SinkFrame,
 };
 use std::path::Path;
 
@@ -16,7 +17,7 @@ struct TopSink {
 }
 
 impl FrameSink for TopSink {
-    fn frame(&mut self, frame: &Frame) -> Result<(), MorphError> {
+    fn frame(&mut self, frame: &SinkFrame, _: &mut FrameRecord) -> Result<(), MorphError> {
         let top = frame.world.x.iter().map(|p| p.y).fold(f64::MIN, f64::max);
         self.tops.push((frame.time, top));
         Ok(())
@@ -41,7 +42,7 @@ impl Observer for Watch {
     fn frame(&mut self, frame: &Frame) -> Result<(), MorphError> {
         self.first_frame.get_or_insert(frame.world.x.clone());
         self.frames += 1;
-        self.sink.frame(frame)
+        self.sink.frame(&frame.into(), &mut FrameRecord::default())
     }
     fn stop_requested(&self) -> usize {
         self.stop_after

@@ -18,6 +18,7 @@ pub mod quality;
 pub mod scene_file;
 pub mod segment;
 pub mod settings;
+pub mod sinks;
 
 use crate::geometry::{Jitter, LoadedMesh, MeshError, MorphGeometry};
 use crate::integrator::{Engine, Integrator};
@@ -29,6 +30,7 @@ use nalgebra::{Matrix3, Vector3};
 use segment::{Layers, OptimizerSettings, PathPoint, Segment};
 use serde::{Deserialize, Serialize};
 pub use settings::{MorphSettings, Preset};
+pub use sinks::{FrameRecord, FrameSink, SinkFrame};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -819,13 +821,6 @@ impl<'a> Frame<'a> {
             prep,
         }
     }
-}
-
-/// Where frames go: one implementation per output format (the folder of PLY points and OBJ
-/// surfaces is [`output::PlyObjSink`]). A new format is one more implementation, handed to
-/// the folder writer or called from an [`Observer`].
-pub trait FrameSink {
-    fn frame(&mut self, frame: &Frame) -> Result<(), MorphError>;
 }
 
 /// A mesh a [`Job`] morphs: a file, or a mesh a program holds (checked and repaired by

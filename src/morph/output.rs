@@ -18,20 +18,17 @@ use super::memory::{MemoryLimit, MemoryPlan};
 use super::metrics::{FillMetrics, fill_metrics};
 use super::motion::MotionMeasures;
 use super::quality::Quality;
-use super::settings::{RebuiltMethod, Surfaces};
+use super::sinks::{self, FrameRecord, FrameSink, SinkFrame, out_err};
+pub use super::sinks::{RebuiltStats, frame_name};
 use super::{
-    Frame, FrameSink, IterationRecord, MorphError, MorphEvent, MorphSettings, Observer, Prepared,
-    RunProgress, SegmentRecord, WorldFrame, checkpoint, run,
+    Frame, IterationRecord, MorphError, MorphEvent, MorphSettings, Observer, Prepared, RunProgress,
+    SegmentRecord, WorldFrame, checkpoint, run,
 };
-use crate::geometry::carried::{CarriedStats, CarriedSurface};
-use crate::geometry::cleanup::keep_volume;
-use crate::geometry::cleanup::{CleanReport, SurfaceQuality, clean, quality as surface_quality};
-use crate::geometry::fidelity::{Fidelity, Reference, fidelity, mesh_fidelity};
-use crate::geometry::splashsurf::extract_splashsurf_surface;
-use crate::geometry::surface::extract_deformed_surface;
-use crate::geometry::{Similarity, extract_surface};
+use crate::geometry::Similarity;
+use crate::geometry::carried::CarriedStats;
+use crate::geometry::fidelity::Fidelity;
 use crate::io::outdir::{self, Previous, Staging};
-use crate::io::{frames::write_points_ply, images, massgrid::MassGrid, sha256_file};
+use crate::io::{images, massgrid::MassGrid, sha256_file};
 use crate::mpm::State;
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
@@ -120,22 +117,6 @@ pub struct FrameStats {
     /// target is scaled to it), so a surface that keeps the body's volume has 0.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub surface_volume_error: Option<f64>,
-}
-
-/// A frame's rebuilt surface: its shape as marching tetrahedra made it, as written, and what
-/// cleaning did.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct RebuiltStats {
-    pub before: SurfaceQuality,
-    pub after: SurfaceQuality,
-    pub cleanup: CleanReport,
-    /// How true the written surface is to the reference of its frame: the source on the
-    /// first frame, the target on the last ([`crate::geometry::fidelity`]).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub fidelity: Option<Fidelity>,
-    /// Seconds spent making, cleaning, writing and measuring it (the frame writer's thread).
-    #[serde(default)]
-    pub seconds: f64,
 }
 
 /// The surfaces' figures a viewer judges a run by (see docs/geometry.md "Surface measures"):
@@ -544,10 +525,6 @@ pub struct Summary {
     pub warnings: Vec<String>,
 }
 
-fn out_err(what: &str, path: &Path, e: impl std::fmt::Display) -> MorphError {
-    MorphError::Output(format!("cannot write {what} '{}': {e}", path.display()))
-}
-
 /// Where and how a morph writes its folder.
 #[derive(Clone, Copy, Debug)]
 pub struct OutputRequest<'a> {
@@ -583,20 +560,6 @@ const STAGING_NAMES: &[&str] = &[
     "preview.gif",
     crate::io::usd::FILE,
 ];
-
-/// What a frame's surfaces measure: the volume the rebuilt one encloses (world units), the
-/// carried one's stats and the rebuilt one's.
-pub type SurfaceMeasures = (Option<f64>, Option<CarriedStats>, Option<RebuiltStats>);
-
-/// Frames at most in `preview.gif`.
-const GIF_FRAMES: usize = 48;
-
-/// The name of frame `index` (0-based) when there are `count` frames: zero-padded to the
-/// width the count needs (at least 4), so names sort in frame order.
-pub fn frame_name(index: usize, count: usize) -> String {
-    let width = count.to_string().len().max(4);
-    format!("frame_{:0width$}", index + 1)
-}
 
 /// Morphs `source` into `target` and writes the folder `request.out`; see the module docs.
 ///
@@ -819,123 +782,6 @@ fn sha256_hex(bytes: &[u8]) -> String {
         .collect()
 }
 
-/// The folder's frame format: binary PLY points (`x y z vx vy vz J id`) in `frames/` and, when
-/// asked, a closed OBJ surface per frame in `meshes/`, all in world units.
-pub struct PlyObjSink {
-    pub dir: PathBuf,
-    pub n_frames: usize,
-    /// Write the surface rebuilt from the particles (`meshes/`), and how it is made.
-    pub rebuilt: bool,
-    pub method: RebuiltMethod,
-    /// The source's surface carried through the morph, and the particles' rest positions it
-    /// was bound to (`carried/`).
-    pub carried: Option<(CarriedSurface, Vec<Vector3<f64>>)>,
-    /// Particle spacing (simulation units) and rest volume, for the surface.
-    pub spacing: f64,
-    pub rest_volume: f64,
-    /// The source mesh's volume, simulation units.
-    pub body_volume: f64,
-    pub to_world: Similarity,
-    /// The source and the target surfaces (world units), which the first and the last
-    /// frames' surfaces are measured against.
-    pub references: Option<(Reference, Reference)>,
-}
-
-impl PlyObjSink {
-    /// Writes `frame`; returns the volume its surface encloses (world units) when surfaces
-    /// are written.
-    pub fn write(&mut self, frame: &Frame) -> Result<Option<f64>, MorphError> {
-        Ok(self.write_measured(frame)?.0)
-    }
-
-    /// [`PlyObjSink::write`], also returning what the carried and the rebuilt surfaces
-    /// measure.
-    pub fn write_measured(&mut self, frame: &Frame) -> Result<SurfaceMeasures, MorphError> {
-        self.write_parts(frame.index, &frame.world, frame.state)
-    }
-
-    /// [`PlyObjSink::write_measured`] from a frame's parts: its index, world data and
-    /// simulation state.
-    fn write_parts(
-        &mut self,
-        index: usize,
-        world: &WorldFrame,
-        state: &State,
-    ) -> Result<SurfaceMeasures, MorphError> {
-        let name = frame_name(index, self.n_frames);
-        let WorldFrame { x, v, j } = world;
-        let points = self.dir.join("frames").join(format!("{name}.ply"));
-        write_points_ply(&points, x, v, j).map_err(|e| out_err("frame", &points, e))?;
-        // The reference this frame is measured against: the source on the first frame (the
-        // carried surface is the source there), the target on the last.
-        let world_spacing = self.spacing * self.to_world.scale;
-        let last = index + 1 == self.n_frames;
-        let reference = match &self.references {
-            Some((source, _)) if index == 0 => Some(source),
-            Some((_, target)) if last => Some(target),
-            _ => None,
-        };
-        let carried = match &self.carried {
-            Some((surface, rest)) => {
-                let clock = std::time::Instant::now();
-                let on_frame = surface.carry(rest, &state.x, &state.f);
-                let path = self.dir.join("carried").join(format!("{name}.obj"));
-                surface
-                    .write_obj(&path, &on_frame)
-                    .map_err(|e| out_err("carried surface", &path, e))?;
-                let mut stats = surface.stats(&on_frame, &state.x, self.spacing);
-                stats.fidelity = reference
-                    .filter(|_| last)
-                    .map(|r| fidelity(&on_frame.positions, &surface.triangles, r, world_spacing));
-                stats.seconds = clock.elapsed().as_secs_f64();
-                Some(stats)
-            }
-            None => None,
-        };
-        if !self.rebuilt {
-            return Ok((None, carried, None));
-        }
-        let clock = std::time::Instant::now();
-        let raw = match self.method {
-            RebuiltMethod::Lattice => {
-                let volumes: Vec<f64> = j.iter().map(|j| self.rest_volume * j.max(0.0)).collect();
-                extract_surface(&state.x, &volumes, self.spacing)
-            }
-            RebuiltMethod::Deformed => {
-                extract_deformed_surface(&state.x, &state.f, self.rest_volume, self.spacing)
-            }
-            RebuiltMethod::Splashsurf => extract_splashsurf_surface(&state.x, self.spacing),
-        }
-        .map_err(|e| MorphError::Output(e.to_string()))?;
-        let (mut surface, cleanup) = clean(&raw, self.spacing);
-        if self.method != RebuiltMethod::Lattice {
-            // A wide kernel (and smoothing) rounds the body by a thin layer: put it back
-            // evenly, to the body's volume times the particles' mean volume change.
-            let mean_j = j.iter().map(|j| j.max(0.0)).sum::<f64>() / j.len().max(1) as f64;
-            keep_volume(&mut surface, self.body_volume * mean_j);
-        }
-        let path = self.dir.join("meshes").join(format!("{name}.obj"));
-        let world = self.to_world.apply_mesh(&surface);
-        world
-            .write_obj_with_normals(&path)
-            .map_err(|e| out_err("surface", &path, e))?;
-        let rebuilt = RebuiltStats {
-            before: surface_quality(&raw),
-            after: surface_quality(&surface),
-            cleanup,
-            fidelity: reference.map(|r| mesh_fidelity(&world, r, world_spacing)),
-            seconds: clock.elapsed().as_secs_f64(),
-        };
-        Ok((Some(world.signed_volume()), carried, Some(rebuilt)))
-    }
-}
-
-impl FrameSink for PlyObjSink {
-    fn frame(&mut self, frame: &Frame) -> Result<(), MorphError> {
-        self.write(frame).map(|_| ())
-    }
-}
-
 /// The frame halfway (in time) between the previous keyframe's frame (the rest shape's for
 /// the first) and target `t`'s.
 fn halfway(prep: &Prepared, t: usize) -> usize {
@@ -1037,30 +883,48 @@ struct FolderWriter<'a> {
 /// is that of their indices whatever the timing.
 struct FrameWork {
     index: usize,
+    time: f64,
     world: WorldFrame,
     state: State,
 }
 
-/// The writer thread's answer for one frame: what the surfaces measured and the
-/// close-neighbour share, or why the frame could not be written.
+/// The writer thread's answer for one frame: what the sinks measured and the close-neighbour
+/// share, or why the frame could not be written.
 struct FrameDone {
     index: usize,
-    result: Result<(SurfaceMeasures, f64), MorphError>,
+    result: Result<(FrameRecord, f64), MorphError>,
 }
 
-/// The writer thread: writes and measures the frames it is sent, in order, until the queue
-/// closes. After a failure it writes nothing more (the run stops on the error).
-fn write_frames(mut sink: PlyObjSink, work: Receiver<FrameWork>, done: Sender<FrameDone>) {
+/// The writer thread: hands the frames it is sent, in order, to every sink in turn until the
+/// queue closes, then gives the sinks back (to finish). After a failure it writes nothing
+/// more (the run stops on the error). `spacing` (simulation units) is for the close-neighbour
+/// share.
+fn write_frames(
+    mut sinks: Vec<Box<dyn FrameSink + Send>>,
+    count: usize,
+    spacing: f64,
+    work: Receiver<FrameWork>,
+    done: Sender<FrameDone>,
+) -> Vec<Box<dyn FrameSink + Send>> {
     let mut failed = false;
     for job in work {
         if failed {
             continue;
         }
-        let result = sink
-            .write_parts(job.index, &job.world, &job.state)
-            .map(|m| {
-                let close = super::quality::close_neighbour_share(&job.state.x, sink.spacing);
-                (m, close)
+        let frame = SinkFrame {
+            index: job.index,
+            count,
+            time: job.time,
+            world: &job.world,
+            state: &job.state,
+        };
+        let mut record = FrameRecord::default();
+        let result = sinks
+            .iter_mut()
+            .try_for_each(|sink| sink.frame(&frame, &mut record))
+            .map(|()| {
+                let close = super::quality::close_neighbour_share(&job.state.x, spacing);
+                (record, close)
             });
         failed = result.is_err();
         if done
@@ -1070,9 +934,10 @@ fn write_frames(mut sink: PlyObjSink, work: Receiver<FrameWork>, done: Sender<Fr
             })
             .is_err()
         {
-            return;
+            break;
         }
     }
+    sinks
 }
 
 impl FolderWriter<'_> {
@@ -1092,7 +957,14 @@ impl FolderWriter<'_> {
                 return Ok(());
             };
             self.pending -= 1;
-            let ((surface_volume, carried, rebuilt), close) = result?;
+            let (
+                FrameRecord {
+                    surface_volume,
+                    carried,
+                    rebuilt,
+                },
+                close,
+            ) = result?;
             let stats = &mut self.stats[index];
             stats.carried = carried;
             stats.rebuilt = rebuilt;
@@ -1194,6 +1066,7 @@ impl Observer for FolderWriter<'_> {
         self.work
             .send(FrameWork {
                 index,
+                time: frame.time,
                 world: frame.world.clone(),
                 state: frame.state.clone(),
             })
@@ -1261,45 +1134,7 @@ fn write_run(
         .as_ref()
         .map(|p| checkpoint::describe(p, settings.passes, prep.settings.segments));
     let source = Path::new(&identity.inputs[0].path);
-    // The source as read, for the carried surface and as the first frame's reference.
-    let loaded = match settings.surfaces {
-        Surfaces::None => None,
-        _ => Some(crate::geometry::load_mesh(source)?),
-    };
-    let references = loaded.as_ref().and_then(|l| {
-        let target = to_world.apply_mesh(&prep.geometry.target_sim);
-        Some((Reference::new(&l.mesh)?, Reference::new(&target)?))
-    });
-    let carried = if let Some(loaded) = loaded.as_ref().filter(|_| settings.surfaces.carried()) {
-        let surface = CarriedSurface::bind(
-            source,
-            &loaded.mesh,
-            prep.geometry.placement.world_to_sim,
-            &prep.initial.x,
-            spacing,
-        )
-        .map_err(|e| {
-            MorphError::Mesh(crate::geometry::MeshError::Unreadable {
-                path: source.into(),
-                reason: e.to_string(),
-            })
-        })?;
-        Some((surface, prep.initial.x.clone()))
-    } else {
-        None
-    };
-    let sink = PlyObjSink {
-        dir: dir.to_path_buf(),
-        n_frames,
-        rebuilt: settings.surfaces.rebuilt(),
-        method: settings.rebuilt_method,
-        carried,
-        spacing,
-        rest_volume: prep.geometry.source.volume,
-        body_volume: prep.geometry.source_solid.volume / to_world.scale.powi(3),
-        to_world,
-        references,
-    };
+    let sinks = sinks::for_folder(prep, dir, source)?;
     let (work, queue) = sync_channel(super::memory::WRITE_QUEUE);
     let (answers, done) = channel();
     let mut writer = FolderWriter {
@@ -1325,8 +1160,8 @@ fn write_run(
         writer.restore_preview(p.frames)?;
         writer.restore_stats(p.frames)?;
     }
-    let result = std::thread::scope(|scope| {
-        let thread = scope.spawn(move || write_frames(sink, queue, answers));
+    let (result, mut sinks) = std::thread::scope(|scope| {
+        let thread = scope.spawn(move || write_frames(sinks, n_frames, spacing, queue, answers));
         let result = run(prep, resume, &mut writer).and_then(|r| {
             writer.collect(true)?;
             Ok(r)
@@ -1334,10 +1169,10 @@ fn write_run(
         // Closing the queue ends the thread once it has written what it holds.
         let (closed, _) = sync_channel(0);
         drop(std::mem::replace(&mut writer.work, closed));
-        if thread.join().is_err() {
-            return Err(MorphError::Output("the frame writer panicked".into()));
+        match thread.join() {
+            Ok(sinks) => Ok((result?, sinks)),
+            Err(_) => Err(MorphError::Output("the frame writer panicked".into())),
         }
-        result
     })?;
     let preview = std::mem::take(&mut writer.preview);
     let frame_stats = std::mem::take(&mut writer.stats);
@@ -1408,30 +1243,14 @@ fn write_run(
         .collect();
     let optimize_s = clock.elapsed().as_secs_f64() - setup_s;
 
-    // The whole sequence as one USD file, from the frames on disk.
-    let names: Vec<String> = (0..n_frames).map(|i| frame_name(i, n_frames)).collect();
-    let files = |folder: &str, ext: &str| -> Vec<PathBuf> {
-        names
-            .iter()
-            .map(|n| Path::new(folder).join(format!("{n}.{ext}")))
-            .collect()
-    };
-    let usd_clock = std::time::Instant::now();
-    let usd_path = dir.join(crate::io::usd::FILE);
-    let fps = 1.0 / (prep.sim_frame_every() as f64 * prep.model().dt);
-    crate::io::usd::write_usda(
-        &usd_path,
-        &crate::io::usd::UsdSequence {
-            dir,
-            fps,
-            points: files("frames", "ply"),
-            carried: settings.surfaces.carried().then(|| files("carried", "obj")),
-            rebuilt: settings.surfaces.rebuilt().then(|| files("meshes", "obj")),
-            width: spacing * to_world.scale,
-        },
-    )
-    .map_err(|e| out_err("USD file", &usd_path, e))?;
-    let usd_s = usd_clock.elapsed().as_secs_f64();
+    // Every frame is on disk: the whole-sequence formats write now.
+    let mut finish_s = std::collections::HashMap::new();
+    for sink in &mut sinks {
+        let clock = std::time::Instant::now();
+        sink.finish()?;
+        finish_s.insert(sink.name(), clock.elapsed().as_secs_f64());
+    }
+    let usd_s = finish_s.get("usd").copied().unwrap_or(0.0);
 
     // Final nodal mass grid, on world coordinates.
     let s = to_world.scale;
@@ -1462,30 +1281,8 @@ fn write_run(
     let preview_png = dir.join("preview.png");
     images::write_preview(&preview_png, &preview, 0.5 * spacing * s)
         .map_err(|e| out_err("preview", &preview_png, e))?;
-    // The animated preview: at most GIF_FRAMES frames evenly through the sequence, read back
-    // from the frames on disk, each shown for as long as the frames it stands for.
-    let every = n_frames.div_ceil(GIF_FRAMES).max(1);
-    let gif_frames = (0..n_frames)
-        .step_by(every)
-        .map(|i| {
-            let path = dir
-                .join("frames")
-                .join(format!("{}.ply", frame_name(i, n_frames)));
-            crate::io::usd::read_points_ply(&path)
-                .map(|p| (i + 1, p.x))
-                .map_err(|e| out_err("preview", &path, e))
-        })
-        .collect::<Result<Vec<_>, _>>()?;
-    let preview_gif = dir.join("preview.gif");
-    images::write_preview_gif(
-        &preview_gif,
-        &gif_frames,
-        0.5 * spacing * s,
-        fps / every as f64,
-    )
-    .map_err(|e| out_err("preview", &preview_gif, e))?;
-
-    let previews_s = previews_clock.elapsed().as_secs_f64();
+    let previews_s =
+        previews_clock.elapsed().as_secs_f64() + finish_s.get("gif").copied().unwrap_or(0.0);
     let frames: Vec<FrameEntry> = (0..n_frames)
         .map(|i| {
             let name = frame_name(i, n_frames);

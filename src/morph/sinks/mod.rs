@@ -1,0 +1,170 @@
+//! Output formats as sinks the frame writer drives (see docs/architecture.md, "Recipes"):
+//! each frame in order on the writer's thread, then `finish` once after the last, when every
+//! frame is on disk. Per-frame formats write in `frame` (PLY points, carried and rebuilt OBJ
+//! surfaces); whole-sequence formats (the USD file, the animated preview) write in `finish`
+//! from the frames on disk, so a resumed run's sequence is whole though an earlier run wrote
+//! its first frames. [`for_folder`] builds the list a morph's settings ask for.
+
+mod carried;
+mod gif;
+mod points;
+mod rebuilt;
+mod usd;
+
+pub use carried::CarriedObj;
+pub use gif::PreviewGif;
+pub use points::PointsPly;
+pub use rebuilt::{RebuiltObj, RebuiltStats};
+pub use usd::UsdSequence;
+
+use super::{Frame, MorphError, Prepared, WorldFrame};
+use crate::geometry::carried::{CarriedStats, CarriedSurface};
+use crate::geometry::fidelity::Reference;
+use crate::mpm::State;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+
+/// One output format: told every frame in order, then that the sequence is complete.
+pub trait FrameSink {
+    /// A short name for reports (the manifest's timings).
+    fn name(&self) -> &'static str {
+        std::any::type_name::<Self>()
+    }
+    /// Writes frame `frame.index` of `frame.count`; what it measures goes into `record`.
+    fn frame(&mut self, frame: &SinkFrame, record: &mut FrameRecord) -> Result<(), MorphError>;
+    /// After the last frame, with every frame on disk.
+    fn finish(&mut self) -> Result<(), MorphError> {
+        Ok(())
+    }
+}
+
+/// What a sink sees of one frame.
+pub struct SinkFrame<'a> {
+    /// 0-based frame number, of `count`.
+    pub index: usize,
+    pub count: usize,
+    /// Simulated time (seconds).
+    pub time: f64,
+    /// Positions, velocities and volume ratios in the source mesh's units.
+    pub world: &'a WorldFrame,
+    /// The simulation state (simulation units).
+    pub state: &'a State,
+}
+
+impl<'a> From<&'a Frame<'a>> for SinkFrame<'a> {
+    fn from(frame: &'a Frame<'a>) -> SinkFrame<'a> {
+        SinkFrame {
+            index: frame.index,
+            count: frame.prep.frame_count(),
+            time: frame.time,
+            world: &frame.world,
+            state: frame.state,
+        }
+    }
+}
+
+/// What the sinks measured on one frame (the manifest's per-frame record takes it).
+#[derive(Clone, Debug, Default)]
+pub struct FrameRecord {
+    /// The volume the rebuilt surface encloses (world units).
+    pub surface_volume: Option<f64>,
+    pub carried: Option<CarriedStats>,
+    pub rebuilt: Option<RebuiltStats>,
+}
+
+/// The name of frame `index` (0-based) when there are `count` frames: zero-padded to the
+/// width the count needs (at least 4), so names sort in frame order.
+pub fn frame_name(index: usize, count: usize) -> String {
+    let width = count.to_string().len().max(4);
+    format!("frame_{:0width$}", index + 1)
+}
+
+/// The folder-relative paths of every frame's file in `folder`, in frame order.
+fn frame_files(folder: &str, ext: &str, count: usize) -> Vec<PathBuf> {
+    (0..count)
+        .map(|i| Path::new(folder).join(format!("{}.{ext}", frame_name(i, count))))
+        .collect()
+}
+
+pub(crate) fn out_err(what: &str, path: &Path, e: impl std::fmt::Display) -> MorphError {
+    MorphError::Output(format!("cannot write {what} '{}': {e}", path.display()))
+}
+
+/// The sinks a morph's folder gets from its settings, in the order they run: the PLY points,
+/// the carried surface, the rebuilt surface, the USD file and the animated preview. `source`
+/// is the source mesh's file (the carried surface is bound to it).
+pub fn for_folder(
+    prep: &Prepared,
+    dir: &Path,
+    source: &Path,
+) -> Result<Vec<Box<dyn FrameSink + Send>>, MorphError> {
+    let settings = &prep.settings;
+    let to_world = prep.geometry.placement.sim_to_world();
+    let spacing = prep.model().grid.dx / settings.particles_per_cell as f64;
+    let count = prep.frame_count();
+    let fps = 1.0 / (prep.sim_frame_every() as f64 * prep.model().dt);
+    // The source as read, for the carried surface and as the first frame's reference.
+    let loaded = match settings.surfaces {
+        super::settings::Surfaces::None => None,
+        _ => Some(crate::geometry::load_mesh(source)?),
+    };
+    let references = loaded.as_ref().and_then(|l| {
+        let target = to_world.apply_mesh(&prep.geometry.target_sim);
+        Some(Arc::new((
+            Reference::new(&l.mesh)?,
+            Reference::new(&target)?,
+        )))
+    });
+    let mut sinks: Vec<Box<dyn FrameSink + Send>> = vec![Box::new(PointsPly {
+        dir: dir.join("frames"),
+    })];
+    if let Some(loaded) = loaded.as_ref().filter(|_| settings.surfaces.carried()) {
+        let surface = CarriedSurface::bind(
+            source,
+            &loaded.mesh,
+            prep.geometry.placement.world_to_sim,
+            &prep.initial.x,
+            spacing,
+        )
+        .map_err(|e| {
+            MorphError::Mesh(crate::geometry::MeshError::Unreadable {
+                path: source.into(),
+                reason: e.to_string(),
+            })
+        })?;
+        sinks.push(Box::new(CarriedObj {
+            dir: dir.join("carried"),
+            surface,
+            rest: prep.initial.x.clone(),
+            spacing,
+            to_world,
+            references: references.clone(),
+        }));
+    }
+    if settings.surfaces.rebuilt() {
+        sinks.push(Box::new(RebuiltObj {
+            dir: dir.join("meshes"),
+            method: settings.rebuilt_method,
+            spacing,
+            rest_volume: prep.geometry.source.volume,
+            body_volume: prep.geometry.source_solid.volume / to_world.scale.powi(3),
+            to_world,
+            references,
+        }));
+    }
+    sinks.push(Box::new(UsdSequence {
+        dir: dir.to_path_buf(),
+        count,
+        fps,
+        carried: settings.surfaces.carried(),
+        rebuilt: settings.surfaces.rebuilt(),
+        width: spacing * to_world.scale,
+    }));
+    sinks.push(Box::new(PreviewGif {
+        dir: dir.to_path_buf(),
+        count,
+        fps,
+        radius: 0.5 * spacing * to_world.scale,
+    }));
+    Ok(sinks)
+}

@@ -1,0 +1,99 @@
+//! `meshes/frame_NNNN.obj`: a closed surface rebuilt from the particles on every frame, by
+//! `--rebuilt-method` (docs/geometry.md, "Surfaces out"), cleaned, put back to the body's
+//! volume, written with vertex normals, and measured against the source on the first frame
+//! and the target on the last.
+
+use super::{FrameRecord, FrameSink, SinkFrame, frame_name, out_err};
+use crate::geometry::cleanup::{CleanReport, SurfaceQuality, clean, keep_volume, quality};
+use crate::geometry::fidelity::{Fidelity, Reference, mesh_fidelity};
+use crate::geometry::splashsurf::extract_splashsurf_surface;
+use crate::geometry::surface::extract_deformed_surface;
+use crate::geometry::{Similarity, extract_surface};
+use crate::morph::MorphError;
+use crate::morph::settings::RebuiltMethod;
+use serde::{Deserialize, Serialize};
+use std::path::PathBuf;
+use std::sync::Arc;
+
+/// A frame's rebuilt surface: its shape as marching tetrahedra made it, as written, and what
+/// cleaning did.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RebuiltStats {
+    pub before: SurfaceQuality,
+    pub after: SurfaceQuality,
+    pub cleanup: CleanReport,
+    /// How true the written surface is to the reference of its frame: the source on the
+    /// first frame, the target on the last ([`crate::geometry::fidelity`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fidelity: Option<Fidelity>,
+    /// Seconds spent making, cleaning, writing and measuring it (the frame writer's thread).
+    #[serde(default)]
+    pub seconds: f64,
+}
+
+pub struct RebuiltObj {
+    /// The `meshes` folder.
+    pub dir: PathBuf,
+    pub method: RebuiltMethod,
+    /// Particle spacing (simulation units) and rest volume.
+    pub spacing: f64,
+    pub rest_volume: f64,
+    /// The source mesh's volume, simulation units.
+    pub body_volume: f64,
+    pub to_world: Similarity,
+    /// The source and the target surfaces (world units), which the first and the last
+    /// frames' surfaces are measured against.
+    pub references: Option<Arc<(Reference, Reference)>>,
+}
+
+impl FrameSink for RebuiltObj {
+    fn name(&self) -> &'static str {
+        "rebuilt"
+    }
+
+    fn frame(&mut self, frame: &SinkFrame, record: &mut FrameRecord) -> Result<(), MorphError> {
+        let clock = std::time::Instant::now();
+        let (state, j) = (frame.state, &frame.world.j);
+        let raw = match self.method {
+            RebuiltMethod::Lattice => {
+                let volumes: Vec<f64> = j.iter().map(|j| self.rest_volume * j.max(0.0)).collect();
+                extract_surface(&state.x, &volumes, self.spacing)
+            }
+            RebuiltMethod::Deformed => {
+                extract_deformed_surface(&state.x, &state.f, self.rest_volume, self.spacing)
+            }
+            RebuiltMethod::Splashsurf => extract_splashsurf_surface(&state.x, self.spacing),
+        }
+        .map_err(|e| MorphError::Output(e.to_string()))?;
+        let (mut surface, cleanup) = clean(&raw, self.spacing);
+        if self.method != RebuiltMethod::Lattice {
+            // A wide kernel (and smoothing) rounds the body by a thin layer: put it back
+            // evenly, to the body's volume times the particles' mean volume change.
+            let mean_j = j.iter().map(|j| j.max(0.0)).sum::<f64>() / j.len().max(1) as f64;
+            keep_volume(&mut surface, self.body_volume * mean_j);
+        }
+        let path = self
+            .dir
+            .join(format!("{}.obj", frame_name(frame.index, frame.count)));
+        let world = self.to_world.apply_mesh(&surface);
+        world
+            .write_obj_with_normals(&path)
+            .map_err(|e| out_err("surface", &path, e))?;
+        // The source on the first frame (the body at rest), the target on the last.
+        let reference = match self.references.as_deref() {
+            Some((source, _)) if frame.index == 0 => Some(source),
+            Some((_, target)) if frame.index + 1 == frame.count => Some(target),
+            _ => None,
+        };
+        let world_spacing = self.spacing * self.to_world.scale;
+        record.rebuilt = Some(RebuiltStats {
+            before: quality(&raw),
+            after: quality(&surface),
+            cleanup,
+            fidelity: reference.map(|r| mesh_fidelity(&world, r, world_spacing)),
+            seconds: clock.elapsed().as_secs_f64(),
+        });
+        record.surface_volume = Some(world.signed_volume());
+        Ok(())
+    }
+}

@@ -1,0 +1,45 @@
+//! `morph.usda`: the whole sequence as one USD stage (points, and the surfaces the run
+//! wrote), from the frames on disk once they are all there (`io/usd.rs`).
+
+use super::{FrameRecord, FrameSink, SinkFrame, frame_files, out_err};
+use crate::morph::MorphError;
+use std::path::PathBuf;
+
+pub struct UsdSequence {
+    /// The output folder.
+    pub dir: PathBuf,
+    pub count: usize,
+    pub fps: f64,
+    /// Which surfaces the run writes.
+    pub carried: bool,
+    pub rebuilt: bool,
+    /// The points' width (world units).
+    pub width: f64,
+}
+
+impl FrameSink for UsdSequence {
+    fn name(&self) -> &'static str {
+        "usd"
+    }
+
+    fn frame(&mut self, _: &SinkFrame, _: &mut FrameRecord) -> Result<(), MorphError> {
+        Ok(())
+    }
+
+    fn finish(&mut self) -> Result<(), MorphError> {
+        let path = self.dir.join(crate::io::usd::FILE);
+        let files = |folder: &str, ext: &str| frame_files(folder, ext, self.count);
+        crate::io::usd::write_usda(
+            &path,
+            &crate::io::usd::UsdSequence {
+                dir: &self.dir,
+                fps: self.fps,
+                points: files("frames", "ply"),
+                carried: self.carried.then(|| files("carried", "obj")),
+                rebuilt: self.rebuilt.then(|| files("meshes", "obj")),
+                width: self.width,
+            },
+        )
+        .map_err(|e| out_err("USD file", &path, e))
+    }
+}
