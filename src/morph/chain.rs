@@ -1,0 +1,482 @@
+//! Running a morph: the coarse-to-fine levels (`run`), the passes over the chain of
+//! segments (`chain`), where a chain stands between segments (`RunProgress`, what a
+//! checkpoint holds), and the warnings a run's gradients call for.
+
+use super::{
+    Frame, IterationRecord, LevelRecord, MorphError, MorphEvent, MorphResult, Observer, Prepared,
+    SegmentRecord, levels, segment,
+};
+
+use crate::integrator::Integrator;
+use crate::mpm::State;
+use nalgebra::{Matrix3, Vector3};
+use segment::{Layers, OptimizerSettings, Segment};
+use std::time::Instant;
+
+/// Where a chain stands after a completed segment: everything a bitwise continuation needs.
+/// Adam's moments and step size live within one segment's optimization, so the controls of
+/// every segment and the particle state are the whole optimizer state between segments.
+#[derive(Clone, Debug)]
+pub struct RunProgress {
+    pub pass: usize,
+    /// Segments of `pass` completed.
+    pub segments_done: usize,
+    /// The full particle state at the end of the last completed segment.
+    pub state: State,
+    /// Controls per segment, per layer, per particle. Empty for a segment never optimized
+    /// (its controls are zero) and, to keep memory flat, for a completed segment of the last
+    /// pass once its checkpoint holds them (nothing reads them again).
+    pub controls: Vec<Layers>,
+    pub iterations: Vec<IterationRecord>,
+    pub segments: Vec<SegmentRecord>,
+    /// Frames exported so far.
+    pub frames: usize,
+    /// Wall seconds spent optimizing before this run (earlier, interrupted runs).
+    pub elapsed_s: f64,
+}
+
+/// A finer level's start: the controls the level below found for each segment, and the map
+/// that carries them to this level's particles.
+struct WarmStart {
+    controls: Vec<Layers>,
+    prolongation: levels::Prolongation,
+}
+
+/// Passes a coarser level's optimization progress on; its frames and completed segments
+/// are nobody's business (the checkpoint and the files belong to the finest level).
+struct LevelObserver<'a> {
+    inner: &'a mut dyn Observer,
+}
+
+impl Observer for LevelObserver<'_> {
+    fn event(&mut self, event: &MorphEvent) {
+        if matches!(
+            event,
+            MorphEvent::Iteration { .. } | MorphEvent::Segment { .. }
+        ) {
+            self.inner.event(event);
+        }
+    }
+
+    fn stop_requested(&self) -> usize {
+        self.inner.stop_requested()
+    }
+}
+
+impl Prepared {
+    /// The event that starts this level of a morph of `levels` levels.
+    fn level_event(&self, levels: usize) -> MorphEvent {
+        let s = &self.settings;
+        MorphEvent::Level {
+            level: s.levels,
+            levels,
+            particles: self.initial.len(),
+            grid_cells: self.model().grid.cells,
+            segments: s.segments,
+            iterations: self.level_iterations(),
+        }
+    }
+
+    /// Evaluations per segment on this level.
+    pub fn level_iterations(&self) -> usize {
+        let s = &self.settings;
+        match s.refine_iterations {
+            Some(n) if s.levels > 1 => n,
+            _ => s.optimizer.iterations,
+        }
+    }
+}
+
+/// The start of `prep`'s segments from its coarser level: that level solved (its own
+/// coarser ones first), its controls, and the map carrying them up in material space.
+/// `levels` is the whole morph's count (for the events).
+fn warm_start(
+    prep: &Prepared,
+    levels: usize,
+    observer: &mut dyn Observer,
+    records: &mut Vec<LevelRecord>,
+) -> Result<Option<WarmStart>, MorphError> {
+    let Some(coarse) = prep.coarse.as_deref() else {
+        return Ok(None);
+    };
+    let below = warm_start(coarse, levels, observer, records)?;
+    observer.event(&coarse.level_event(levels));
+    let clock = Instant::now();
+    let progress = RunProgress::start(coarse);
+    let mut quiet = LevelObserver { inner: observer };
+    let (result, controls) = crate::with_integrator!(&coarse.engine, sim => {
+        chain(coarse, sim, progress, clock, &mut quiet, below.as_ref(), true)
+    })?;
+    records.push(LevelRecord {
+        level: coarse.settings.levels,
+        resolution: coarse.settings.resolution,
+        particles: coarse.initial.len(),
+        evaluations: result.segments.iter().map(|r| r.evaluations).sum(),
+        initial_loss: result.initial_loss,
+        final_loss: result.final_loss,
+        seconds: result.seconds,
+    });
+    // Both levels' rest positions in this level's simulation units (the grids are placed
+    // apart by their padding, and scaled by their resolutions).
+    let to_here = prep
+        .geometry
+        .placement
+        .world_to_sim
+        .after(&coarse.geometry.placement.sim_to_world());
+    let rest: Vec<Vector3<f64>> = coarse.initial.x.iter().map(|x| to_here.apply(x)).collect();
+    let spacing = to_here.scale / coarse.settings.particles_per_cell as f64;
+    let prolongation = levels::Prolongation::new(&rest, &prep.initial.x, spacing);
+    Ok(Some(WarmStart {
+        controls,
+        prolongation,
+    }))
+}
+
+impl RunProgress {
+    /// A chain not yet started.
+    fn start(prep: &Prepared) -> RunProgress {
+        RunProgress {
+            pass: 0,
+            segments_done: 0,
+            state: prep.initial.clone(),
+            controls: vec![Vec::new(); prep.settings.segments],
+            iterations: Vec::new(),
+            segments: Vec::new(),
+            frames: 0,
+            elapsed_s: 0.0,
+        }
+    }
+}
+
+/// Runs the chain, from the start or from `resume` (a checkpoint of an earlier run with the
+/// same inputs and settings, which then continues bit for bit). The observer sees progress,
+/// receives every exported frame of the last pass in order as soon as its segment is final,
+/// and every completed segment.
+pub fn run(
+    prep: &Prepared,
+    resume: Option<RunProgress>,
+    observer: &mut dyn Observer,
+) -> Result<MorphResult, MorphError> {
+    let s = &prep.settings;
+    let clock = Instant::now();
+    observer.event(&MorphEvent::Setup {
+        particles: prep.initial.len(),
+        target_particles: prep.geometry.target.positions.len(),
+        grid_cells: prep.model().grid.cells,
+        dx: prep.model().grid.dx,
+        dt: prep.model().dt,
+        segments: s.segments,
+        passes: s.passes,
+        iterations: s.optimizer.iterations,
+        frames: prep.frame_count(),
+        warnings: prep.geometry.warnings.clone(),
+    });
+    let mut progress = match resume {
+        Some(p) => {
+            p.check(prep)?;
+            p
+        }
+        None => RunProgress::start(prep),
+    };
+    if progress.segments_done == s.segments && progress.pass + 1 < s.passes {
+        progress.pass += 1;
+        progress.segments_done = 0;
+    }
+    // Coarse-to-fine: the levels below are solved again on a resume (deterministic, and an
+    // eighth of the cost each) while some segment of the first pass has yet to start.
+    let mut levels = Vec::new();
+    let warm = if progress.pass == 0 && progress.segments_done < s.segments {
+        warm_start(prep, s.levels, observer, &mut levels)?
+    } else {
+        None
+    };
+    if s.levels > 1 {
+        observer.event(&prep.level_event(s.levels));
+    }
+    let (mut result, _) = crate::with_integrator!(&prep.engine, sim => {
+        chain(prep, sim, progress, clock, observer, warm.as_ref(), false)
+    })?;
+    result.levels = levels;
+    Ok(result)
+}
+
+/// The passes over the chain of segments, with the integrator the settings chose.
+fn chain<I: Integrator>(
+    prep: &Prepared,
+    sim: &I,
+    mut progress: RunProgress,
+    clock: Instant,
+    observer: &mut dyn Observer,
+    warm: Option<&WarmStart>,
+    keep_controls: bool,
+) -> Result<(MorphResult, Vec<Layers>), MorphError> {
+    let s = &prep.settings;
+    let initial_loss = prep.loss_of(&prep.initial)?;
+    let optimizer = OptimizerSettings {
+        iterations: prep.level_iterations(),
+        ..s.optimizer.clone()
+    };
+    let offset_s = progress.elapsed_s;
+    let seconds = |clock: &Instant| offset_s + clock.elapsed().as_secs_f64();
+    let (first_pass, first_segment) = (progress.pass, progress.segments_done);
+    for pass in first_pass..s.passes {
+        let last_pass = pass + 1 == s.passes;
+        progress.pass = pass;
+        let from = if pass == first_pass { first_segment } else { 0 };
+        if from == 0 {
+            progress.state = prep.initial.clone();
+            progress.segments_done = 0;
+            if last_pass {
+                observer.frame(&Frame::new(prep, progress.frames, 0, &progress.state))?;
+                progress.frames += 1;
+            }
+        }
+        for k in from..s.segments {
+            let seg_clock = Instant::now();
+            let (loss, fine_loss) = prep.segment_losses(k)?;
+            let path = prep.segment_path(k)?;
+            let segment = Segment {
+                sim,
+                loss: &loss,
+                fine_loss: fine_loss.as_deref(),
+                start: &progress.state,
+                first_step: prep.sim_segment_first(k),
+                steps: prep.sim_segment_steps(k),
+                stride: prep.sim_control_stride(),
+                arrival_weight: prep.segment_arrival_weight(k),
+                volume_weight: prep.volume_weight(),
+                path: &path,
+                path_weight: s.path_weight,
+                resolution: s.control_resolution,
+                tape_budget: prep.tape_budget,
+            };
+            let init = match (&progress.controls[k], warm) {
+                (l, None) if l.is_empty() => {
+                    vec![vec![Matrix3::zeros(); prep.initial.len()]; segment.num_layers()]
+                }
+                (l, Some(w)) if l.is_empty() => w.prolongation.apply(&w.controls[k]),
+                (l, _) => l.clone(),
+            };
+            let mut stop = observer.stop_requested();
+            let iterations = &mut progress.iterations;
+            let result = segment.optimize(init, &optimizer, |iteration, loss| {
+                let at = seconds(&clock);
+                iterations.push(IterationRecord {
+                    pass,
+                    segment: k,
+                    iteration,
+                    loss,
+                    seconds: at,
+                });
+                observer.event(&MorphEvent::Iteration {
+                    pass,
+                    segment: k,
+                    iteration,
+                    loss,
+                    seconds: at,
+                });
+                stop = observer.stop_requested();
+                stop == 0
+            })?;
+            let Some(result) = result.filter(|_| stop == 0) else {
+                return Err(MorphError::Interrupted {
+                    signal: stop,
+                    kept: false,
+                });
+            };
+            let (min_j, max_j) = result.j_range;
+            let record = SegmentRecord {
+                pass,
+                segment: k,
+                initial_loss: result.initial_loss,
+                loss: result.loss,
+                evaluations: result.evaluations,
+                seconds: seg_clock.elapsed().as_secs_f64(),
+                min_j,
+                max_j,
+                grad_norm_first: result.grad_norms.0,
+                grad_norm_last: result.grad_norms.1,
+            };
+            observer.event(&MorphEvent::Segment {
+                pass,
+                segment: k,
+                initial_loss: record.initial_loss,
+                loss: record.loss,
+                evaluations: record.evaluations,
+                seconds: record.seconds,
+            });
+            progress.segments.push(record);
+            if last_pass {
+                // The accepted controls once more, to write the frames (the optimization keeps
+                // no tape of every step: memory stays within its budget).
+                let mut frame_err = Ok(());
+                let last = segment.replay(&result.layers, &mut |global, state| {
+                    if frame_err.is_ok() && (global + 1).is_multiple_of(prep.sim_frame_every()) {
+                        frame_err =
+                            observer.frame(&Frame::new(prep, progress.frames, global + 1, state));
+                        progress.frames += 1;
+                    }
+                })?;
+                frame_err?;
+                debug_assert!(last == result.last, "a replay reproduces the rollout");
+            }
+            progress.controls[k] = result.layers;
+            progress.state = result.last;
+            progress.segments_done = k + 1;
+            progress.elapsed_s = seconds(&clock);
+            observer.segment_done(&progress, k)?;
+            if last_pass && !keep_controls {
+                progress.controls[k] = Vec::new();
+            }
+        }
+    }
+    let final_loss = prep.loss_of(&progress.state)?;
+    let seconds = seconds(&clock);
+    observer.event(&MorphEvent::Done {
+        seconds,
+        loss: final_loss,
+        frames: progress.frames,
+    });
+    Ok((
+        MorphResult {
+            levels: Vec::new(),
+            final_state: progress.state,
+            iterations: progress.iterations,
+            segments: progress.segments,
+            initial_loss,
+            final_loss,
+            seconds,
+        },
+        progress.controls,
+    ))
+}
+
+/// A gradient this many times the first segment's first one has exploded.
+pub const GRADIENT_EXPLODED: f64 = 1e6;
+/// A gradient this many times smaller than the first segment's first one has vanished.
+pub const GRADIENT_VANISHED: f64 = 1e-9;
+
+/// Warnings about the gradients of a run's segments: a non-finite norm, or one that grew
+/// past [`GRADIENT_EXPLODED`] or shrank below [`GRADIENT_VANISHED`] times the first
+/// segment's first one (the scale this morph's objective set); and segments where no step
+/// improved the objective while the morph was far from done.
+pub fn run_warnings(segments: &[SegmentRecord]) -> Vec<String> {
+    let Some(reference) = segments
+        .iter()
+        .map(|r| r.grad_norm_first)
+        .find(|g| g.is_finite() && *g > 0.0)
+    else {
+        return Vec::new();
+    };
+    let mut out = Vec::new();
+    for r in segments {
+        for g in [r.grad_norm_first, r.grad_norm_last] {
+            let what = if g.is_nan() {
+                continue; // No gradient taken (one iteration).
+            } else if !g.is_finite() || g > GRADIENT_EXPLODED * reference {
+                "exploded"
+            } else if g < GRADIENT_VANISHED * reference {
+                "vanished"
+            } else {
+                continue;
+            };
+            out.push(format!(
+                "pass {} segment {}: the gradient {what} (norm {g:.3e}, first segment {reference:.3e}); its controls may not have moved as asked",
+                r.pass + 1,
+                r.segment + 1
+            ));
+            break;
+        }
+    }
+    // A segment no step improved while it was far from its aim (its loss above half the
+    // largest a segment started with): a body that has arrived, or that follows a schedule
+    // of keyframes closely, has little left to gain, and is not warned about.
+    let largest = segments
+        .iter()
+        .map(|r| r.initial_loss)
+        .filter(|l| l.is_finite())
+        .fold(0.0, f64::max);
+    let stalled: Vec<String> = segments
+        .iter()
+        .filter(|r| r.evaluations > 1 && r.loss >= r.initial_loss && r.initial_loss > 0.5 * largest)
+        .map(|r| format!("{}", r.segment + 1))
+        .collect();
+    if !stalled.is_empty() {
+        out.push(format!(
+            "no optimizer step improved segment(s) {} (its steps were too large, or a stiff material rang at every control layer: try a smaller --learning-rate)",
+            stalled.join(", ")
+        ));
+    }
+    out
+}
+
+impl RunProgress {
+    /// A checkpoint must fit the run it continues (the identity hash already says the inputs
+    /// and settings are the same; this guards against a damaged checkpoint).
+    fn check(&self, prep: &Prepared) -> Result<(), MorphError> {
+        let (s, particles) = (&prep.settings, prep.initial.len());
+        let layers = prep.segment_layers();
+        let fits = self.pass < s.passes
+            && self.segments_done <= s.segments
+            && self.state.len() == particles
+            && self.controls.len() == s.segments
+            && self.controls.iter().zip(&layers).all(|(l, &layers)| {
+                l.is_empty() || (l.len() == layers && l.iter().all(|p| p.len() == particles))
+            });
+        if fits {
+            Ok(())
+        } else {
+            Err(MorphError::Resume(
+                "the checkpoint does not fit this run (damaged?); start over with --overwrite"
+                    .into(),
+            ))
+        }
+    }
+}
+
+#[cfg(test)]
+mod warning_tests {
+    use super::*;
+
+    fn record(segment: usize, first: f64, last: f64, initial: f64, loss: f64) -> SegmentRecord {
+        SegmentRecord {
+            pass: 0,
+            segment,
+            initial_loss: initial,
+            loss,
+            evaluations: 4,
+            seconds: 0.0,
+            min_j: 1.0,
+            max_j: 1.0,
+            grad_norm_first: first,
+            grad_norm_last: last,
+        }
+    }
+
+    #[test]
+    fn exploding_vanishing_and_stalled_segments_are_warned_about() {
+        let healthy = [
+            record(0, 100.0, 80.0, 10.0, 5.0),
+            record(1, 90.0, 70.0, 5.0, 3.0),
+        ];
+        assert!(run_warnings(&healthy).is_empty());
+        let w = run_warnings(&[
+            record(0, 100.0, 80.0, 10.0, 5.0),
+            record(1, 2e8, 1.0, 5.0, 3.0),
+            record(2, 1e-8, 1e-8, 3.0, 2.0),
+            record(3, f64::INFINITY, 1.0, 2.0, 1.0),
+            record(4, f64::NAN, f64::NAN, 1.0, 1.0),
+        ]);
+        assert_eq!(w.len(), 3, "{w:?}");
+        assert!(w[0].contains("segment 2: the gradient exploded"), "{w:?}");
+        assert!(w[1].contains("segment 3: the gradient vanished"), "{w:?}");
+        assert!(w[2].contains("segment 4: the gradient exploded"), "{w:?}");
+        // No step improved the first segment: warned; the same late in a converged chain: not.
+        let w = run_warnings(&[
+            record(0, 100.0, 90.0, 10.0, 10.0),
+            record(1, 1.0, 1.0, 1.0, 1.0),
+        ]);
+        assert_eq!(w.len(), 1, "{w:?}");
+        assert!(w[0].contains("segment(s) 1 "), "{w:?}");
+    }
+}
