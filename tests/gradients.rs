@@ -793,3 +793,112 @@ fn planned_tape_bytes_match_a_real_tape() {
         });
     }
 }
+
+/// The effects' contract: every effect a scene can declare, alone, through the whole reverse
+/// pass against finite differences, with both integrators (colliders frictionless under RK4,
+/// which refuses friction; with Coulomb friction under Euler). A new effect adds its row.
+#[test]
+fn every_effect_alone_matches_fd_with_both_integrators() {
+    use morph::scene::ColliderConfig;
+    let cube = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/cube.obj");
+    let ground = |friction| EffectConfig::Collider {
+        shape: ColliderConfig::Plane {
+            point: [0.0, -4.6, 0.0],
+            normal: [0.15, 1.0, -0.05],
+        },
+        friction,
+    };
+    let block = |friction| EffectConfig::Collider {
+        shape: ColliderConfig::Mesh {
+            path: cube.clone(),
+            scale: 2.5,
+            translation: [0.3, -6.0, 0.0],
+        },
+        friction,
+    };
+    let dt = small_scene(KernelKind::Cubic, Vec::new()).dt;
+    // Each row: its name, the effect under Euler and under RK4, and whether it bounds the
+    // domain (the ball is then thrown at it; otherwise it drifts slowly, within the grid).
+    let rows: Vec<(&str, EffectConfig, EffectConfig, bool)> = vec![
+        (
+            "drag",
+            EffectConfig::drag(0.5),
+            EffectConfig::drag(0.5),
+            false,
+        ),
+        (
+            "drag switched on",
+            EffectConfig::Drag {
+                coefficient: 30.0,
+                start: 3.0 * dt,
+                ramp: 4.5 * dt,
+            },
+            EffectConfig::Drag {
+                coefficient: 30.0,
+                start: 3.0 * dt,
+                ramp: 4.5 * dt,
+            },
+            false,
+        ),
+        (
+            "gravity",
+            EffectConfig::Gravity {
+                acceleration: [0.0, -30.0, 5.0],
+            },
+            EffectConfig::Gravity {
+                acceleration: [0.0, -30.0, 5.0],
+            },
+            false,
+        ),
+        (
+            "slip walls",
+            EffectConfig::Walls {
+                mode: WallMode::Slip,
+                thickness: 3,
+            },
+            EffectConfig::Walls {
+                mode: WallMode::Slip,
+                thickness: 3,
+            },
+            true,
+        ),
+        (
+            "sticky walls",
+            EffectConfig::Walls {
+                mode: WallMode::Sticky,
+                thickness: 3,
+            },
+            EffectConfig::Walls {
+                mode: WallMode::Sticky,
+                thickness: 3,
+            },
+            true,
+        ),
+        ("ground", ground(0.4), ground(0.0), true),
+        ("mesh collider", block(0.4), block(0.0), true),
+    ];
+    let moving = |v: Vector3<f64>| {
+        move |s: &mut State| {
+            for p in 0..s.len() {
+                s.v[p] = v;
+                s.c[p] = Matrix3::zeros();
+                s.f[p] = Matrix3::identity();
+            }
+        }
+    };
+    for (name, euler, rk4, bounds) in rows {
+        // Thrown down and sideways at a boundary, so it is met within the run.
+        let speed = if bounds { 1.0 } else { 0.2 };
+        for (integrator, effect) in [(IntegratorKind::Euler, euler), (IntegratorKind::Rk4, rk4)] {
+            eprintln!("{name} with {integrator:?}");
+            check_scene_on(
+                small_scene(KernelKind::Cubic, vec![effect]),
+                integrator,
+                MassLossKind::Log,
+                STEPS,
+                1e-6,
+                moving(speed * Vector3::new(12.0, -40.0, 3.0)),
+            );
+        }
+    }
+}
