@@ -335,7 +335,7 @@ fn reverse_pass_matches_fd_with_slip_walls() {
 /// A ground collider with friction, tilted, struck by the body at an angle: the contact nodes
 /// slide with friction (and some stick), through the impact. As with slip walls, the contact
 /// switches are kinks of the loss, so the difference step is small (1e-6). The RK4 form
-/// (frictionless, so friction 0) through the same impact.
+/// (friction as a rate, see `effects/collider.rs`) through the same impact.
 #[test]
 fn reverse_pass_matches_fd_with_a_ground_collider() {
     use morph::scene::ColliderConfig;
@@ -366,7 +366,7 @@ fn reverse_pass_matches_fd_with_a_ground_collider() {
         );
     }
     check_scene_on(
-        small_scene(KernelKind::Cubic, ground(0.0)),
+        small_scene(KernelKind::Cubic, ground(0.4)),
         IntegratorKind::Rk4,
         MassLossKind::Log,
         STEPS,
@@ -795,8 +795,8 @@ fn planned_tape_bytes_match_a_real_tape() {
 }
 
 /// The effects' contract: every effect a scene can declare, alone, through the whole reverse
-/// pass against finite differences, with both integrators (colliders frictionless under RK4,
-/// which refuses friction; with Coulomb friction under Euler). A new effect adds its row.
+/// pass against finite differences, with both integrators (colliders with Coulomb friction).
+/// A new effect adds its row.
 #[test]
 fn every_effect_alone_matches_fd_with_both_integrators() {
     use morph::scene::ColliderConfig;
@@ -874,8 +874,8 @@ fn every_effect_alone_matches_fd_with_both_integrators() {
             },
             true,
         ),
-        ("ground", ground(0.4), ground(0.0), true),
-        ("mesh collider", block(0.4), block(0.0), true),
+        ("ground", ground(0.4), ground(0.4), true),
+        ("mesh collider", block(0.4), block(0.4), true),
     ];
     let moving = |v: Vector3<f64>| {
         move |s: &mut State| {

@@ -3,6 +3,7 @@
 mod common;
 
 use common::*;
+use morph::integrator::Integrator;
 use morph::mpm::{KernelKind, State};
 use morph::scene::EffectConfig;
 use nalgebra::{Matrix3, Vector3};
@@ -220,5 +221,57 @@ fn step_with_a_short_control_is_an_error() {
     assert!(
         sim.step(&mut small, None, 0, &mut Workspace::default())
             .is_err()
+    );
+}
+
+/// Coulomb friction on a ground collider, with both integrators: a ball sliding on a floor
+/// under gravity slows where a frictionless floor lets it glide, and RK4's friction (a rate,
+/// see `effects/collider.rs`) slows it about as much as Euler's (measured: by 1.37 against
+/// 1.74 cells/s in 0.4 s, from 4; the two contact forms differ where a node presses in).
+#[test]
+fn friction_on_the_ground_slows_a_sliding_body_with_both_integrators() {
+    use morph::integrator::IntegratorKind;
+    use morph::scene::ColliderConfig;
+    let floor = |friction| {
+        vec![
+            EffectConfig::Gravity {
+                acceleration: [0.0, -30.0, 0.0],
+            },
+            EffectConfig::Collider {
+                shape: ColliderConfig::Plane {
+                    point: [0.0, -3.6, 0.0],
+                    normal: [0.0, 1.0, 0.0],
+                },
+                friction,
+            },
+        ]
+    };
+    let slide = |friction: f64, kind: IntegratorKind| -> f64 {
+        let scene = small_scene(KernelKind::Cubic, floor(friction));
+        let (engine, mut s) = ball_engine(&scene, 3.2, kind);
+        s.v.iter_mut()
+            .for_each(|v| *v = Vector3::new(4.0, 0.0, 0.0));
+        morph::with_integrator!(&engine, sim => {
+            sim.forward(&mut s, &[], 0, 48, None).expect("forward");
+            let m = &sim.model().mass;
+            s.linear_momentum(m).x / m.iter().sum::<f64>()
+        })
+    };
+    let mut slowed = Vec::new();
+    for kind in IntegratorKind::ALL {
+        let (ice, rough) = (slide(0.0, kind), slide(0.5, kind));
+        eprintln!("{kind:?}: mean x speed {ice:.3} on ice, {rough:.3} with friction 0.5");
+        assert!(ice > 3.5, "{kind:?}: {ice} on a frictionless floor");
+        assert!(
+            rough < ice - 1.0,
+            "{kind:?}: friction slowed {ice} only to {rough}"
+        );
+        slowed.push(ice - rough);
+    }
+    assert!(
+        (slowed[0] / slowed[1] - 1.0).abs() < 0.35,
+        "Euler slowed by {}, RK4 by {}",
+        slowed[0],
+        slowed[1]
     );
 }

@@ -13,10 +13,22 @@
 //! and their normals are computed once, when the collider is built on a grid, so a step
 //! costs one pass over those nodes only.
 //!
-//! The ODE form (RK4) applies the frictionless part: at a node moving into the solid the
-//! normal part of the velocity and of the acceleration is removed (as slip walls do).
-//! Friction needs a whole step's velocity update and is refused with RK4
-//! (`MorphSettings::validate`).
+//! The ODE form (RK4) states the same contact as rates. A node is in contact when it moves
+//! into the solid or would within one step (`v_n + dt a_n < 0`, the nodes Euler's update
+//! projects). There the inward normal velocity and the normal acceleration are removed (as
+//! slip walls do), and what pressed the node into the solid, its inward acceleration and its
+//! inward speed taken up within a step, `N = max(0, -a_n) + max(0, -v_n) / dt` (Euler's
+//! `-v_n` per step), is the normal force per unit mass that Coulomb friction opposes the
+//! sliding with:
+//!
+//! ```text
+//!   a_t' = a_t - mu N v_t / sqrt(|v_t|^2 + (mu N dt)^2)
+//! ```
+//!
+//! A sliding node slows at `mu N`, as under Euler. The regularization is one step's worth of
+//! friction: below `mu N dt` the node is damped toward rest at a rate of about `1 / dt`, which
+//! RK4 integrates stably, where an exact stick would need a whole step's velocity update.
+//! It is smooth, so the reverse pass is its exact derivative.
 
 use super::{Effect, GridContext};
 use crate::geometry::TriMesh;
@@ -197,25 +209,45 @@ impl Effect for Collider {
         true
     }
 
-    fn apply_rate(&self, _: &GridContext, node: usize, v: &mut Vector3<f64>, a: &mut Vector3<f64>) {
+    fn apply_rate(
+        &self,
+        ctx: &GridContext,
+        node: usize,
+        v: &mut Vector3<f64>,
+        a: &mut Vector3<f64>,
+    ) {
         let k = self.slot[node];
         if k == OUTSIDE {
             return;
         }
         let n = self.normals[k as usize].1;
-        let vn = v.dot(&n);
+        let (vn, an) = (v.dot(&n), a.dot(&n));
+        // In contact: moving into the solid, or pressed into it within one step (the node
+        // Euler's update would project).
+        if vn >= 0.0 && vn + ctx.dt * an >= 0.0 {
+            return;
+        }
+        let vt = *v - vn * n;
         if vn < 0.0 {
-            *v -= vn * n;
-            *a -= a.dot(&n) * n;
+            *v = vt;
+        }
+        if vn < 0.0 || an < 0.0 {
+            *a -= an * n;
+        }
+        let pressed = contact_force(vn, an, ctx.dt);
+        if self.friction > 0.0 && pressed > 0.0 {
+            let limit = self.friction * pressed;
+            let d = (vt.norm_squared() + (limit * ctx.dt).powi(2)).sqrt();
+            *a -= (limit / d) * vt;
         }
     }
 
     fn reverse_rate(
         &self,
-        _: &GridContext,
+        ctx: &GridContext,
         node: usize,
         v_in: &Vector3<f64>,
-        _: &Vector3<f64>,
+        a_in: &Vector3<f64>,
         grad_v: &mut Vector3<f64>,
         grad_a: &mut Vector3<f64>,
         _: &mut [f64],
@@ -225,11 +257,48 @@ impl Effect for Collider {
             return;
         }
         let n = self.normals[k as usize].1;
-        if v_in.dot(&n) < 0.0 {
-            *grad_v -= grad_v.dot(&n) * n;
-            *grad_a -= grad_a.dot(&n) * n;
+        let dt = ctx.dt;
+        let (vn, an) = (v_in.dot(&n), a_in.dot(&n));
+        if vn >= 0.0 && vn + dt * an >= 0.0 {
+            return;
         }
+        let project = |g: Vector3<f64>| g - g.dot(&n) * n;
+        let (gv, ga) = (*grad_v, *grad_a);
+        let mut g_v = if vn < 0.0 { project(gv) } else { gv };
+        let mut g_a = if vn < 0.0 || an < 0.0 {
+            project(ga)
+        } else {
+            ga
+        };
+        let pressed = contact_force(vn, an, dt);
+        if self.friction > 0.0 && pressed > 0.0 {
+            // a' -= limit vt / d, limit = mu N, d = sqrt(|vt|^2 + (limit dt)^2), vt = P v_in.
+            let mu = self.friction;
+            let vt = v_in - vn * n;
+            let limit = mu * pressed;
+            let e = limit * dt;
+            let d = (vt.norm_squared() + e * e).sqrt();
+            let vt_ga = vt.dot(&ga);
+            g_v -= project(limit * (ga / d - vt * (vt_ga / (d * d * d))));
+            // d(-limit vt / d)/dN . ga, with dlimit/dN = mu and dd/dN = e mu dt / d.
+            let g_n = -mu * vt_ga / d + limit * vt_ga * e * mu * dt / (d * d * d);
+            if vn < 0.0 {
+                g_v -= (g_n / dt) * n;
+            }
+            if an < 0.0 {
+                g_a -= g_n * n;
+            }
+        }
+        *grad_v = g_v;
+        *grad_a = g_a;
     }
+}
+
+/// The normal force per unit mass a contact node feels in the rate form: what presses it into
+/// the solid, its acceleration inward and its inward speed taken up within one step (what
+/// Euler's projection of `v + dt a` removes).
+fn contact_force(vn: f64, an: f64, dt: f64) -> f64 {
+    (-an).max(0.0) + (-vn).max(0.0) / dt
 }
 
 /// The point of triangle `t` nearest to `p` (by the triangle's Voronoi regions).
@@ -298,6 +367,60 @@ mod tests {
                     (fd - analytic[k]).abs() < 1e-7,
                     "v {v:?} axis {k}: fd {fd} vs {}",
                     analytic[k]
+                );
+            }
+        }
+    }
+
+    /// The rate form's reverse (RK4) against central differences, with friction, in the
+    /// sliding, nearly sticking and lifting-off regimes, and pressed or not.
+    #[test]
+    fn rate_reverse_matches_finite_differences() {
+        let n = Vector3::new(0.2, 1.0, -0.1).normalize();
+        let c = Collider {
+            label: "test".into(),
+            friction: 0.4,
+            slot: vec![0],
+            normals: vec![(0, n)],
+        };
+        let spec = GridSpec::centred_cube(4, 1.0);
+        let mass = [1.0];
+        let ctx = GridContext {
+            spec: &spec,
+            mass: &mass,
+            dt: 0.01,
+            step: 0,
+            time: 0.0,
+        };
+        let (gv, ga) = (Vector3::new(0.3, -0.7, 1.1), Vector3::new(-0.4, 0.2, 0.9));
+        let out = |v: &Vector3<f64>, a: &Vector3<f64>| {
+            let (mut v, mut a) = (*v, *a);
+            c.apply_rate(&ctx, 0, &mut v, &mut a);
+            v.dot(&gv) + a.dot(&ga)
+        };
+        for (v, a) in [
+            (Vector3::new(1.0, -0.5, 0.3), Vector3::new(0.2, -9.0, 0.1)), // slides, pressed
+            (Vector3::new(0.01, -0.5, 0.0), Vector3::new(0.0, -9.0, 0.3)), // nearly sticks
+            (Vector3::new(1.0, -0.5, 0.3), Vector3::new(0.2, 4.0, 0.1)),  // not pressed
+            (Vector3::new(0.4, 0.6, -0.2), Vector3::new(0.2, -9.0, 0.1)), // lifts off
+            (Vector3::new(0.1, 0.02, 0.3), Vector3::new(0.1, -9.0, 0.2)), // pressed in within a step
+        ] {
+            let (mut g_v, mut g_a) = (gv, ga);
+            c.reverse_rate(&ctx, 0, &v, &a, &mut g_v, &mut g_a, &mut []);
+            let h = 1e-6;
+            for k in 0..3 {
+                let e = Vector3::ith(k, h);
+                let fd_v = (out(&(v + e), &a) - out(&(v - e), &a)) / (2.0 * h);
+                let fd_a = (out(&v, &(a + e)) - out(&v, &(a - e))) / (2.0 * h);
+                assert!(
+                    (fd_v - g_v[k]).abs() < 1e-6,
+                    "v {v:?} a {a:?} dv{k}: fd {fd_v} vs {}",
+                    g_v[k]
+                );
+                assert!(
+                    (fd_a - g_a[k]).abs() < 1e-6,
+                    "v {v:?} a {a:?} da{k}: fd {fd_a} vs {}",
+                    g_a[k]
                 );
             }
         }

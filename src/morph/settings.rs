@@ -592,11 +592,6 @@ impl MorphSettings {
             if !(mu.is_finite() && mu >= 0.0) {
                 return Err(format!("{what} friction must be >= 0, got {mu}"));
             }
-            if mu > 0.0 && self.integrator == crate::integrator::IntegratorKind::Rk4 {
-                return Err(format!(
-                    "{what} friction needs --integrator euler: the RK4 form applies colliders without friction (set friction = 0 to use it)"
-                ));
-            }
         }
         if let Some(g) = &self.ground
             && !g.height.is_finite()
