@@ -133,6 +133,19 @@ fn absurd_scene_settings() {
         Err(SimError::InvalidScene(_))
     ));
     scene.material.density = 40.0;
+    // A drag that switches on at a negative time or eases in over a non-finite ramp.
+    for (start, ramp) in [(-1.0, 0.0), (0.0, f64::NAN)] {
+        scene.effects = vec![morph::scene::EffectConfig::Drag {
+            coefficient: 1.0,
+            start,
+            ramp,
+        }];
+        assert!(matches!(
+            scene.build(vol.clone()),
+            Err(SimError::InvalidScene(_))
+        ));
+    }
+    scene.effects = vec![];
     scene.grid.dx = 0.0;
     assert!(matches!(scene.build(vol), Err(SimError::InvalidScene(_))));
 }
