@@ -1,6 +1,8 @@
 //! Meshes in, surfaces out: loading, validation errors, voxelized volumes of the real test
 //! meshes, placement, surface extraction and the built-in assets.
 
+mod common;
+use common::cli::Scratch;
 use morph::geometry::{
     Jitter, MeshError, MorphGeometry, PlacementOptions, Solid, TargetFit, TriMesh, assets,
     extract_surface, load_mesh, particles_in,
@@ -13,10 +15,8 @@ fn shared_meshes() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/meshes")
 }
 
-fn scratch(name: &str) -> PathBuf {
-    let dir = Path::new(env!("CARGO_TARGET_TMPDIR")).join("geometry-tests");
-    std::fs::create_dir_all(&dir).unwrap();
-    dir.join(name)
+fn scratch(name: &str) -> Scratch {
+    Scratch::empty("geometry-tests", name)
 }
 
 /// The inside volumes listed in `../shared/meshes/README.md` ("| file | volume |" table).
@@ -187,7 +187,7 @@ fn bad_inputs_are_clear_errors() {
         std::fs::write(&p, bytes).unwrap();
         p
     };
-    let cases: Vec<(PathBuf, &str)> = vec![
+    let cases: Vec<(Scratch, &str)> = vec![
         (scratch("does_not_exist.obj"), "cannot read mesh"),
         (write("empty.obj", b""), "is an empty file"),
         (

@@ -7,9 +7,9 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 mod common;
-use common::cli::{manifest, morph, scratch_in};
+use common::cli::{Scratch, manifest, morph, scratch_in};
 
-fn scratch(name: &str) -> PathBuf {
+fn scratch(name: &str) -> Scratch {
     scratch_in("morph-tests", name)
 }
 
@@ -215,7 +215,7 @@ fn log_loss_ejects_fewer_particles_than_l2() {
     );
 }
 
-fn write_grid(name: &str, dims: [usize; 3], f: impl Fn(usize) -> f64) -> PathBuf {
+fn write_grid(name: &str, dims: [usize; 3], f: impl Fn(usize) -> f64) -> Scratch {
     let path = scratch(name);
     let n = dims.iter().product();
     MassGrid::new(dims, [0.0, 1.0, 2.0], 0.5, (0..n).map(f).collect())

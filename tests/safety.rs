@@ -4,6 +4,8 @@
 //! trying `morph` as a new user would, in a scratch tree with sentinel files that must
 //! survive, through the real binary.
 
+mod common;
+use common::cli::Scratch;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};
 use std::time::{Duration, Instant};
@@ -13,13 +15,8 @@ fn root() -> PathBuf {
 }
 
 /// A fresh scratch folder for one test.
-fn scratch(name: &str) -> PathBuf {
-    let dir = Path::new(env!("CARGO_TARGET_TMPDIR"))
-        .join("morph-safety")
-        .join(name);
-    let _ = std::fs::remove_dir_all(&dir);
-    std::fs::create_dir_all(&dir).unwrap();
-    dir
+fn scratch(name: &str) -> Scratch {
+    Scratch::folder("morph-safety", name)
 }
 
 fn asset(name: &str) -> String {
@@ -146,12 +143,14 @@ fn assert_same_results(a: &Path, b: &Path) {
     }
 }
 
-fn reference(name: &str, args: &[&str]) -> PathBuf {
+/// An uninterrupted run into `NAME/ref`; returns the scratch folder `NAME` (the run stays
+/// while it is held).
+fn reference(name: &str, args: &[&str]) -> Scratch {
     let dir = scratch(name);
     let (s, t) = (asset("sphere.obj"), asset("two-lobes.obj"));
     let o = run(&dir, &morph_args(&s, &t, "ref", args));
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
-    dir.join("ref")
+    dir
 }
 
 /// Case 1: a trailing slash on -o replaces an earlier run in place (nothing written inside
@@ -366,11 +365,11 @@ fn sigint_and_sigterm_stop_cleanly_and_resume() {
         assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
         assert!(!dir.join("out.partial").exists());
         assert!(!dir.join("out/checkpoint").exists());
-        assert_same_results(&reference, &dir.join("out"));
+        assert_same_results(&reference.join("ref"), &dir.join("out"));
         // A finished output resumed again is left as it is.
         let o = run(&dir, &morph_args(&s, &t, "out", &args));
         assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
-        assert_same_results(&reference, &dir.join("out"));
+        assert_same_results(&reference.join("ref"), &dir.join("out"));
     }
 }
 
@@ -457,7 +456,7 @@ fn sigkill_at_a_random_point_then_resume_is_bitwise_identical() {
         args.push("--resume");
         let o = run(&dir, &morph_args(&s, &t, "out", &args));
         assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
-        assert_same_results(&reference, &dir.join("out"));
+        assert_same_results(&reference.join("ref"), &dir.join("out"));
         assert!(!dir.join("out.partial").exists());
     }
 }
@@ -798,7 +797,7 @@ fn interrupt_resume_and_compare(name: &str, shot: &[&str]) -> serde_json::Value 
     args.push("--resume");
     let o = run(&dir, &morph_args(&s, &t, "out", &args));
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
-    assert_same_results(&reference, &dir.join("out"));
+    assert_same_results(&reference.join("ref"), &dir.join("out"));
     serde_json::from_slice(&std::fs::read(dir.join("out/manifest.json")).unwrap()).unwrap()
 }
 

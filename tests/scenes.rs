@@ -1,12 +1,12 @@
 //! Shots: keyframed targets, scene files (unknown keys, the resolved scene that reruns a
 //! morph bit for bit) and the example scenes in `examples/`, each run at low resolution.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 
 mod common;
-use common::cli::{manifest, morph, ok, root, scratch_in};
+use common::cli::{Scratch, manifest, morph, ok, root, scratch_in};
 
-fn scratch(name: &str) -> PathBuf {
+fn scratch(name: &str) -> Scratch {
     scratch_in("scene-tests", name)
 }
 

@@ -1,15 +1,13 @@
 //! `morph study` on a tiny grid: the three files, their columns, finite figures, a readable
 //! plot, a continued study that skips what it measured, and a refused foreign folder.
 
+mod common;
+use common::cli::Scratch;
 use std::path::PathBuf;
 use std::process::Command;
 
-fn scratch(name: &str) -> PathBuf {
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join("morph-study-tests");
-    std::fs::create_dir_all(&dir).unwrap();
-    let p = dir.join(name);
-    let _ = std::fs::remove_dir_all(&p);
-    p
+fn scratch(name: &str) -> Scratch {
+    Scratch::empty("morph-study-tests", name)
 }
 
 fn study(out: &PathBuf, extra: &[&str]) -> std::process::Output {
