@@ -23,7 +23,7 @@ use serde::Serialize;
 use std::str::FromStr;
 
 /// Frames the writer thread may hold queued before the optimizer waits for it (the plan
-/// counts them; `output.rs` sizes its channel with it).
+/// counts them; `output/writer.rs` sizes its channel with it).
 pub const WRITE_QUEUE: usize = 4;
 
 /// A cap on the process's peak memory.

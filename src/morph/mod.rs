@@ -21,10 +21,9 @@ pub mod quality;
 pub mod scene_file;
 pub mod segment;
 pub mod settings;
-pub mod sinks;
 
 pub use api::*;
 pub use chain::*;
+pub use output::sinks::{self, FrameRecord, FrameSink, SinkFrame};
 pub use prepare::*;
 pub use settings::{MorphSettings, Preset};
-pub use sinks::{FrameRecord, FrameSink, SinkFrame};

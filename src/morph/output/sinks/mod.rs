@@ -17,9 +17,9 @@ pub use points::PointsPly;
 pub use rebuilt::{RebuiltObj, RebuiltStats};
 pub use usd::UsdSequence;
 
-use super::{Frame, MorphError, Prepared, WorldFrame};
 use crate::geometry::carried::{CarriedStats, CarriedSurface};
 use crate::geometry::fidelity::Reference;
+use crate::morph::{Frame, MorphError, Prepared, WorldFrame};
 use crate::mpm::State;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -105,7 +105,7 @@ pub fn for_folder(
     let fps = 1.0 / (prep.sim_frame_every() as f64 * prep.model().dt);
     // The source as read, for the carried surface and as the first frame's reference.
     let loaded = match settings.surfaces {
-        super::settings::Surfaces::None => None,
+        crate::morph::settings::Surfaces::None => None,
         _ => Some(crate::geometry::load_mesh(source)?),
     };
     let references = loaded.as_ref().and_then(|l| {

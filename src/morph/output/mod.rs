@@ -1,0 +1,319 @@
+//! Runs a morph into an output folder (layout in `docs/morph.md`):
+//!
+//! ```text
+//! OUT/frames/frame_0001.ply ...   binary PLY points: x y z vx vy vz J id (world units)
+//! OUT/meshes/frame_0001.obj ...   closed surface per frame (world units)
+//! OUT/final_mass.mgrid            final nodal mass grid (see io::massgrid)
+//! OUT/manifest.json               inputs + hashes, settings, placement, losses, timings, frames
+//! OUT/scene.toml                  the resolved scene: `morph --scene OUT/scene.toml` reruns it
+//! OUT/loss.png, OUT/preview.png
+//! ```
+//!
+//! `-o` is checked before any work and everything is written into the locked staging folder
+//! `OUT.partial/` (see [`crate::io::outdir`]), which is put in place of `OUT` atomically when
+//! complete. Each completed segment leaves a checkpoint there ([`super::checkpoint`]); an
+//! interrupted run keeps it and `--resume` continues bit for bit.
+
+mod manifest;
+mod run;
+pub mod sinks;
+mod writer;
+
+pub use manifest::{
+    FrameStats, FramesSummary, JudgedFrame, KeyframeReport, RebuiltSummary, RunIdentity,
+    SurfaceSummary, Timings,
+};
+pub use sinks::{RebuiltStats, frame_name};
+
+use super::memory::MemoryLimit;
+use super::metrics::FillMetrics;
+use super::motion::MotionMeasures;
+use super::quality::Quality;
+use super::{MorphError, MorphEvent, MorphSettings, Prepared, checkpoint};
+use crate::io::outdir::{self, Previous, Staging};
+use manifest::Manifest;
+use serde::Serialize;
+use sinks::out_err;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::AtomicUsize;
+use std::time::Instant;
+
+/// The file that marks a folder as a morph output (and lets `--overwrite` replace it).
+pub const MANIFEST: &str = "manifest.json";
+/// The file that marks a staging folder as a run's, with what the run is.
+pub const RUN_FILE: &str = "run.json";
+
+/// What the caller prints at the end.
+#[derive(Clone, Debug, Serialize)]
+pub struct Summary {
+    pub output: PathBuf,
+    pub particles: usize,
+    pub frames: usize,
+    pub initial_loss: f64,
+    pub final_loss: f64,
+    pub fill: FillMetrics,
+    /// The quality judge's verdict (absent when `--resume` found an older complete folder
+    /// without one).
+    pub quality: Option<Quality>,
+    /// The worst of the written frames' measurements: J range, inverted frames, order,
+    /// surface volume.
+    pub frames_summary: Option<FramesSummary>,
+    /// The motion measures of the whole sequence (see [`super::motion`]).
+    pub motion: Option<MotionMeasures>,
+    pub seconds: f64,
+    /// Where the run continued from (`--resume`), e.g. "pass 2 of 2, 5 of 12 segments done".
+    pub resumed_from: Option<String>,
+    /// `--resume` found the output already complete for these inputs and settings.
+    pub already_complete: bool,
+    /// What the run found worth a warning (gradient health, see [`super::run_warnings`]).
+    pub warnings: Vec<String>,
+}
+
+/// Where and how a morph writes its folder.
+#[derive(Clone, Copy, Debug)]
+pub struct OutputRequest<'a> {
+    pub out: &'a Path,
+    /// Replace an existing morph output folder.
+    pub overwrite: bool,
+    /// Continue an interrupted run of the same inputs and settings from its checkpoint
+    /// (starting afresh when there is none); a complete output of the same run is left as is.
+    pub resume: bool,
+    /// When it holds a nonzero value, the run stops at the next evaluation, keeps its
+    /// checkpoint and returns [`MorphError::Interrupted`] with that value (the CLI stores the
+    /// signal number here).
+    pub stop: Option<&'a AtomicUsize>,
+    /// A cap on the run's memory (see [`super::memory`]).
+    pub memory_limit: MemoryLimit,
+    /// The scene file the settings came from, if any: an input like the meshes, so never
+    /// inside the output folder.
+    pub scene: Option<&'a Path>,
+}
+
+/// The names a run writes at the top of its staging folder.
+const STAGING_NAMES: &[&str] = &[
+    RUN_FILE,
+    MANIFEST,
+    "frames",
+    "meshes",
+    "carried",
+    checkpoint::FOLDER,
+    super::scene_file::RESOLVED,
+    "final_mass.mgrid",
+    "loss.png",
+    "preview.png",
+    "preview.gif",
+    crate::io::usd::FILE,
+];
+
+/// Morphs `source` into `target` and writes the folder `request.out`; see the module docs.
+///
+/// Nothing is deleted before the inputs are loaded and checked: an earlier output is
+/// replaced only once the new one is complete, and an interrupted run's staging folder is
+/// cleared (`--overwrite`) only after the new inputs have loaded.
+pub fn morph_to_folder(
+    settings: &MorphSettings,
+    source: &Path,
+    targets: &[PathBuf],
+    request: &OutputRequest,
+    mut on_event: impl FnMut(&MorphEvent),
+) -> Result<Summary, MorphError> {
+    let clock = Instant::now();
+    settings.validate().map_err(MorphError::Settings)?;
+    settings
+        .validate_targets(targets.len())
+        .map_err(MorphError::Settings)?;
+    let mut inputs: Vec<&Path> = vec![source];
+    inputs.extend(targets.iter().map(PathBuf::as_path));
+    inputs.extend(settings.colliders.iter().map(|c| c.mesh.as_path()));
+    inputs.extend(request.scene);
+    let plan = outdir::plan(
+        request.out,
+        &inputs,
+        request.overwrite || request.resume,
+        MANIFEST,
+    )
+    .map_err(MorphError::Settings)?;
+    let identity = RunIdentity::new(settings, source, targets)?;
+    let run_id = identity.id();
+    if plan.existing == outdir::Existing::Ours {
+        let done = read_manifest(&plan.out.join(MANIFEST));
+        let missing = outdir::check_owned(&plan.out, MANIFEST)
+            .map(|o| o.missing)
+            .unwrap_or_default();
+        match done {
+            Some(m) if request.resume && m.run_id == run_id && missing.is_empty() => {
+                return Ok(Summary {
+                    output: plan.out.clone(),
+                    particles: m.particles,
+                    frames: m.frames.len(),
+                    initial_loss: m.initial_loss,
+                    final_loss: m.final_loss,
+                    fill: m.fill,
+                    quality: m.quality,
+                    frames_summary: m.frames_summary,
+                    motion: m.motion,
+                    seconds: 0.0,
+                    resumed_from: None,
+                    already_complete: true,
+                    warnings: Vec::new(),
+                });
+            }
+            Some(m) if m.run_id == run_id && !request.overwrite => {
+                return Err(MorphError::Settings(format!(
+                    "output folder '{}' is this run's, but '{}' that its manifest lists is missing ({} file(s) in all); pass --overwrite to make the folder again",
+                    plan.out.display(),
+                    missing[0],
+                    missing.len()
+                )));
+            }
+            _ if !request.overwrite => {
+                return Err(MorphError::Settings(format!(
+                    "output folder '{}' holds a different run; pass --overwrite to replace it",
+                    plan.out.display()
+                )));
+            }
+            _ => {}
+        }
+    }
+    let mut staging = Staging::take(&plan, RUN_FILE, STAGING_NAMES).map_err(MorphError::Output)?;
+    let run_path = staging.dir.join(RUN_FILE);
+    // What to do with an earlier run's staging folder, decided now, done once the inputs load.
+    let mut resuming = false;
+    let mut clear_earlier = false;
+    if staging.previous == Previous::Run {
+        let earlier: Option<RunIdentity> =
+            crate::files::read(&run_path, crate::files::SMALL_FILE_BYTES)
+                .ok()
+                .and_then(|b| serde_json::from_slice(&b).ok());
+        let shown = staging.dir.display().to_string();
+        // What keeps the earlier run from being continued, if anything.
+        let obstacle = match &earlier {
+            None => Some(format!("'{shown}' has an unreadable {RUN_FILE}")),
+            Some(earlier) => {
+                let diff = identity.differences(earlier);
+                (!diff.is_empty()).then(|| {
+                    format!(
+                        "cannot resume '{shown}': it is a run of other inputs or settings ({})",
+                        diff.join("; ")
+                    )
+                })
+            }
+        };
+        if request.resume && obstacle.is_none() {
+            resuming = true;
+        } else if request.overwrite {
+            // --overwrite (alone, or with --resume when the earlier run cannot be continued)
+            // starts over, once the new inputs have loaded.
+            clear_earlier = true;
+        } else if let (true, Some(why)) = (request.resume, obstacle) {
+            return Err(MorphError::Resume(format!(
+                "{why}; start over with --overwrite"
+            )));
+        } else {
+            return Err(MorphError::Settings(format!(
+                "'{shown}' holds an interrupted run; continue it with --resume or start over with --overwrite"
+            )));
+        }
+    }
+    let had_checkpoint = staging.previous == Previous::Run;
+    let prepared = (|| {
+        let src = crate::geometry::load_mesh(source)?;
+        let loaded = targets
+            .iter()
+            .map(|t| crate::geometry::load_mesh(t))
+            .collect::<Result<Vec<_>, _>>()?;
+        let meshes: Vec<(&crate::geometry::LoadedMesh, &Path)> = loaded
+            .iter()
+            .zip(targets)
+            .map(|(m, p)| (m, p.as_path()))
+            .collect();
+        // The memory limit holds for setup too: refused before the fill when it cannot.
+        let estimate = Prepared::estimate(settings, (&src, source), &meshes)?;
+        super::memory::check_before_setup(
+            settings,
+            &estimate,
+            targets.len() - 1,
+            request.memory_limit,
+        )?;
+        let mut prep = Prepared::from_meshes(settings, (&src, source), &meshes)?;
+        let memory = prep.plan_memory(request.memory_limit)?;
+        Ok((prep, memory))
+    })();
+    let (prep, memory) = match prepared {
+        Ok(p) => p,
+        Err(e) => {
+            // The inputs did not load: leave an earlier run's files exactly as they were.
+            if !had_checkpoint {
+                staging.discard();
+            }
+            return Err(e);
+        }
+    };
+    if clear_earlier {
+        staging.clear().map_err(MorphError::Output)?;
+    }
+    if !resuming {
+        let json = serde_json::to_vec_pretty(&identity).expect("plain data");
+        crate::io::write_atomically(&run_path, |w| std::io::Write::write_all(w, &json))
+            .map_err(|e| out_err("run identity", &run_path, e))?;
+    }
+    let result = (|| {
+        // The resolved scene: `morph --scene OUT/scene.toml` runs this again, bit for bit.
+        let scene = super::scene_file::SceneFile::resolved(&prep.settings, source, targets);
+        let scene_path = staging.dir.join(super::scene_file::RESOLVED);
+        crate::io::write_atomically(&scene_path, |w| {
+            std::io::Write::write_all(w, scene.as_bytes())
+        })
+        .map_err(|e| out_err("resolved scene", &scene_path, e))?;
+        let setup_s = clock.elapsed().as_secs_f64();
+        let resume = if resuming {
+            checkpoint::load(
+                &staging.dir,
+                &run_id,
+                prep.initial.len(),
+                &prep.segment_layers(),
+            )?
+        } else {
+            None
+        };
+        run::write_run(
+            &prep,
+            &identity,
+            &run_id,
+            &staging.dir,
+            resume,
+            request.stop,
+            memory,
+            setup_s,
+            clock,
+            &mut on_event,
+        )
+    })();
+    match result {
+        Ok(mut summary) => {
+            staging.commit(&plan).map_err(MorphError::Output)?;
+            summary.output = plan.out.clone();
+            Ok(summary)
+        }
+        Err(e) => {
+            // Keep whatever a later --resume can use; remove a staging folder with nothing in it.
+            let kept = checkpoint::exists(&staging.dir);
+            let dir = staging.dir.clone();
+            if !kept {
+                staging.discard();
+            }
+            Err(match e {
+                MorphError::Interrupted { signal, .. } => MorphError::Interrupted { signal, kept },
+                MorphError::Output(why) if kept => MorphError::Output(format!(
+                    "{why}; the completed segments are kept in '{}': once the cause is fixed (e.g. disk space freed), run the same command with --resume to continue",
+                    dir.display()
+                )),
+                e => e,
+            })
+        }
+    }
+}
+
+fn read_manifest(path: &Path) -> Option<Manifest> {
+    serde_json::from_slice(&crate::files::read(path, crate::files::MANIFEST_BYTES).ok()?).ok()
+}
