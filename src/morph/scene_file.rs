@@ -14,7 +14,7 @@
 //! A morph writes its resolved scene (every setting, absolute mesh paths) as `scene.toml` in
 //! its output folder: `morph --scene OUT/scene.toml` runs it again, bit for bit.
 
-use super::settings::{Ground, MeshCollider, MorphSettings, Preset};
+use super::settings::{MorphSettings, Preset};
 use std::path::{Path, PathBuf};
 
 /// The name of the resolved scene in an output folder.
@@ -58,13 +58,12 @@ impl SceneFile {
                 format!("scene file '{shown}': {}", one_line(&e.to_string()))
             })?
         };
-        check_keys(&table, &schema(), "").map_err(|key| {
-            let line = line_of(text, &key, json)
-                .map_or(String::new(), |l| format!(" line {l}:"));
-            format!(
+        if let Some(key) = unknown_key(&table) {
+            let line = line_of(text, &key, json).map_or(String::new(), |l| format!(" line {l}:"));
+            return Err(format!(
                 "scene file '{shown}':{line} unknown key `{key}` (the keys are the settings' names; see docs/scenes.md)"
-            )
-        })?;
+            ));
+        }
         let dir = path.parent().unwrap_or(Path::new("."));
         let resolve = |p: &str| -> PathBuf {
             let p = PathBuf::from(p);
@@ -185,62 +184,47 @@ impl SceneFile {
     }
 }
 
-/// Every key a scene file may hold, as a table of example values: the settings with every
-/// optional part present.
-fn schema() -> toml::Table {
-    let s = MorphSettings {
-        particles: Some(1),
-        refine_iterations: Some(1),
-        dt: Some(1.0),
-        frames: Some(2),
-        gravity: Some([0.0; 3]),
-        ground: Some(Ground {
-            height: 0.0,
-            friction: 0.0,
-        }),
-        colliders: vec![MeshCollider {
-            mesh: PathBuf::new(),
-            friction: 0.0,
-        }],
-        ..MorphSettings::default()
-    };
-    let mut t = toml::Table::try_from(&s).expect("settings serialize to TOML");
-    t.insert("source".into(), "".into());
-    t.insert("seconds".into(), 1.0.into());
-    t.insert("targets".into(), toml::Value::Array(Vec::new()));
-    if let Some(toml::Value::Table(m)) = t.get_mut("material") {
-        m.insert("youngs_modulus".into(), 1.0.into());
-        m.insert("poisson_ratio".into(), 0.0.into());
+/// The first key of the file's `table` that the settings do not have, as a dotted path
+/// (`ground.friction`, `colliders.0.mesh`). The settings' own deserializer decides, through
+/// `serde_ignored`, so every setting a scene can hold is known here without a list of its own.
+/// The keys the file itself reads (`source`, `targets`, `seconds`, `preset`, and Young's
+/// modulus and Poisson's ratio in `[material]`) are known too.
+fn unknown_key(table: &toml::Table) -> Option<String> {
+    let mut given = table.clone();
+    for key in ["source", "targets", "seconds", "preset"] {
+        given.remove(key);
     }
-    t
+    if let Some(toml::Value::Table(m)) = given.get_mut("material") {
+        m.remove("youngs_modulus");
+        m.remove("poisson_ratio");
+    }
+    // Over a whole preset, so the file's keys alone need not make complete settings.
+    let mut merged = toml::Table::try_from(MorphSettings::default()).expect("settings serialize");
+    merge(&mut merged, given);
+    let mut first = None;
+    // A value of the wrong type ends this pass early; reading the settings reports it.
+    let _: Result<MorphSettings, _> =
+        serde_ignored::deserialize(toml::Value::Table(merged), |path| {
+            first.get_or_insert_with(|| dotted(&path));
+        });
+    first
 }
 
-/// The first key of `given` (a dotted path under `at`) that `schema` does not have.
-fn check_keys(given: &toml::Table, schema: &toml::Table, at: &str) -> Result<(), String> {
-    for (key, value) in given {
-        let path = if at.is_empty() {
-            key.clone()
-        } else {
-            format!("{at}.{key}")
-        };
-        let Some(known) = schema.get(key) else {
-            return Err(path);
-        };
-        match (value, known) {
-            (toml::Value::Table(g), toml::Value::Table(k)) => check_keys(g, k, &path)?,
-            (toml::Value::Array(g), toml::Value::Array(k)) => {
-                if let Some(toml::Value::Table(k)) = k.first() {
-                    for item in g {
-                        if let toml::Value::Table(item) = item {
-                            check_keys(item, k, &path)?;
-                        }
-                    }
-                }
-            }
-            _ => {}
-        }
+/// A key's path as the file writes it: tables and list items by name and index, joined by dots.
+fn dotted(path: &serde_ignored::Path) -> String {
+    use serde_ignored::Path;
+    let join = |parent: &Path, part: String| match dotted(parent) {
+        p if p.is_empty() => part,
+        p => format!("{p}.{part}"),
+    };
+    match path {
+        Path::Root => String::new(),
+        Path::Seq { parent, index } => join(parent, index.to_string()),
+        Path::Map { parent, key } => join(parent, key.clone()),
+        Path::Some { parent }
+        | Path::NewtypeStruct { parent }
+        | Path::NewtypeVariant { parent } => dotted(parent),
     }
-    Ok(())
 }
 
 /// The 1-based line where the last part of dotted `key` first appears as a key.
@@ -356,6 +340,19 @@ mod tests {
         )
         .unwrap_err();
         assert!(e.contains("line 3") && e.contains("`fpz`"), "{e}");
+        // In a list of tables, the item's index; Young's modulus is a key the file reads.
+        let text = "[[colliders]]\nmesh = \"a.obj\"\n[[colliders]]\nmesh = \"b.obj\"\nfriction = 0.2\nsticky = true\n[material]\nyoungs_modulus = 1e5\npoisson_ratio = 0.3\n";
+        let e = SceneFile::parse(text, Path::new("s.toml"), None).unwrap_err();
+        assert!(
+            e.contains("line 6") && e.contains("`colliders.1.sticky`"),
+            "{e}"
+        );
+        // A value of the wrong type is reported as such, not as an unknown key.
+        let e = SceneFile::parse("resolution = \"big\"\n", Path::new("s.toml"), None).unwrap_err();
+        assert!(
+            !e.contains("unknown key") && e.contains("resolution"),
+            "{e}"
+        );
     }
 
     #[test]
@@ -375,7 +372,7 @@ mod tests {
     fn the_resolved_scene_reads_back_to_the_same_settings() {
         let mut s = MorphSettings::preset(Preset::Final);
         s.gravity = Some([0.0, -9.81, 0.0]);
-        s.ground = Some(Ground {
+        s.ground = Some(crate::morph::settings::Ground {
             height: -1.0,
             friction: 0.2,
         });

@@ -279,7 +279,6 @@ fn default_friction() -> f64 {
 
 /// A ground plane: everything below `height` (the source mesh's y; y is up) is solid.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct Ground {
     pub height: f64,
     /// Coulomb friction coefficient (0: ice).
@@ -289,7 +288,6 @@ pub struct Ground {
 
 /// A closed mesh, in the source mesh's coordinates, that the body cannot enter.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct MeshCollider {
     pub mesh: std::path::PathBuf,
     /// Coulomb friction coefficient (0: frictionless).
@@ -299,7 +297,6 @@ pub struct MeshCollider {
 
 /// The walls on the grid's faces (a safety net: no kernel stencil may leave the grid).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
 pub struct WallSettings {
     /// Slip (the body slides along a wall) or sticky (it stops there).
     pub mode: crate::effects::WallMode,
