@@ -37,15 +37,8 @@ pub(super) fn write_run(
     on_event: &mut dyn FnMut(&MorphEvent),
 ) -> Result<Summary, MorphError> {
     let settings = &prep.settings;
-    for sub in ["frames", "meshes", "carried", checkpoint::FOLDER] {
-        if (sub == "meshes" && !settings.surfaces.rebuilt())
-            || (sub == "carried" && !settings.surfaces.carried())
-        {
-            continue;
-        }
-        let d = dir.join(sub);
-        std::fs::create_dir_all(&d).map_err(|e| out_err("folder", &d, e))?;
-    }
+    let ck = dir.join(checkpoint::FOLDER);
+    std::fs::create_dir_all(&ck).map_err(|e| out_err("folder", &ck, e))?;
     let resumed_from = resume
         .as_ref()
         .map(|p| checkpoint::describe(p, settings.passes, prep.settings.segments));

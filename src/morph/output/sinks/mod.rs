@@ -86,6 +86,13 @@ fn frame_files(folder: &str, ext: &str, count: usize) -> Vec<PathBuf> {
         .collect()
 }
 
+/// The folder `name` in the output folder `dir`, made now: a per-frame sink owns its folder.
+fn folder(dir: &Path, name: &str) -> Result<PathBuf, MorphError> {
+    let d = dir.join(name);
+    std::fs::create_dir_all(&d).map_err(|e| out_err("folder", &d, e))?;
+    Ok(d)
+}
+
 pub(crate) fn out_err(what: &str, path: &Path, e: impl std::fmt::Display) -> MorphError {
     MorphError::Output(format!("cannot write {what} '{}': {e}", path.display()))
 }
@@ -116,7 +123,7 @@ pub fn for_folder(
         )))
     });
     let mut sinks: Vec<Box<dyn FrameSink + Send>> = vec![Box::new(PointsPly {
-        dir: dir.join("frames"),
+        dir: folder(dir, "frames")?,
     })];
     if let Some(loaded) = loaded.as_ref().filter(|_| settings.surfaces.carried()) {
         let surface = CarriedSurface::bind(
@@ -133,7 +140,7 @@ pub fn for_folder(
             })
         })?;
         sinks.push(Box::new(CarriedObj {
-            dir: dir.join("carried"),
+            dir: folder(dir, "carried")?,
             surface,
             rest: prep.initial.x.clone(),
             spacing,
@@ -143,7 +150,7 @@ pub fn for_folder(
     }
     if settings.surfaces.rebuilt() {
         sinks.push(Box::new(RebuiltObj {
-            dir: dir.join("meshes"),
+            dir: folder(dir, "meshes")?,
             method: settings.rebuilt_method,
             spacing,
             rest_volume: prep.geometry.source.volume,
