@@ -453,7 +453,8 @@ fn signal_name(signal: usize) -> &'static str {
 pub fn run(args: &MorphArgs) -> ExitCode {
     use indicatif::{ProgressBar, ProgressStyle};
     use std::io::IsTerminal;
-    let (settings, source, targets) = match args.job().and_then(|j| j.0.validate().map(|_| j)) {
+    // The library checks the settings (morph_to_folder, before the folder is touched).
+    let (settings, source, targets) = match args.job() {
         Ok(j) => j,
         Err(e) => return fail(args.json, 2, &e),
     };
