@@ -6,7 +6,6 @@
 use crate::mpm::ControlParams;
 use crate::mpm::model::Model;
 use crate::mpm::{Euler, Gradients, SimError, State, StateGrad};
-use crate::ode::Rk4;
 use serde::{Deserialize, Serialize};
 use std::borrow::Cow;
 
@@ -298,46 +297,4 @@ impl Controlled for Euler {
     fn particle_energy(&self, state: &State, _: &ControlParams, _: usize) -> f64 {
         kinetic(&self.mass, &state.v)
     }
-}
-
-/// The integrator a run uses, chosen at run time.
-#[derive(Debug)]
-pub enum Engine {
-    Euler(Euler),
-    Rk4(Rk4),
-}
-
-impl Engine {
-    /// `model` advanced by the integrator `kind`.
-    pub fn new(model: Model, kind: IntegratorKind) -> Result<Engine, SimError> {
-        Ok(match kind {
-            IntegratorKind::Euler => Engine::Euler(Euler::from(model)),
-            IntegratorKind::Rk4 => Engine::Rk4(Rk4::new(model)?),
-        })
-    }
-
-    pub fn kind(&self) -> IntegratorKind {
-        match self {
-            Engine::Euler(_) => IntegratorKind::Euler,
-            Engine::Rk4(_) => IntegratorKind::Rk4,
-        }
-    }
-
-    pub fn model(&self) -> &Model {
-        match self {
-            Engine::Euler(s) => &s.model,
-            Engine::Rk4(s) => &s.model,
-        }
-    }
-}
-
-/// Runs `$body` with `$i` bound to the engine's integrator (a generic call site written once).
-#[macro_export]
-macro_rules! with_integrator {
-    ($engine:expr, $i:ident => $body:expr) => {
-        match $engine {
-            $crate::integrator::Engine::Euler($i) => $body,
-            $crate::integrator::Engine::Rk4($i) => $body,
-        }
-    };
 }

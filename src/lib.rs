@@ -7,7 +7,7 @@
 //! - [`ode`]: the same physics as an ODE `dS/dt = f(S, u, t)` with RK4 and its reverse, and
 //!   controls (body forces, prescribed clamp position or velocity);
 //! - [`integrator`]: the [`integrator::Integrator`] trait both integrators implement, and
-//!   [`integrator::Engine`], the one a run chose;
+//!   [`engine::Engine`], the one a run chose;
 //! - [`effects`]: optional physics a scene switches on (drag, gravity, walls), run by both
 //!   integrators;
 //! - [`scene`]: the serde scene description that builds a simulator;
@@ -31,6 +31,7 @@
 pub mod bench;
 pub mod control;
 pub mod effects;
+pub mod engine;
 pub mod files;
 pub mod geometry;
 pub mod integrator;

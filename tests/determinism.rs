@@ -50,7 +50,7 @@ fn run_on(
             Vector3::new(2.0, 0.0, 1.0),
             MassLossKind::Log,
         );
-        morph::with_integrator!(&engine, sim => {
+        morph::engine::with_integrator!(&engine, sim => {
             if integrator == IntegratorKind::Rk4 {
                 assert!(init.len() >= 2048, "{} particles", init.len());
             }
@@ -147,7 +147,7 @@ fn controlled_rope_bits(integrator: IntegratorKind) {
                 ..RopeConfig::default()
             };
             let rope = cfg.build().unwrap();
-            morph::with_integrator!(&rope.engine, sys => {
+            morph::engine::with_integrator!(&rope.engine, sys => {
             let model = sys.model();
             assert!(model.num_particles() >= 2048, "{}", model.num_particles());
             let mut params = model.controls.zero_params();

@@ -7,7 +7,8 @@ mod common;
 
 use common::*;
 use morph::effects::WallMode;
-use morph::integrator::{Engine, Integrator, IntegratorKind};
+use morph::engine::Engine;
+use morph::integrator::{Integrator, IntegratorKind};
 use morph::loss::{FINE_KERNEL, FineMassLoss, MassLoss, MassLossKind};
 use morph::mpm::{ControlForm, KernelKind, State, Tape};
 use morph::scene::EffectConfig;
@@ -100,7 +101,7 @@ fn check_scene_form(
     setup: impl Fn(&mut State),
 ) {
     let (engine, init) = ball_engine_with(&scene, 3.2, integrator, form);
-    morph::with_integrator!(&engine, sim => check_rollout(sim, scene.kernel, init, kind, steps, h, setup));
+    morph::engine::with_integrator!(&engine, sim => check_rollout(sim, scene.kernel, init, kind, steps, h, setup));
 }
 
 fn check_rollout<I: Integrator>(
@@ -417,7 +418,7 @@ fn segment_objective_gradient_matches_finite_differences() {
     let scene = small_scene(KernelKind::Cubic, vec![EffectConfig::drag(0.5)]);
     for integrator in IntegratorKind::ALL {
         let (engine, init) = ball_engine(&scene, 3.2, integrator);
-        morph::with_integrator!(&engine, sim => check_segment(sim, init));
+        morph::engine::with_integrator!(&engine, sim => check_segment(sim, init));
     }
 }
 
@@ -666,8 +667,8 @@ fn time_dependent_effect_case(kind: IntegratorKind) {
         let m = sim.model().mass_grid(&s.x).unwrap();
         (loss.value_and_grad(&m).0, s)
     }
-    let loss_of = |engine: &Engine, init: &State| morph::with_integrator!(engine, sim => run(sim, init, &ctrl, &loss, None).0);
-    let grads = morph::with_integrator!(&engine, sim => {
+    let loss_of = |engine: &Engine, init: &State| morph::engine::with_integrator!(engine, sim => run(sim, init, &ctrl, &loss, None).0);
+    let grads = morph::engine::with_integrator!(&engine, sim => {
         let mut tape = Default::default();
         let (_, last) = run(sim, &init, &ctrl, &loss, Some(&mut tape));
         sim.backward(&tape, &shared(&ctrl), loss_seed(sim.model(), &last, &loss))
@@ -780,7 +781,7 @@ fn planned_tape_bytes_match_a_real_tape() {
     let scene = small_scene(KernelKind::Cubic, Vec::new());
     for integrator in IntegratorKind::ALL {
         let (engine, init) = ball_engine(&scene, 3.2, integrator);
-        morph::with_integrator!(&engine, sim => {
+        morph::engine::with_integrator!(&engine, sim => {
             let n = init.len();
             let ctrl: Vec<Option<Vec<Matrix3<f64>>>> =
                 (0..4).map(|_| Some(vec![Matrix3::zeros(); n])).collect();

@@ -8,7 +8,8 @@ mod common;
 
 use common::Lcg;
 use morph::control::rope::{Actuation, ClampMode, RopeConfig};
-use morph::integrator::{Controlled, Engine, IntegratorKind};
+use morph::engine::Engine;
+use morph::integrator::{Controlled, IntegratorKind};
 use morph::material::MaterialModel;
 use morph::mpm::{ControlParams, Interpolation};
 use morph::mpm::{KernelKind, State};
@@ -141,7 +142,7 @@ fn check_material(
         material,
         integrator,
     );
-    morph::with_integrator!(&engine, sys => check_run(sys, init, params, &format!(
+    morph::engine::with_integrator!(&engine, sys => check_run(sys, init, params, &format!(
         "{integrator:?}/{kernel:?}/{interpolation:?}/{clamp_mode:?}/{material:?}"
     )));
 }

@@ -251,7 +251,7 @@ fn friction_on_the_ground_slows_a_sliding_body_with_both_integrators() {
         let (engine, mut s) = ball_engine(&scene, 3.2, kind);
         s.v.iter_mut()
             .for_each(|v| *v = Vector3::new(4.0, 0.0, 0.0));
-        morph::with_integrator!(&engine, sim => {
+        morph::engine::with_integrator!(&engine, sim => {
             sim.forward(&mut s, &[], 0, 48, None).expect("forward");
             let m = &sim.model().mass;
             s.linear_momentum(m).x / m.iter().sum::<f64>()

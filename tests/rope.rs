@@ -90,7 +90,7 @@ fn non_finite_or_misshapen_control_knots_are_refused() {
     let err = plan.check_params(&p).unwrap_err().to_string();
     assert!(err.contains("knot 3 is not finite"), "{err}");
     let mut s = rope.initial.clone();
-    let err = morph::with_integrator!(&rope.engine, sys => sys.run(&mut s, &p, 0, 5, None, &mut |_, _| {}))
+    let err = morph::engine::with_integrator!(&rope.engine, sys => sys.run(&mut s, &p, 0, 5, None, &mut |_, _| {}))
         .unwrap_err()
         .to_string();
     assert!(err.contains("not finite"), "{err}");

@@ -9,7 +9,8 @@ pub mod morph;
 pub mod physics;
 pub mod roofline;
 
-use crate::integrator::{Engine, Integrator, IntegratorKind};
+use crate::engine::Engine;
+use crate::integrator::{Integrator, IntegratorKind};
 use crate::loss::{MassLoss, MassLossKind};
 use crate::material::svd::{svd3, svd3_x4};
 use crate::mpm::{KernelKind, SimError, State, StateGrad};
@@ -88,7 +89,7 @@ impl Workload {
     /// Forward only.
     pub fn run_forward(&self, steps: usize) -> Result<State, SimError> {
         let mut s = self.initial.clone();
-        crate::with_integrator!(&self.engine, sim => {
+        crate::engine::with_integrator!(&self.engine, sim => {
             sim.forward(&mut s, &self.controls, 0, steps, None)
         })?;
         Ok(s)
@@ -99,7 +100,7 @@ impl Workload {
         &self,
         steps: usize,
     ) -> Result<(f64, crate::mpm::Gradients), SimError> {
-        crate::with_integrator!(&self.engine, sim => {
+        crate::engine::with_integrator!(&self.engine, sim => {
             let mut s = self.initial.clone();
             let mut tape = Default::default();
             sim.forward(&mut s, &self.controls, 0, steps, Some(&mut tape))?;

@@ -5,7 +5,8 @@
 //! spacing, time step, kernel and integrator. `morph bench-accuracy` prints one JSON line per
 //! case and the observed orders of convergence.
 
-use crate::integrator::{Engine, Integrator, IntegratorKind};
+use crate::engine::Engine;
+use crate::integrator::{Integrator, IntegratorKind};
 use crate::material::{ConstitutiveModel, FixedCorotated};
 use crate::mpm::model::Model;
 use crate::mpm::{GridSpec, KernelKind, SimError, State};
@@ -146,7 +147,7 @@ pub fn ring(
     let mut crossings = Vec::new();
     let mut prev = amplitude(&s);
     for k in 0..steps {
-        crate::with_integrator!(&engine, sim => sim.forward(&mut s, &[], k, 1, None))?;
+        crate::engine::with_integrator!(&engine, sim => sim.forward(&mut s, &[], k, 1, None))?;
         let a = amplitude(&s);
         if prev.signum() != a.signum() && a != 0.0 {
             // Linear interpolation of the crossing time within the step.

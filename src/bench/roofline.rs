@@ -7,7 +7,8 @@
 //! needs ([`stage_costs`]).
 
 use super::reference_workload;
-use crate::integrator::{Engine, IntegratorKind};
+use crate::engine::Engine;
+use crate::integrator::IntegratorKind;
 use crate::mpm::profile::{Stage, StageClock};
 use crate::mpm::{KernelKind, SimError};
 use rayon::prelude::*;

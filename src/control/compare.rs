@@ -304,7 +304,7 @@ pub fn run_rope(
     mut on_event: impl FnMut(ControlEvent),
 ) -> Result<RopeResult, RopeError> {
     let rope = settings.validate()?;
-    crate::with_integrator!(&rope.engine, sys => compare_methods(sys, &rope, settings, &mut on_event))
+    crate::engine::with_integrator!(&rope.engine, sys => compare_methods(sys, &rope, settings, &mut on_event))
 }
 
 /// The three methods with the integrator the settings chose.

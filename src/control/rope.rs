@@ -6,7 +6,8 @@
 //! Units are SI. docs/control.md gives the numbers and why they were chosen.
 
 use crate::effects::Gravity;
-use crate::integrator::{Engine, IntegratorKind};
+use crate::engine::Engine;
+use crate::integrator::IntegratorKind;
 use crate::material::{MaterialModel, lame_from_young_poisson};
 use crate::mpm::State;
 use crate::mpm::model::Model;

@@ -104,7 +104,7 @@ fn warm_start(
     let clock = Instant::now();
     let progress = RunProgress::start(coarse);
     let mut quiet = LevelObserver { inner: observer };
-    let (result, controls) = crate::with_integrator!(&coarse.engine, sim => {
+    let (result, controls) = crate::engine::with_integrator!(&coarse.engine, sim => {
         chain(coarse, sim, progress, clock, &mut quiet, below.as_ref(), true)
     })?;
     records.push(LevelRecord {
@@ -193,7 +193,7 @@ pub fn run(
     if s.levels > 1 {
         observer.event(&prep.level_event(s.levels));
     }
-    let (mut result, _) = crate::with_integrator!(&prep.engine, sim => {
+    let (mut result, _) = crate::engine::with_integrator!(&prep.engine, sim => {
         chain(prep, sim, progress, clock, observer, warm.as_ref(), false)
     })?;
     result.levels = levels;

@@ -291,7 +291,7 @@ impl Prepared {
     pub fn plan_memory(&mut self, limit: MemoryLimit) -> Result<MemoryPlan, MorphError> {
         let n = self.initial.len();
         let state = State::bytes_for(n);
-        let step = crate::with_integrator!(&self.engine, sim => super::segment::step_bytes(sim, n));
+        let step = crate::engine::with_integrator!(&self.engine, sim => super::segment::step_bytes(sim, n));
         let steps = self.max_sim_segment_steps();
         let fixed = fixed_bytes(
             &self.settings,
@@ -348,7 +348,7 @@ impl Prepared {
 
     fn chunk_plan_within(&self, budget: usize) -> ChunkPlan {
         let n = self.initial.len();
-        let step = crate::with_integrator!(&self.engine, sim => super::segment::step_bytes(sim, n));
+        let step = crate::engine::with_integrator!(&self.engine, sim => super::segment::step_bytes(sim, n));
         ChunkPlan::within(
             budget,
             self.max_sim_segment_steps(),

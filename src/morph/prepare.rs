@@ -5,8 +5,9 @@
 
 use super::{MorphError, MorphSettings, WorldFrame, inbetween, motion, quality, segment, settings};
 
+use crate::engine::Engine;
 use crate::geometry::{Jitter, LoadedMesh, MorphGeometry};
-use crate::integrator::{Engine, Integrator};
+use crate::integrator::Integrator;
 use crate::loss::{FINE_KERNEL, FineMassLoss, MassLoss};
 use crate::mpm::model::Model;
 use crate::mpm::{SimError, State};
@@ -292,7 +293,7 @@ impl Prepared {
                         passive.push(((k + 1) / substeps, st.x.clone()));
                     }
                 };
-                crate::with_integrator!(&engine, sim => {
+                crate::engine::with_integrator!(&engine, sim => {
                     sim.forward_observed(&mut state, &[], 0, last * substeps, None, Some(&mut on_step))
                 })?;
             }

@@ -1,6 +1,6 @@
 //! Stage G on the dense grid: velocities from momentum, `v_i = p_i / m_i` where `m_i > 0`
 //! ([`super::transfer::quotient`]). Grid effects such as gravity and walls run right after;
-//! see [`crate::effects`].
+//! see the `effects` module.
 
 use super::transfer::{Node, quotient, quotient_reverse};
 use nalgebra::Vector3;

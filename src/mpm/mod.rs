@@ -8,6 +8,7 @@
 pub mod advance;
 pub mod boundary;
 pub mod control;
+pub mod effect;
 pub mod error;
 pub mod grid;
 pub mod grid_update;

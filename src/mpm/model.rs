@@ -3,9 +3,9 @@
 //! validation, one stable time-step bound and one set of state checks.
 
 use super::ControlForm;
+use super::effect::Effect;
 use super::transfer;
 use super::{GridSpec, KernelKind, SimError};
-use crate::effects::Effect;
 use crate::material::ConstitutiveModel;
 use crate::mpm::{ControlKind, ControlParams, ControlPlan};
 use nalgebra::{Matrix3, Vector3};
@@ -19,7 +19,7 @@ pub struct Model {
     pub dt: f64,
     pub kernel: KernelKind,
     pub material: Arc<dyn ConstitutiveModel>,
-    /// The optional physics the scene declared, in order (see [`crate::effects`]).
+    /// The optional physics the scene declared, in order (the `effects` module implements them).
     pub effects: Vec<Box<dyn Effect>>,
     pub mass: Vec<f64>,
     pub volume: Vec<f64>,

@@ -1,6 +1,7 @@
 //! The simulator: a scene's fixed data plus the step, its tape and its reverse pass.
 
 use super::advance::{advance, advance_reverse};
+use super::effect::GridContext;
 use super::error::SimError;
 use super::grid::{Bins, SharedMut};
 use super::grid_update::{grid_velocity, grid_velocity_reverse};
@@ -10,7 +11,6 @@ use super::profile::{Laps, Stage, StageClock};
 use super::state::{State, StateGrad};
 use super::stress::StressInputs;
 use super::transfer::{self, Affine, Node};
-use crate::effects::GridContext;
 use crate::mpm::ControlParams;
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;

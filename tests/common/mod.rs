@@ -4,7 +4,8 @@
 
 pub mod cli;
 
-use morph::integrator::{Engine, Integrator, IntegratorKind};
+use morph::engine::Engine;
+use morph::integrator::{Integrator, IntegratorKind};
 use morph::loss::{MassLoss, MassLossKind};
 use morph::mpm::model::Model;
 use morph::mpm::{Euler, GridSpec, KernelKind, State, StateGrad};
