@@ -5,14 +5,13 @@
 //! bounded body force).
 //! Units are SI. docs/control.md gives the numbers and why they were chosen.
 
-use crate::effects::Gravity;
 use crate::engine::Engine;
 use crate::integrator::IntegratorKind;
 use crate::material::{MaterialModel, lame_from_young_poisson};
 use crate::mpm::State;
-use crate::mpm::model::Model;
 use crate::mpm::{ControlEffect, ControlKind, ControlPlan, Interpolation, Schedule};
 use crate::mpm::{GridSpec, KernelKind, SimError};
+use crate::scene::{EffectConfig, MaterialConfig, SceneConfig};
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
@@ -306,20 +305,22 @@ impl RopeConfig {
             effects,
         };
         let (mu, lambda) = lame_from_young_poisson(self.youngs_modulus, self.poisson_ratio);
-        let material = self.material.build(mu, lambda);
-        let gravity = Gravity {
-            acceleration: Vector3::new(0.0, -self.gravity, 0.0),
-        };
-        let model = Model::new(
+        // The rope is a scene like any other: built through the one scene description.
+        let scene = SceneConfig {
             grid,
-            self.dt,
-            self.kernel,
-            material,
-            vec![Box::new(gravity)],
-            vec![self.density * vol; n],
-            vec![vol; n],
-        )?
-        .with_controls(plan)?;
+            dt: self.dt,
+            kernel: self.kernel,
+            material: MaterialConfig {
+                model: self.material,
+                mu,
+                lambda,
+                density: self.density,
+            },
+            effects: vec![EffectConfig::Gravity {
+                acceleration: [0.0, -self.gravity, 0.0],
+            }],
+        };
+        let model = scene.model(vec![vol; n])?.with_controls(plan)?;
         let engine = Engine::new(model, self.integrator)?;
         Ok(Rope {
             engine,
