@@ -12,14 +12,14 @@ pub mod gradient;
 pub mod mppi;
 pub mod rope;
 
-use crate::mpm::{Interpolation, Schedule};
+use crate::mpm::{ControlSchedule, Interpolation};
 use serde::Serialize;
 use std::ops::Range;
 
 /// Knots a window of steps `[a, b)` may change without touching steps before `a`
 /// (`a` and `b` on interval boundaries): a linear schedule's knot at `a` is shared with the
 /// interval before it, so it stays frozen once that interval has been committed.
-pub fn free_knots(schedule: &Schedule, a: usize, b: usize) -> Range<usize> {
+pub fn free_knots(schedule: &ControlSchedule, a: usize, b: usize) -> Range<usize> {
     let spi = schedule.steps_per_interval;
     let (ia, ib) = (a / spi, b.div_ceil(spi));
     match schedule.interpolation {

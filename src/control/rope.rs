@@ -9,7 +9,7 @@ use crate::engine::Engine;
 use crate::integrator::IntegratorKind;
 use crate::material::{MaterialModel, lame_from_young_poisson};
 use crate::mpm::State;
-use crate::mpm::{ControlEffect, ControlKind, ControlPlan, Interpolation, Schedule};
+use crate::mpm::{ControlEffect, ControlKind, ControlPlan, ControlSchedule, Interpolation};
 use crate::mpm::{GridSpec, KernelKind, SimError};
 use crate::scene::{EffectConfig, MaterialConfig, SceneConfig};
 use nalgebra::Vector3;
@@ -297,7 +297,7 @@ impl RopeConfig {
             }
         }
         let plan = ControlPlan {
-            schedule: Schedule {
+            schedule: ControlSchedule {
                 interpolation: self.interpolation,
                 steps_per_interval: self.control_interval,
                 intervals: self.steps / self.control_interval,

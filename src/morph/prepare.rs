@@ -30,7 +30,7 @@ pub struct Prepared {
     /// Morph steps of each segment (see [`MorphSettings::shot`]).
     pub segment_steps: Vec<usize>,
     /// When each target is reached and what the segments before it aim at (`--at`).
-    pub schedule: Schedule,
+    pub schedule: KeyframeSchedule,
     /// Bytes the tape of one segment rollout may hold (`usize::MAX`: no cap); set by
     /// [`Prepared::plan_memory`].
     pub tape_budget: usize,
@@ -41,7 +41,7 @@ pub struct Prepared {
 
 /// When each keyframe target is reached, and the nodal masses a segment aims at before it
 /// (see [`MorphSettings::at`]).
-pub struct Schedule {
+pub struct KeyframeSchedule {
     /// Morph step by which each target is reached, in order (the last is the final target).
     pub steps: Vec<usize>,
     /// The nodal masses (simulation grid, fine loss grid) of each keyframe target before the
@@ -327,7 +327,7 @@ impl Prepared {
             initial,
             substeps,
             segment_steps: shot.segment_steps,
-            schedule: Schedule {
+            schedule: KeyframeSchedule {
                 steps,
                 keyframes,
                 passive,

@@ -24,13 +24,13 @@ impl Interpolation {
 
 /// Control intervals of `steps_per_interval` steps each, shared by all controls of a scene.
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct Schedule {
+pub struct ControlSchedule {
     pub interpolation: Interpolation,
     pub steps_per_interval: usize,
     pub intervals: usize,
 }
 
-impl Schedule {
+impl ControlSchedule {
     pub fn knots(&self) -> usize {
         match self.interpolation {
             Interpolation::Constant => self.intervals,
@@ -105,7 +105,7 @@ pub type ControlParams = Vec<Vec<Vector3<f64>>>;
 /// The controls a scene declares and their common schedule.
 #[derive(Clone, Debug)]
 pub struct ControlPlan {
-    pub schedule: Schedule,
+    pub schedule: ControlSchedule,
     pub effects: Vec<ControlEffect>,
 }
 
@@ -113,7 +113,7 @@ impl ControlPlan {
     /// A plan with no controls (an uncontrolled scene) covering `steps` steps.
     pub fn none(steps: usize) -> ControlPlan {
         ControlPlan {
-            schedule: Schedule {
+            schedule: ControlSchedule {
                 interpolation: Interpolation::Constant,
                 steps_per_interval: steps.max(1),
                 intervals: 1,
@@ -279,7 +279,7 @@ mod tests {
 
     #[test]
     fn linear_schedule_is_continuous_and_constant_stays_in_its_interval() {
-        let lin = Schedule {
+        let lin = ControlSchedule {
             interpolation: Interpolation::Linear,
             steps_per_interval: 4,
             intervals: 3,
@@ -293,7 +293,7 @@ mod tests {
         assert!((at(a, 1) - 1.0).abs() < 1e-15 && (at(b, 1) - 1.0).abs() < 1e-15);
         // The last stage of the last step reaches the final knot.
         assert_eq!(lin.knot_weights(11, 1.0)[1], (3, 1.0));
-        let con = Schedule {
+        let con = ControlSchedule {
             interpolation: Interpolation::Constant,
             ..lin
         };

@@ -21,7 +21,7 @@ pub mod stress;
 pub mod transfer;
 
 pub use boundary::{
-    ControlEffect, ControlKind, ControlParams, ControlPlan, Interpolation, Schedule,
+    ControlEffect, ControlKind, ControlParams, ControlPlan, ControlSchedule, Interpolation,
 };
 pub use control::ControlForm;
 pub use error::SimError;
