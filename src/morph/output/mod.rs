@@ -69,6 +69,28 @@ pub struct Summary {
     pub warnings: Vec<String>,
 }
 
+impl Summary {
+    /// What the manifest `m` of the folder `output` says of its run (no time spent, nothing
+    /// resumed, no warnings: the caller sets what it knows).
+    fn of(m: &Manifest, output: &Path) -> Summary {
+        Summary {
+            output: output.to_path_buf(),
+            particles: m.particles,
+            frames: m.frames.len(),
+            initial_loss: m.initial_loss,
+            final_loss: m.final_loss,
+            fill: m.fill,
+            quality: m.quality,
+            frames_summary: m.frames_summary,
+            motion: m.motion,
+            seconds: 0.0,
+            resumed_from: None,
+            already_complete: false,
+            warnings: Vec::new(),
+        }
+    }
+}
+
 /// Where and how a morph writes its folder.
 #[derive(Clone, Copy, Debug)]
 pub struct OutputRequest<'a> {
@@ -143,19 +165,8 @@ pub fn morph_to_folder(
         match done {
             Some(m) if request.resume && m.run_id == run_id && missing.is_empty() => {
                 return Ok(Summary {
-                    output: plan.out.clone(),
-                    particles: m.particles,
-                    frames: m.frames.len(),
-                    initial_loss: m.initial_loss,
-                    final_loss: m.final_loss,
-                    fill: m.fill,
-                    quality: m.quality,
-                    frames_summary: m.frames_summary,
-                    motion: m.motion,
-                    seconds: 0.0,
-                    resumed_from: None,
                     already_complete: true,
-                    warnings: Vec::new(),
+                    ..Summary::of(&m, &plan.out)
                 });
             }
             Some(m) if m.run_id == run_id && !request.overwrite => {

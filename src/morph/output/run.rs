@@ -121,19 +121,10 @@ pub(super) fn write_run(
     let ck = dir.join(checkpoint::FOLDER);
     std::fs::remove_dir_all(&ck).map_err(|e| out_err("(removing) checkpoint", &ck, e))?;
     Ok(Summary {
-        output: dir.to_path_buf(),
-        particles: prep.initial.len(),
-        frames: prep.frame_count(),
-        initial_loss: result.initial_loss,
-        final_loss: result.final_loss,
-        fill,
-        quality,
-        frames_summary,
-        motion,
         seconds: total_s,
         resumed_from,
-        already_complete: false,
         warnings: run_warnings,
+        ..Summary::of(&manifest, dir)
     })
 }
 
