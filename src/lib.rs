@@ -28,8 +28,7 @@
 //! in memory, and [`MorphSettings`]) and an [`Observer`] that receives events and frames in
 //! world units and may cancel. `examples/library.rs` shows one.
 
-pub mod bench;
-pub mod control;
+pub mod apps;
 pub mod effects;
 pub mod engine;
 pub mod files;
@@ -43,7 +42,6 @@ pub mod mpm;
 pub mod ode;
 pub mod optim;
 pub mod scene;
-pub mod study;
 
 pub use morph::{
     Frame, FrameRecord, FrameSink, Job, MeshSource, MorphError, MorphEvent, MorphResult,

@@ -128,7 +128,7 @@ fn ode_parallel_path_is_bitwise_identical_across_thread_counts() {
 }
 
 fn controlled_rope_bits(integrator: IntegratorKind) {
-    use morph::control::rope::{Actuation, RopeConfig};
+    use morph::apps::rope::scene::{Actuation, RopeConfig};
     use morph::integrator::Controlled;
     let run = |threads: usize| {
         let pool = rayon::ThreadPoolBuilder::new()

@@ -13,7 +13,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 const CELLS_ALONG: usize = 16;
-const DENSITY: f64 = morph::bench::physics::BAR_DENSITY;
+const DENSITY: f64 = morph::apps::bench::physics::BAR_DENSITY;
 /// Peak axial speed of the mode (m/s); small against the wave speed (11.6 m/s).
 const AMPLITUDE: f64 = 0.5;
 const DT: f64 = 2.5e-3;
@@ -33,10 +33,10 @@ struct Bar {
 /// The 1 m bar of `morph bench-accuracy` (2x2 cells thick, 2x2x2 particles per cell), with
 /// the free-free first axial mode's velocity `v_x = A cos(pi X / L)`.
 fn bar() -> Bar {
-    let b = morph::bench::physics::bar(CELLS_ALONG);
+    let b = morph::apps::bench::physics::bar(CELLS_ALONG);
     let (v, grad_v) =
         b.x.iter()
-            .map(|x| morph::bench::physics::mode_velocity(x, AMPLITUDE))
+            .map(|x| morph::apps::bench::physics::mode_velocity(x, AMPLITUDE))
             .unzip();
     Bar {
         grid: b.grid,

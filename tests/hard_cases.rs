@@ -1,8 +1,8 @@
-//! The fast hard cases (`morph::bench::hard_cases`): each stays finite, inside the grid,
+//! The fast hard cases (`morph::apps::bench::hard_cases`): each stays finite, inside the grid,
 //! with 0 < J <= J_MAX and a bounded speed on every frame, or is refused with one line.
 //! The long ones run with `morph bench-hard-cases --long` (docs/engine.md).
 
-use morph::bench::hard_cases::{Case, Outcome, cases, run_case};
+use morph::apps::bench::hard_cases::{Case, Outcome, cases, run_case};
 use std::path::Path;
 
 fn case(name: &str) -> Case {
@@ -28,7 +28,7 @@ fn check(name: &str) -> Outcome {
 
 #[test]
 fn stiff_materials_substep_instead_of_failing() {
-    let base = morph::bench::hard_cases::quick();
+    let base = morph::apps::bench::hard_cases::quick();
     let step = morph::morph::MORPH_STEP;
     let mut bounds = Vec::new();
     for name in ["stiff-x100", "stiff-x10000"] {

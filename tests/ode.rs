@@ -7,7 +7,7 @@
 mod common;
 
 use common::Lcg;
-use morph::control::rope::{Actuation, ClampMode, RopeConfig};
+use morph::apps::rope::scene::{Actuation, ClampMode, RopeConfig};
 use morph::engine::Engine;
 use morph::integrator::{Controlled, IntegratorKind};
 use morph::material::MaterialModel;

@@ -2,7 +2,7 @@
 //! writes report.json with the three methods, energy.png and PLY frames, where each
 //! controller's committed steps replay exactly and MPPI is deterministic across thread counts.
 
-use morph::control::compare::{RopeSettings, run_rope};
+use morph::apps::rope::compare::{RopeSettings, run_rope};
 use morph::integrator::Controlled;
 use morph::mpm::{ControlParams, ControlPlan};
 use nalgebra::Vector3;

@@ -45,7 +45,7 @@ fn a_tiny_study_writes_its_files_and_continues() {
     let csv = std::fs::read_to_string(out.join("study.csv")).unwrap();
     let mut lines = csv.lines();
     let header: Vec<&str> = lines.next().unwrap().split(',').collect();
-    assert_eq!(header, morph::study::CSV_COLUMNS);
+    assert_eq!(header, morph::apps::study::CSV_COLUMNS);
     let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
     assert_eq!(rows.len(), 2, "one row per configuration");
     let text_columns = ["id", "preset", "kernel", "integrator", "pareto", "error"];

@@ -84,7 +84,10 @@ pub struct BenchMorphArgs {
 
 pub fn run(a: &BenchArgs) -> ExitCode {
     if let Some(BenchWhat::Morph(m)) = &a.what {
-        let known: Vec<&str> = morph::bench::morph::CASES.iter().map(|c| c.name).collect();
+        let known: Vec<&str> = morph::apps::bench::morph::CASES
+            .iter()
+            .map(|c| c.name)
+            .collect();
         if let Some(bad) = m.only.iter().find(|o| !known.contains(&o.as_str())) {
             return fail(
                 false,
@@ -92,14 +95,14 @@ pub fn run(a: &BenchArgs) -> ExitCode {
                 &format!("--only: no case '{bad}' (the cases: {})", known.join(", ")),
             );
         }
-        return super::report(morph::bench::morph::run(&m.meshes, &m.only));
+        return super::report(morph::apps::bench::morph::run(&m.meshes, &m.only));
     }
     if let Some(BenchWhat::Stages(st)) = &a.what {
         let r = &st.run;
         if let Some(code) = r.invalid() {
             return code;
         }
-        return super::report(morph::bench::roofline::run(
+        return super::report(morph::apps::bench::roofline::run(
             r.steps,
             r.repeats,
             &r.thread_counts,
@@ -109,7 +112,7 @@ pub fn run(a: &BenchArgs) -> ExitCode {
     if let Some(code) = r.invalid() {
         return code;
     }
-    super::report(morph::bench::run(
+    super::report(morph::apps::bench::run(
         r.steps,
         r.repeats,
         &r.thread_counts,
@@ -150,7 +153,7 @@ pub fn run_geometry(a: &BenchGeometryArgs) -> ExitCode {
     if a.repeats == 0 {
         return fail(false, 2, "--repeats must be at least 1");
     }
-    super::report(morph::bench::geometry::run(
+    super::report(morph::apps::bench::geometry::run(
         &a.meshes,
         &a.resolutions,
         a.repeats,
@@ -168,5 +171,5 @@ pub struct BenchHardCasesArgs {
 }
 
 pub fn run_hard_cases(a: &BenchHardCasesArgs) -> ExitCode {
-    super::report(morph::bench::hard_cases::run(&a.meshes, a.long))
+    super::report(morph::apps::bench::hard_cases::run(&a.meshes, a.long))
 }

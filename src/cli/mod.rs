@@ -170,7 +170,7 @@ fn dispatch(cli: &Cli) -> ExitCode {
         Some(Command::Bench(args)) => bench::run(args),
         Some(Command::BenchGeometry(args)) => bench::run_geometry(args),
         Some(Command::BenchHardCases(args)) => bench::run_hard_cases(args),
-        Some(Command::BenchAccuracy) => report(::morph::bench::physics::run()),
+        Some(Command::BenchAccuracy) => report(::morph::apps::bench::physics::run()),
         Some(Command::Inspect(args)) => inspect::run(args),
         Some(Command::Compare(args)) => compare::run(args),
         Some(Command::Rope(args)) => rope::run(args),

@@ -1,8 +1,8 @@
 //! `morph rope`: the rope active-damping comparison (uncontrolled, MPPI, gradient control).
 
 use super::{choice, fail, name};
-use morph::control::compare::RopeSettings;
-use morph::control::rope::{Actuation, ClampMode};
+use morph::apps::rope::compare::RopeSettings;
+use morph::apps::rope::scene::{Actuation, ClampMode};
 use std::path::PathBuf;
 use std::process::ExitCode;
 
@@ -88,7 +88,7 @@ pub struct RopeArgs {
 
 /// A count option: must be >= `min` and at most the library's bound.
 fn count(name: &str, v: i64, min: i64) -> Result<usize, String> {
-    use morph::control::compare::{MAX_ROPE_CELLS, MAX_ROPE_COUNT};
+    use morph::apps::rope::compare::{MAX_ROPE_CELLS, MAX_ROPE_COUNT};
     let max = if name == "cells-along" {
         MAX_ROPE_CELLS
     } else {
@@ -169,8 +169,8 @@ fn rope_settings(a: &RopeArgs) -> Result<RopeSettings, String> {
 }
 
 pub fn run(args: &RopeArgs) -> ExitCode {
-    use morph::control::ControlEvent;
-    use morph::control::compare::{RopeError, rope_to_folder, table};
+    use morph::apps::rope::ControlEvent;
+    use morph::apps::rope::compare::{RopeError, rope_to_folder, table};
     let settings = match rope_settings(args) {
         Ok(s) => s,
         Err(e) => return fail(args.json, 2, &e),

@@ -2,10 +2,10 @@
 
 use super::{choice, fail};
 use clap::Args;
+use morph::apps::study::{self, StudyError, StudyEvent, StudyGrid};
 use morph::integrator::IntegratorKind;
 use morph::morph::Preset;
 use morph::mpm::KernelKind;
-use morph::study::{self, StudyError, StudyEvent, StudyGrid};
 use std::path::PathBuf;
 use std::process::ExitCode;
 

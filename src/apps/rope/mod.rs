@@ -10,7 +10,7 @@
 pub mod compare;
 pub mod gradient;
 pub mod mppi;
-pub mod rope;
+pub mod scene;
 
 use crate::mpm::{ControlSchedule, Interpolation};
 use serde::Serialize;

@@ -10,7 +10,7 @@
 
 use super::gradient::{ControllerRun, GradientSettings, gradient_control};
 use super::mppi::{MppiSettings, mppi_control};
-use super::rope::{Rope, RopeConfig};
+use super::scene::{Rope, RopeConfig};
 use super::{Committed, ControlEvent};
 use crate::integrator::{Controlled, IntegratorKind};
 use crate::io::frames::write_points_ply;
