@@ -128,29 +128,53 @@ pub fn available_memory() -> Option<u64> {
     }
 }
 
-/// The memory limit of this process's cgroup (v2 `memory.max`, or v1
-/// `memory.limit_in_bytes`), when there is one.
+/// The memory limit of this process's cgroup, when there is one: [`cgroup_limit_in`] on
+/// this machine's `/sys/fs/cgroup` and `/proc/self/cgroup`.
 pub fn cgroup_limit() -> Option<u64> {
-    let read = |p: &str| {
-        crate::files::read_to_string(std::path::Path::new(p), crate::files::SMALL_FILE_BYTES).ok()
-    };
-    // The cgroup this process is in (v2: one line `0::/path`).
-    let own = read("/proc/self/cgroup")
-        .and_then(|t| {
-            t.lines()
-                .find_map(|l| l.strip_prefix("0::").map(|p| p.trim().to_string()))
-        })
-        .unwrap_or_default();
-    let candidates = [
-        format!("/sys/fs/cgroup{own}/memory.max"),
-        "/sys/fs/cgroup/memory.max".to_string(),
-        "/sys/fs/cgroup/memory/memory.limit_in_bytes".to_string(),
-    ];
-    candidates.iter().find_map(|p| {
-        let v: u64 = read(p)?.trim().parse().ok()?;
-        // v1 writes a number near 2^63 for "no limit".
+    let own = crate::files::read_to_string(
+        std::path::Path::new("/proc/self/cgroup"),
+        crate::files::SMALL_FILE_BYTES,
+    )
+    .ok()?;
+    cgroup_limit_in(std::path::Path::new("/sys/fs/cgroup"), &own)
+}
+
+/// The memory limit a process lives under, from the text of its `/proc/self/cgroup` and the
+/// cgroup file system mounted at `root`: the smallest limit on the way from its own group up
+/// to the root, as the kernel enforces every one of them (a farm slot's limit is often set on
+/// a parent of the job's own group). Cgroup v2 (`0::/path`: `memory.max`, `max` for none) and
+/// v1 (`N:memory:/path` or with `memory` among several controllers:
+/// `memory/path/memory.limit_in_bytes`, a number near 2^63 for none) are both read; a group
+/// whose file is missing (a container that shows the host's path) is passed over.
+pub fn cgroup_limit_in(root: &std::path::Path, proc_self_cgroup: &str) -> Option<u64> {
+    let read = |p: &std::path::Path| -> Option<u64> {
+        let text = crate::files::read_to_string(p, crate::files::SMALL_FILE_BYTES).ok()?;
+        let v: u64 = text.trim().parse().ok()?; // `max` does not parse: no limit
         (v < 1 << 60).then_some(v)
-    })
+    };
+    // Every group from `path` up to the root of `mount`, each with its limit file.
+    let chain = |mount: std::path::PathBuf, path: &str, file: &str| -> Vec<std::path::PathBuf> {
+        let mut dir = mount.join(path.trim_start_matches('/'));
+        let mut files = vec![dir.join(file)];
+        while dir != mount && dir.pop() {
+            files.push(dir.join(file));
+        }
+        files
+    };
+    let mut files = Vec::new();
+    for line in proc_self_cgroup.lines() {
+        let mut parts = line.splitn(3, ':');
+        let (Some(_), Some(controllers), Some(path)) = (parts.next(), parts.next(), parts.next())
+        else {
+            continue;
+        };
+        if controllers.is_empty() {
+            files.extend(chain(root.to_path_buf(), path, "memory.max"));
+        } else if controllers.split(',').any(|c| c == "memory") {
+            files.extend(chain(root.join("memory"), path, "memory.limit_in_bytes"));
+        }
+    }
+    files.iter().filter_map(|f| read(f)).min()
 }
 
 /// Bytes of everything but the tapes for a morph of `particles` source particles,
@@ -388,6 +412,63 @@ pub fn physical_memory() -> Option<u64> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A cgroup file system under a fresh folder: `(path, content)` files.
+    fn fixture(name: &str, files: &[(&str, &str)]) -> std::path::PathBuf {
+        let root = std::env::temp_dir().join(format!("morph-cgroup-{name}-{}", std::process::id()));
+        let _ = std::fs::remove_dir_all(&root);
+        for (path, content) in files {
+            let p = root.join(path);
+            std::fs::create_dir_all(p.parent().unwrap()).unwrap();
+            std::fs::write(p, content).unwrap();
+        }
+        root
+    }
+
+    #[test]
+    fn cgroup_v2_limits_are_read_up_the_tree() {
+        let root = fixture(
+            "v2",
+            &[
+                ("memory.max", "max\n"),
+                ("farm/memory.max", "8589934592\n"),
+                ("farm/job7/memory.max", "max\n"),
+            ],
+        );
+        // The job's own group has none; its slot (the parent) has 8 GiB.
+        assert_eq!(cgroup_limit_in(&root, "0::/farm/job7\n"), Some(8 << 30));
+        // A tighter limit on the job's own group wins.
+        std::fs::write(root.join("farm/job7/memory.max"), "1073741824\n").unwrap();
+        assert_eq!(cgroup_limit_in(&root, "0::/farm/job7\n"), Some(1 << 30));
+        // No limit anywhere.
+        assert_eq!(cgroup_limit_in(&root, "0::/\n"), None);
+        // A path the mount does not show (a container without its own namespace): skipped.
+        assert_eq!(cgroup_limit_in(&root, "0::/elsewhere/x\n"), None);
+        std::fs::remove_dir_all(root).unwrap();
+    }
+
+    #[test]
+    fn cgroup_v1_limits_are_read_for_the_memory_controller() {
+        let unlimited = "9223372036854771712\n";
+        let root = fixture(
+            "v1",
+            &[
+                ("memory/memory.limit_in_bytes", unlimited),
+                ("memory/docker/abc/memory.limit_in_bytes", "536870912\n"),
+                ("cpu/docker/abc/cpu.shares", "1024\n"),
+            ],
+        );
+        let own = "11:cpu,cpuacct:/docker/abc\n4:memory:/docker/abc\n1:name=systemd:/docker/abc\n";
+        assert_eq!(cgroup_limit_in(&root, own), Some(512 << 20));
+        // `memory` among several controllers on one line.
+        let joint = "4:cpuacct,memory:/docker/abc\n";
+        assert_eq!(cgroup_limit_in(&root, joint), Some(512 << 20));
+        // v1's "no limit" (a number near 2^63) is none.
+        assert_eq!(cgroup_limit_in(&root, "4:memory:/\n"), None);
+        // The machine this runs on: whatever it has, a limit is a positive size.
+        assert!(cgroup_limit().is_none_or(|b| b > 0));
+        std::fs::remove_dir_all(root).unwrap();
+    }
 
     #[test]
     fn sizes_parse_with_units() {
