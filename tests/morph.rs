@@ -416,6 +416,69 @@ fn json_mode_prints_one_object_per_line() {
     assert!(!out.join("meshes").exists());
 }
 
+/// `--progress openjd`: the farm's lines on stdout, the percent rising from 0 to 100 (reached
+/// once every file is written), a status per segment; a failure says `openjd_fail`; it cannot
+/// be combined with `--json`.
+#[test]
+fn openjd_progress_rises_to_100_and_failures_say_so() {
+    let out = scratch("openjd");
+    let mut args: Vec<&str> = SMALL[..4].to_vec();
+    args.extend_from_slice(&[
+        "--iterations",
+        "3",
+        "--segments",
+        "2",
+        "--passes",
+        "2",
+        "-o",
+        out.to_str().unwrap(),
+        "--progress",
+        "openjd",
+        "--no-surfaces",
+    ]);
+    let r = morph(&args);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let text = String::from_utf8(r.stdout).unwrap();
+    let percents: Vec<f64> = text
+        .lines()
+        .filter_map(|l| l.strip_prefix("openjd_progress: "))
+        .map(|p| p.parse().unwrap())
+        .collect();
+    assert_eq!(percents.first(), Some(&0.0), "{text}");
+    assert_eq!(percents.last(), Some(&100.0), "{text}");
+    assert!(percents.windows(2).all(|w| w[0] < w[1]), "{percents:?}");
+    // 2 passes x 2 segments x 3 evaluations: more than a handful of steps, none past 99.9
+    // before the end.
+    assert!(percents.len() >= 8, "{percents:?}");
+    assert!(percents[..percents.len() - 1].iter().all(|p| *p <= 99.9));
+    let statuses = text
+        .lines()
+        .filter(|l| l.starts_with("openjd_status: pass"))
+        .count();
+    assert_eq!(statuses, 4, "{text}");
+    let missing = scratch("openjd-missing.obj");
+    let failed = scratch("openjd-failed");
+    let r = morph(&[
+        "assets/sphere.obj",
+        missing.to_str().unwrap(),
+        "-o",
+        failed.to_str().unwrap(),
+        "--progress",
+        "openjd",
+    ]);
+    assert_eq!(r.status.code(), Some(1));
+    let text = String::from_utf8(r.stdout).unwrap();
+    assert!(text.starts_with("openjd_fail: cannot read mesh"), "{text}");
+    let r = morph(&[
+        "assets/sphere.obj",
+        "assets/cube.obj",
+        "--progress",
+        "openjd",
+        "--json",
+    ]);
+    assert_eq!(r.status.code(), Some(2));
+}
+
 /// The morph-quality issue: on a small case, more optimizer iterations never judge worse, and
 /// in every frame of every run no particle is inverted (J > 0) and the rebuilt surface
 /// encloses the body's volume within 5%.

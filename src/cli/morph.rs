@@ -104,6 +104,13 @@ pub(super) fn after_long_help() -> String {
     AFTER_LONG_HELP.replace("{presets}", &presets.join("\n"))
 }
 
+/// How `morph` shows a run's progress (`--json` prints every event instead).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+enum ProgressShown {
+    Bar,
+    Openjd,
+}
+
 /// The main job: `morph SOURCE TARGET [options]`.
 #[derive(Args, Debug)]
 pub struct MorphArgs {
@@ -227,6 +234,11 @@ pub struct MorphArgs {
     /// Print nothing but errors.
     #[arg(long, short)]
     quiet: bool,
+    /// How progress is shown: bar (a progress bar on a terminal) or openjd (Open Job
+    /// Description's lines on stdout for a render farm: `openjd_progress: <percent>`,
+    /// `openjd_status: <message>`, and `openjd_fail: <message>` when the run fails).
+    #[arg(long, value_enum, default_value_t = ProgressShown::Bar, conflicts_with = "json")]
+    progress: ProgressShown,
     /// Cap on the run's memory, e.g. 200M or 4G, at most the machine's (or its container's)
     /// memory: segments then keep checkpoints and recompute instead of holding every step
     /// (same results, more time). auto: a quarter of the memory this process may use.
@@ -456,13 +468,18 @@ pub fn run(args: &MorphArgs) -> ExitCode {
     // The library checks the settings (morph_to_folder, before the folder is touched).
     let (settings, source, targets) = match args.job() {
         Ok(j) => j,
-        Err(e) => return fail(args.json, 2, &e),
+        Err(e) => return fail_run(args, 2, &e),
     };
     let stop = match stop_on_signals() {
         Ok(s) => s,
-        Err(e) => return fail(args.json, 1, &format!("cannot watch for signals: {e}")),
+        Err(e) => return fail_run(args, 1, &format!("cannot watch for signals: {e}")),
     };
-    let show_bar = !args.quiet && !args.json && std::io::stderr().is_terminal();
+    let openjd = args.progress == ProgressShown::Openjd;
+    let show_bar = !args.quiet && !args.json && !openjd && std::io::stderr().is_terminal();
+    // Open Job Description progress: the percent when its first decimal changes; 100 only
+    // once every file is written.
+    let mut meter = morph::morph::progress::ProgressMeter::new();
+    let mut shown_percent = String::new();
     let bar = ProgressBar::hidden();
     let mut last_loss = f64::NAN;
     let on_event = |e: &MorphEvent| {
@@ -474,6 +491,35 @@ pub fn run(args: &MorphArgs) -> ExitCode {
                 stop.store(libc::SIGPIPE as usize, std::sync::atomic::Ordering::Relaxed);
             }
             return;
+        }
+        if openjd {
+            let percent = format!("{:.1}", 100.0 * meter.observe(e).min(0.999));
+            if percent != shown_percent {
+                say!("openjd_progress: {percent}");
+                shown_percent = percent;
+            }
+            match e {
+                MorphEvent::Setup {
+                    particles,
+                    segments,
+                    passes,
+                    ..
+                } => say!(
+                    "openjd_status: morphing {particles} particles: {segments} segments x {passes} passes"
+                ),
+                MorphEvent::Level { level, levels, .. } => {
+                    say!("openjd_status: level {level} of {levels}")
+                }
+                MorphEvent::Segment { pass, segment, .. } => say!(
+                    "openjd_status: pass {} of {}, segment {} of {} done",
+                    pass + 1,
+                    settings.passes,
+                    segment + 1,
+                    settings.segments
+                ),
+                MorphEvent::Done { .. } => say!("openjd_status: writing the whole-sequence files"),
+                MorphEvent::Iteration { .. } => {}
+            }
         }
         match e {
             MorphEvent::Setup {
@@ -555,6 +601,9 @@ pub fn run(args: &MorphArgs) -> ExitCode {
     bar.finish_and_clear();
     match result {
         Ok(summary) => {
+            if args.progress == ProgressShown::Openjd {
+                say!("openjd_progress: 100.0");
+            }
             if args.json {
                 say!(
                     "{}",
@@ -668,7 +717,16 @@ pub fn run(args: &MorphArgs) -> ExitCode {
                 | MorphError::Mesh(morph::geometry::MeshError::BadOption(_)) => 2,
                 _ => 1,
             };
-            fail(args.json, code, &e.to_string())
+            fail_run(args, code, &e.to_string())
         }
     }
+}
+
+/// A failed run: the one-line error (and with `--json` its event, with `--progress openjd` the
+/// farm's failure line).
+fn fail_run(args: &MorphArgs, code: u8, message: &str) -> ExitCode {
+    if args.progress == ProgressShown::Openjd {
+        say!("openjd_fail: {message}");
+    }
+    fail(args.json, code, message)
 }

@@ -17,6 +17,7 @@ pub mod metrics;
 pub mod motion;
 pub mod output;
 mod prepare;
+pub mod progress;
 pub mod quality;
 pub mod scene_file;
 pub mod segment;
