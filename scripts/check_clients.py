@@ -43,14 +43,22 @@ def obj_counts(path):
     return v, vt, f
 
 
+def frame_range(manifest):
+    """The first and last frame numbers (`--start-frame`, 1 by default)."""
+    first = manifest["settings"].get("start_frame", 1)
+    return first, first + len(manifest["frames"]) - 1
+
+
 def check_usd(out, manifest):
     from pxr import Usd, UsdGeom, UsdValidation
 
     path = out / "morph.usda"
     stage = Usd.Stage.Open(str(path))
     n = len(manifest["frames"])
+    first, last = frame_range(manifest)
     fps = manifest["fps"]
-    check("usd time codes 1..frames", (stage.GetStartTimeCode(), stage.GetEndTimeCode()) == (1, n),
+    check(f"usd time codes {first}..{last} (the shot's frames)",
+          (stage.GetStartTimeCode(), stage.GetEndTimeCode()) == (first, last),
           (stage.GetStartTimeCode(), stage.GetEndTimeCode()))
     check("usd timeCodesPerSecond and framesPerSecond = fps",
           abs(stage.GetTimeCodesPerSecond() - fps) < 1e-9 and abs(stage.GetFramesPerSecond() - fps) < 1e-9,
@@ -59,22 +67,22 @@ def check_usd(out, manifest):
           UsdGeom.GetStageUpAxis(stage) == "Y" and UsdGeom.GetStageMetersPerUnit(stage) == 1.0)
     pts = UsdGeom.Points(stage.GetPrimAtPath("/Morph/particles"))
     count = manifest["particles"]
-    for t in (1, n):
+    for t in (first, last):
         check(f"usd particles at frame {t}: points, velocities",
               len(pts.GetPointsAttr().Get(t)) == count and len(pts.GetVelocitiesAttr().Get(t)) == count,
               count)
     check("usd ids", list(pts.GetIdsAttr().Get()) == list(range(count)))
     j = UsdGeom.PrimvarsAPI(pts).GetPrimvar("J")
-    check("usd primvars:J per point", j.GetInterpolation() == "vertex" and len(j.Get(n)) == count)
+    check("usd primvars:J per point", j.GetInterpolation() == "vertex" and len(j.Get(last)) == count)
     has_carried, has_rebuilt = surfaces_of(manifest)
     if has_carried:
-        check_usd_carried(out, manifest, stage, n)
+        check_usd_carried(out, manifest, stage, last)
     else:
         print("     (no carried surface in this output: its checks skipped)")
     if has_rebuilt:
         rebuilt = UsdGeom.Mesh(stage.GetPrimAtPath("/Morph/rebuilt"))
         check("usd rebuilt mesh: points on every frame",
-              all(len(rebuilt.GetPointsAttr().Get(t)) > 0 for t in range(1, n + 1)))
+              all(len(rebuilt.GetPointsAttr().Get(t)) > 0 for t in range(first, last + 1)))
     else:
         print("     (no rebuilt surface in this output: its checks skipped)")
     validators = UsdValidation.ValidationRegistry().GetOrLoadAllValidators()
@@ -89,35 +97,36 @@ def surfaces_of(manifest):
     return "carried_mesh" in first, "mesh" in first
 
 
-def check_usd_carried(out, manifest, stage, n):
+def check_usd_carried(out, manifest, stage, last):
     from pxr import UsdGeom
 
     carried = UsdGeom.Mesh(stage.GetPrimAtPath("/Morph/carried"))
     sv, svt, sf = obj_counts(out / manifest["frames"][0]["carried_mesh"])
     check("usd carried mesh: source's vertex and face counts",
-          len(carried.GetPointsAttr().Get(n)) == sv and len(carried.GetFaceVertexCountsAttr().Get()) == sf,
+          len(carried.GetPointsAttr().Get(last)) == sv and len(carried.GetFaceVertexCountsAttr().Get()) == sf,
           (sv, sf))
     st = UsdGeom.PrimvarsAPI(carried).GetPrimvar("st")
     check("usd carried mesh: st primvar (faceVarying) with the source's UVs",
           st.GetInterpolation() == "faceVarying" and len(st.Get()) == svt, svt)
-    check("usd carried mesh: velocities", len(carried.GetVelocitiesAttr().Get(2)) == sv)
+    check("usd carried mesh: velocities", len(carried.GetVelocitiesAttr().Get(frame_range(manifest)[0] + 1)) == sv)
 
 
 def check_blender(out, manifest):
     import bpy
 
-    n = len(manifest["frames"])
+    first, last = frame_range(manifest)
     fps = manifest["fps"]
     bpy.ops.wm.read_factory_settings(use_empty=True)
     bpy.ops.wm.usd_import(filepath=str(out / "morph.usda"), set_frame_range=True)
     scene = bpy.context.scene
-    check("blender frame range from the USD", (scene.frame_start, scene.frame_end) == (1, n),
+    check(f"blender frame range from the USD: {first}..{last} (frame_start = the start frame)",
+          (scene.frame_start, scene.frame_end) == (first, last),
           (scene.frame_start, scene.frame_end))
     check("blender fps from the USD", abs(scene.render.fps / scene.render.fps_base - fps) < 1e-6,
           scene.render.fps / scene.render.fps_base)
     objects = {o.name: o for o in scene.objects}
     print("     blender objects:", sorted(objects))
-    scene.frame_set(n)
+    scene.frame_set(last)
     depsgraph = bpy.context.evaluated_depsgraph_get()
     particles = objects.get("particles")
     check("blender particles object", particles is not None)

@@ -416,6 +416,63 @@ fn json_mode_prints_one_object_per_line() {
     assert!(!out.join("meshes").exists());
 }
 
+/// `--start-frame 1001`: file names, the manifest's frames and the USD's time codes count from
+/// the shot's first frame; the simulation is the same bit for bit; an absurd number is refused.
+#[test]
+fn a_shot_starts_at_its_own_frame_number() {
+    let mut grids = Vec::new();
+    for start in ["1", "1001"] {
+        let out = scratch(&format!("start-{start}"));
+        let mut args: Vec<&str> = SMALL.to_vec();
+        args.extend_from_slice(&[
+            "--start-frame",
+            start,
+            "-o",
+            out.to_str().unwrap(),
+            "--quiet",
+        ]);
+        let r = morph(&args);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        let m = manifest(&out);
+        let n = m["frames"].as_array().unwrap().len();
+        let first: usize = start.parse().unwrap();
+        let last = first + n - 1;
+        assert_eq!(m["settings"]["start_frame"], first);
+        assert_eq!(
+            m["frames"][0]["points"],
+            format!("frames/frame_{first:04}.ply")
+        );
+        assert_eq!(
+            m["frames"][n - 1]["mesh"],
+            format!("meshes/frame_{last:04}.obj")
+        );
+        assert!(out.join(format!("carried/frame_{last:04}.obj")).is_file());
+        let usd = std::fs::read_to_string(out.join("morph.usda")).unwrap();
+        assert!(usd.contains(&format!(
+            "startTimeCode = {first}\n    endTimeCode = {last}\n"
+        )));
+        assert!(usd.contains(&format!("            {last}: [(")));
+        grids.push(std::fs::read(out.join("final_mass.mgrid")).unwrap());
+    }
+    assert_eq!(
+        grids[0], grids[1],
+        "the start frame changes names, never the simulation"
+    );
+    let r = morph(&[
+        "assets/sphere.obj",
+        "assets/cube.obj",
+        "--start-frame",
+        "99999999",
+    ]);
+    assert_eq!(r.status.code(), Some(2));
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(
+        err.starts_with("morph: error: ") && err.contains("start-frame"),
+        "{err}"
+    );
+    assert_eq!(err.lines().count(), 1, "{err}");
+}
+
 /// `--progress openjd`: the farm's lines on stdout, the percent rising from 0 to 100 (reached
 /// once every file is written), a status per segment; a failure says `openjd_fail`; it cannot
 /// be combined with `--json`.

@@ -201,6 +201,8 @@ pub struct MorphArgs {
     seed: Option<u64>,
     #[arg(long, help = help("Export every n-th step as a frame, instead of --fps", Some(limits::FRAME_EVERY), defaults().frame_every))]
     frame_every: Option<usize>,
+    #[arg(long, help = help("Number of the first frame (the rest shape) in file names and USD time codes, e.g. a shot's 1001; --at still counts from 1", Some(limits::START_FRAME), defaults().start_frame))]
+    start_frame: Option<usize>,
     /// Frames per second of the sequence: frames exactly 1/FPS s apart, each the fewest equal
     /// steps of at most 1/120 s (24: 5 steps of 1/120 s; 25: 5 of 1/125 s) [default 24;
     /// --frame-every or --dt replace it].
@@ -324,6 +326,7 @@ impl MorphArgs {
             s.refine_iterations = self.refine_iterations;
         }
         set(&mut s.particles_per_cell, self.particles_per_cell);
+        set(&mut s.start_frame, self.start_frame);
         if let Some(n) = self.frame_every {
             // A frame every n steps replaces the frame rate.
             s.frame_every = n;

@@ -29,6 +29,8 @@ pub const FILE: &str = "morph.usda";
 /// What the USD file is made from: each frame's files, in order, relative to `dir`.
 pub struct UsdSequence<'a> {
     pub dir: &'a Path,
+    /// The first frame's time code (`--start-frame`); frame `k` (0-based) is at `start + k`.
+    pub start: usize,
     pub fps: f64,
     pub points: Vec<PathBuf>,
     pub carried: Option<Vec<PathBuf>>,
@@ -189,9 +191,11 @@ fn extent(points: &[Vector3<f64>]) -> [Vector3<f64>; 2] {
     }
 }
 
-/// Writes `name.timeSamples = { k: value, ... }` for every frame, `value` writing frame `k`'s.
+/// Writes `name.timeSamples = { start + k: value, ... }` for every frame, `value` writing
+/// frame `k`'s (0-based).
 fn samples(
     w: &mut dyn Write,
+    start: usize,
     declaration: &str,
     frames: usize,
     value: impl Fn(&mut dyn Write, usize) -> std::io::Result<()> + Sync,
@@ -201,12 +205,12 @@ fn samples(
     // Frames are read and formatted in parallel, a batch at a time (text is most of the
     // cost), and written in order: the same bytes on any thread count.
     const BATCH: usize = 8;
-    for start in (0..frames).step_by(BATCH) {
-        let texts: Vec<Vec<u8>> = (start..(start + BATCH).min(frames))
+    for batch in (0..frames).step_by(BATCH) {
+        let texts: Vec<Vec<u8>> = (batch..(batch + BATCH).min(frames))
             .into_par_iter()
             .map(|k| {
                 let mut text = Vec::new();
-                write!(text, "            {}: ", k + 1)?;
+                write!(text, "            {}: ", start + k)?;
                 value(&mut text, k)?;
                 writeln!(text, ",")?;
                 Ok(text)
@@ -228,8 +232,10 @@ pub fn write_usda(path: &Path, seq: &UsdSequence) -> std::io::Result<()> {
         writeln!(w, "#usda 1.0")?;
         writeln!(
             w,
-            "(\n    defaultPrim = \"Morph\"\n    doc = \"morph {} sequence\"\n    startTimeCode = 1\n    endTimeCode = {n}\n    timeCodesPerSecond = {fps}\n    framesPerSecond = {fps}\n    upAxis = \"Y\"\n    metersPerUnit = 1\n)\n",
+            "(\n    defaultPrim = \"Morph\"\n    doc = \"morph {} sequence\"\n    startTimeCode = {start}\n    endTimeCode = {end}\n    timeCodesPerSecond = {fps}\n    framesPerSecond = {fps}\n    upAxis = \"Y\"\n    metersPerUnit = 1\n)\n",
             env!("CARGO_PKG_VERSION"),
+            start = seq.start,
+            end = seq.start + n - 1,
             fps = seq.fps
         )?;
         writeln!(w, "def Xform \"Morph\" (\n    kind = \"component\"\n)\n{{")?;
@@ -244,16 +250,20 @@ pub fn write_usda(path: &Path, seq: &UsdSequence) -> std::io::Result<()> {
         list(w, std::iter::repeat_n(seq.width as f32, x0.len()))?;
         writeln!(w)?;
         let read = |k: usize| read_points_ply(&at(&seq.points[k]));
-        samples(w, "point3f[] points", n, |w, k| vec3s(w, &read(k)?.x))?;
-        samples(w, "vector3f[] velocities", n, |w, k| vec3s(w, &read(k)?.v))?;
-        samples(w, "float3[] extent", n, |w, k| {
+        samples(w, seq.start, "point3f[] points", n, |w, k| {
+            vec3s(w, &read(k)?.x)
+        })?;
+        samples(w, seq.start, "vector3f[] velocities", n, |w, k| {
+            vec3s(w, &read(k)?.v)
+        })?;
+        samples(w, seq.start, "float3[] extent", n, |w, k| {
             vec3s(w, &extent(&read(k)?.x))
         })?;
         writeln!(
             w,
             "        float[] primvars:J (\n            interpolation = \"vertex\"\n        )"
         )?;
-        samples(w, "float[] primvars:J", n, |w, k| {
+        samples(w, seq.start, "float[] primvars:J", n, |w, k| {
             list(w, read(k)?.j.iter().map(|j| *j as f32))
         })?;
         writeln!(w, "    }}")?;
@@ -287,16 +297,20 @@ pub fn write_usda(path: &Path, seq: &UsdSequence) -> std::io::Result<()> {
                 writeln!(w)?;
             }
             let read = |k: usize| read_obj(&at(&files[k])).map(|f| f.positions);
-            samples(w, "point3f[] points", n, |w, k| vec3s(w, &read(k)?))?;
+            samples(w, seq.start, "point3f[] points", n, |w, k| {
+                vec3s(w, &read(k)?)
+            })?;
             // Velocities by central differences of the frames (one-sided at the ends).
-            samples(w, "vector3f[] velocities", n, |w, k| {
+            samples(w, seq.start, "vector3f[] velocities", n, |w, k| {
                 let (a, b) = (k.saturating_sub(1), (k + 1).min(n - 1));
                 let (pa, pb) = (read(a)?, read(b)?);
                 let dt = (b - a).max(1) as f64 / seq.fps;
                 let v: Vec<Vector3<f64>> = pa.iter().zip(&pb).map(|(p, q)| (q - p) / dt).collect();
                 vec3s(w, &v)
             })?;
-            samples(w, "float3[] extent", n, |w, k| vec3s(w, &extent(&read(k)?)))?;
+            samples(w, seq.start, "float3[] extent", n, |w, k| {
+                vec3s(w, &extent(&read(k)?))
+            })?;
             writeln!(w, "    }}")?;
         }
 
@@ -305,16 +319,16 @@ pub fn write_usda(path: &Path, seq: &UsdSequence) -> std::io::Result<()> {
             let read = |k: usize| read_obj(&at(&files[k]));
             writeln!(w, "\n    def Mesh \"rebuilt\"\n    {{")?;
             writeln!(w, "        uniform token subdivisionScheme = \"none\"")?;
-            samples(w, "int[] faceVertexCounts", n, |w, k| {
+            samples(w, seq.start, "int[] faceVertexCounts", n, |w, k| {
                 list(w, &read(k)?.counts)
             })?;
-            samples(w, "int[] faceVertexIndices", n, |w, k| {
+            samples(w, seq.start, "int[] faceVertexIndices", n, |w, k| {
                 list(w, &read(k)?.indices)
             })?;
-            samples(w, "point3f[] points", n, |w, k| {
+            samples(w, seq.start, "point3f[] points", n, |w, k| {
                 vec3s(w, &read(k)?.positions)
             })?;
-            samples(w, "float3[] extent", n, |w, k| {
+            samples(w, seq.start, "float3[] extent", n, |w, k| {
                 vec3s(w, &extent(&read(k)?.positions))
             })?;
             writeln!(w, "    }}")?;

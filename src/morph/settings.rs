@@ -26,6 +26,8 @@ pub mod limits {
     pub const FRAME_EVERY: RangeInclusive<usize> = 1..=1_000_000;
     /// `--frames`: the rest shape and at least one more; at most an hour at 24 fps.
     pub const FRAMES: RangeInclusive<usize> = 2..=100_000;
+    /// The first frame's number (a shot's 1001); names stay within 8 digits.
+    pub const START_FRAME: RangeInclusive<usize> = 0..=9_000_000;
     /// Target meshes (keyframes) in one morph.
     pub const TARGETS: RangeInclusive<usize> = 1..=1_000;
     /// `--threads`: more than the machine's cores is lowered to them (with a warning).
@@ -150,6 +152,10 @@ pub struct MorphSettings {
     /// 1/120 s (or of `dt`).
     #[serde(default)]
     pub fps: Option<f64>,
+    /// The number of the first frame (the rest shape) in file names and USD time codes (a
+    /// shot's 1001). Keyframes (`at`) still count from 1, the rest shape.
+    #[serde(default = "default_start_frame")]
+    pub start_frame: usize,
     /// Frames in the sequence, the rest shape first: the chain is cut into segments of
     /// `steps_per_segment` steps (the last one shorter when they do not divide the shot).
     /// `None`: `segments` segments.
@@ -270,6 +276,10 @@ fn one_level() -> usize {
     1
 }
 
+fn default_start_frame() -> usize {
+    1
+}
+
 /// Friction of a ground or collider when a scene does not give one.
 pub const DEFAULT_FRICTION: f64 = 0.5;
 
@@ -382,6 +392,7 @@ impl MorphSettings {
             settle_drag: 12.0,
             dt: None,
             frame_every: 3,
+            start_frame: 1,
             fps: Some(DEFAULT_FPS),
             frames: None,
             at: Vec::new(),
@@ -452,6 +463,7 @@ impl MorphSettings {
             range("refine-iterations", n, limits::ITERATIONS)?;
         }
         range("frame-every", self.frame_every, limits::FRAME_EVERY)?;
+        range("start-frame", self.start_frame, limits::START_FRAME)?;
         let positive = |name: &str, v: f64| {
             if v.is_finite() && v > 0.0 {
                 Ok(())

@@ -261,9 +261,10 @@ fn frame_entries(prep: &Prepared, stats: Vec<FrameStats>) -> Vec<FrameEntry> {
     let n_frames = prep.frame_count();
     let surfaces = prep.settings.surfaces;
     let mut stats = stats.into_iter();
+    let start = prep.settings.start_frame;
     (0..n_frames)
         .map(|i| {
-            let name = frame_name(i, n_frames);
+            let name = frame_name(start + i, start + n_frames - 1);
             let step = i * prep.sim_frame_every();
             FrameEntry {
                 index: i + 1,

@@ -69,7 +69,15 @@ pub(super) fn run_writing_frames(
         writer.restore_stats(p.frames)?;
     }
     let (result, sinks) = std::thread::scope(|scope| {
-        let thread = scope.spawn(move || write_frames(sinks, n_frames, spacing, queue, answers));
+        let thread = scope.spawn(move || {
+            write_frames(
+                sinks,
+                (prep.settings.start_frame, n_frames),
+                spacing,
+                queue,
+                answers,
+            )
+        });
         let result = run(prep, resume, &mut writer).and_then(|r| {
             writer.collect(true)?;
             Ok(r)
@@ -198,11 +206,11 @@ struct FrameDone {
 
 /// The writer thread: hands the frames it is sent, in order, to every sink in turn until the
 /// queue closes, then gives the sinks back (to finish). After a failure it writes nothing
-/// more (the run stops on the error). `spacing` (simulation units) is for the close-neighbour
-/// share.
+/// more (the run stops on the error). Frames are numbered from `start`, `count` in all;
+/// `spacing` (simulation units) is for the close-neighbour share.
 fn write_frames(
     mut sinks: Sinks,
-    count: usize,
+    (start, count): (usize, usize),
     spacing: f64,
     work: Receiver<FrameWork>,
     done: Sender<FrameDone>,
@@ -215,6 +223,7 @@ fn write_frames(
         let frame = SinkFrame {
             index: job.index,
             count,
+            start,
             time: job.time,
             world: &job.world,
             state: &job.state,

@@ -2,7 +2,7 @@
 //! particles it was bound to at rest (`geometry/carried.rs`), with its fold share on every
 //! frame and its fidelity to the target on the last.
 
-use super::{FrameRecord, FrameSink, SinkFrame, frame_name, out_err};
+use super::{FrameRecord, FrameSink, SinkFrame, out_err};
 use crate::geometry::Similarity;
 use crate::geometry::carried::CarriedSurface;
 use crate::geometry::fidelity::{Reference, fidelity};
@@ -34,9 +34,7 @@ impl FrameSink for CarriedObj {
         let clock = std::time::Instant::now();
         let state = frame.state;
         let on_frame = self.surface.carry(&self.rest, &state.x, &state.f);
-        let path = self
-            .dir
-            .join(format!("{}.obj", frame_name(frame.index, frame.count)));
+        let path = self.dir.join(format!("{}.obj", frame.name()));
         self.surface
             .write_obj(&path, &on_frame)
             .map_err(|e| out_err("carried surface", &path, e))?;

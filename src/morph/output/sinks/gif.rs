@@ -1,7 +1,7 @@
 //! `preview.gif`: at most [`GIF_FRAMES`] frames evenly through the sequence, read back from
 //! the frames on disk, each shown for as long as the frames it stands for.
 
-use super::{FrameRecord, FrameSink, SinkFrame, frame_name, out_err};
+use super::{FrameRecord, FrameSink, SinkFrame, frame_files, out_err};
 use crate::io::images;
 use crate::morph::MorphError;
 use std::path::PathBuf;
@@ -12,6 +12,8 @@ pub const GIF_FRAMES: usize = 48;
 pub struct PreviewGif {
     /// The output folder.
     pub dir: PathBuf,
+    /// The first frame's number, and how many there are.
+    pub start: usize,
     pub count: usize,
     pub fps: f64,
     /// A particle's drawn radius (world units).
@@ -29,13 +31,11 @@ impl FrameSink for PreviewGif {
 
     fn finish(&mut self) -> Result<(), MorphError> {
         let every = self.count.div_ceil(GIF_FRAMES).max(1);
+        let files = frame_files("frames", "ply", self.start, self.count);
         let frames = (0..self.count)
             .step_by(every)
             .map(|i| {
-                let path = self
-                    .dir
-                    .join("frames")
-                    .join(format!("{}.ply", frame_name(i, self.count)));
+                let path = self.dir.join(&files[i]);
                 crate::io::usd::read_points_ply(&path)
                     .map(|p| (i + 1, p.x))
                     .map_err(|e| out_err("preview", &path, e))

@@ -43,6 +43,8 @@ pub struct SinkFrame<'a> {
     /// 0-based frame number, of `count`.
     pub index: usize,
     pub count: usize,
+    /// The first frame's number in file names and time codes (`--start-frame`).
+    pub start: usize,
     /// Simulated time (seconds).
     pub time: f64,
     /// Positions, velocities and volume ratios in the source mesh's units.
@@ -56,6 +58,7 @@ impl<'a> From<&'a Frame<'a>> for SinkFrame<'a> {
         SinkFrame {
             index: frame.index,
             count: frame.prep.frame_count(),
+            start: frame.prep.settings.start_frame,
             time: frame.time,
             world: &frame.world,
             state: frame.state,
@@ -72,17 +75,26 @@ pub struct FrameRecord {
     pub rebuilt: Option<RebuiltStats>,
 }
 
-/// The name of frame `index` (0-based) when there are `count` frames: zero-padded to the
-/// width the count needs (at least 4), so names sort in frame order.
-pub fn frame_name(index: usize, count: usize) -> String {
-    let width = count.to_string().len().max(4);
-    format!("frame_{:0width$}", index + 1)
+/// The name of frame number `number` in a sequence whose last frame is number `last`:
+/// zero-padded to the width the last needs (at least 4), so names sort in frame order.
+pub fn frame_name(number: usize, last: usize) -> String {
+    let width = last.to_string().len().max(4);
+    format!("frame_{number:0width$}")
 }
 
-/// The folder-relative paths of every frame's file in `folder`, in frame order.
-fn frame_files(folder: &str, ext: &str, count: usize) -> Vec<PathBuf> {
-    (0..count)
-        .map(|i| Path::new(folder).join(format!("{}.{ext}", frame_name(i, count))))
+impl SinkFrame<'_> {
+    /// This frame's file name, without extension (`frame_0001`, or `frame_1001` from 1001).
+    pub fn name(&self) -> String {
+        frame_name(self.start + self.index, self.start + self.count - 1)
+    }
+}
+
+/// The folder-relative paths of the files in `folder` of `count` frames numbered from
+/// `start`, in frame order.
+fn frame_files(folder: &str, ext: &str, start: usize, count: usize) -> Vec<PathBuf> {
+    let last = start + count - 1;
+    (start..=last)
+        .map(|n| Path::new(folder).join(format!("{}.{ext}", frame_name(n, last))))
         .collect()
 }
 
@@ -159,8 +171,10 @@ pub fn for_folder(
             references,
         }));
     }
+    let start = settings.start_frame;
     sinks.push(Box::new(UsdSequence {
         dir: dir.to_path_buf(),
+        start,
         count,
         fps,
         carried: settings.surfaces.carried(),
@@ -169,9 +183,29 @@ pub fn for_folder(
     }));
     sinks.push(Box::new(PreviewGif {
         dir: dir.to_path_buf(),
+        start,
         count,
         fps,
         radius: 0.5 * spacing * to_world.scale,
     }));
     Ok(sinks)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frames_are_named_by_their_number_and_sort_in_order() {
+        assert_eq!(frame_name(1, 73), "frame_0001");
+        assert_eq!(frame_name(1001, 1072), "frame_1001");
+        // Past 9999 the width grows for every name, so they still sort as text.
+        let files = frame_files("frames", "ply", 9998, 5);
+        let names: Vec<String> = files.iter().map(|p| p.display().to_string()).collect();
+        assert_eq!(names[0], "frames/frame_09998.ply");
+        assert_eq!(names[4], "frames/frame_10002.ply");
+        let mut sorted = names.clone();
+        sorted.sort();
+        assert_eq!(sorted, names);
+    }
 }

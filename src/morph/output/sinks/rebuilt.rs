@@ -3,7 +3,7 @@
 //! volume, written with vertex normals, and measured against the source on the first frame
 //! and the target on the last.
 
-use super::{FrameRecord, FrameSink, SinkFrame, frame_name, out_err};
+use super::{FrameRecord, FrameSink, SinkFrame, out_err};
 use crate::geometry::cleanup::{CleanReport, SurfaceQuality, clean, keep_volume, quality};
 use crate::geometry::fidelity::{Fidelity, Reference, mesh_fidelity};
 use crate::geometry::splashsurf::extract_splashsurf_surface;
@@ -72,9 +72,7 @@ impl FrameSink for RebuiltObj {
             let mean_j = j.iter().map(|j| j.max(0.0)).sum::<f64>() / j.len().max(1) as f64;
             keep_volume(&mut surface, self.body_volume * mean_j);
         }
-        let path = self
-            .dir
-            .join(format!("{}.obj", frame_name(frame.index, frame.count)));
+        let path = self.dir.join(format!("{}.obj", frame.name()));
         let world = self.to_world.apply_mesh(&surface);
         world
             .write_obj_with_normals(&path)

@@ -8,6 +8,8 @@ use std::path::PathBuf;
 pub struct UsdSequence {
     /// The output folder.
     pub dir: PathBuf,
+    /// The first frame's number (its time code), and how many there are.
+    pub start: usize,
     pub count: usize,
     pub fps: f64,
     /// Which surfaces the run writes.
@@ -28,11 +30,12 @@ impl FrameSink for UsdSequence {
 
     fn finish(&mut self) -> Result<(), MorphError> {
         let path = self.dir.join(crate::io::usd::FILE);
-        let files = |folder: &str, ext: &str| frame_files(folder, ext, self.count);
+        let files = |folder: &str, ext: &str| frame_files(folder, ext, self.start, self.count);
         crate::io::usd::write_usda(
             &path,
             &crate::io::usd::UsdSequence {
                 dir: &self.dir,
+                start: self.start,
                 fps: self.fps,
                 points: files("frames", "ply"),
                 carried: self.carried.then(|| files("carried", "obj")),
