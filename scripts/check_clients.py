@@ -74,6 +74,9 @@ def check_usd(out, manifest):
     check("usd ids", list(pts.GetIdsAttr().Get()) == list(range(count)))
     j = UsdGeom.PrimvarsAPI(pts).GetPrimvar("J")
     check("usd primvars:J per point", j.GetInterpolation() == "vertex" and len(j.Get(last)) == count)
+    rest = UsdGeom.PrimvarsAPI(pts).GetPrimvar("rest")
+    check("usd particles: primvars:rest (vertex) = the first frame's points",
+          rest.GetInterpolation() == "vertex" and list(rest.Get()) == list(pts.GetPointsAttr().Get(first)))
     has_carried, has_rebuilt = surfaces_of(manifest)
     if has_carried:
         check_usd_carried(out, manifest, stage, last)
@@ -108,6 +111,10 @@ def check_usd_carried(out, manifest, stage, last):
     st = UsdGeom.PrimvarsAPI(carried).GetPrimvar("st")
     check("usd carried mesh: st primvar (faceVarying) with the source's UVs",
           st.GetInterpolation() == "faceVarying" and len(st.Get()) == svt, svt)
+    rest = UsdGeom.PrimvarsAPI(carried).GetPrimvar("rest")
+    first = frame_range(manifest)[0]
+    check("usd carried mesh: primvars:rest (vertex) = the first frame's points",
+          rest.GetInterpolation() == "vertex" and list(rest.Get()) == list(carried.GetPointsAttr().Get(first)))
     check("usd carried mesh: velocities", len(carried.GetVelocitiesAttr().Get(frame_range(manifest)[0] + 1)) == sv)
 
 
@@ -136,6 +143,7 @@ def check_blender(out, manifest):
               manifest["particles"])
         names = [a.name for a in data.attributes]
         check("blender velocity attribute on the points", "velocity" in names, names)
+        check("blender rest attribute on the points", "rest" in names, names)
     has_carried, has_rebuilt = surfaces_of(manifest)
     carried = objects.get("carried")
     sv = None
@@ -146,6 +154,8 @@ def check_blender(out, manifest):
         mesh = carried.evaluated_get(depsgraph).data
         check("blender carried mesh: the source's vertex count", len(mesh.vertices) == sv, (len(mesh.vertices), sv))
         check("blender carried mesh: a UV layer", len(mesh.uv_layers) >= 1, [u.name for u in mesh.uv_layers])
+        check("blender carried mesh: rest attribute", "rest" in [a.name for a in mesh.attributes],
+              [a.name for a in mesh.attributes])
 
     # The loose files: a carried OBJ keeps its UVs; a rebuilt OBJ and a PLY frame import.
     bpy.ops.wm.read_factory_settings(use_empty=True)

@@ -452,6 +452,8 @@ fn a_shot_starts_at_its_own_frame_number() {
             "startTimeCode = {first}\n    endTimeCode = {last}\n"
         )));
         assert!(usd.contains(&format!("            {last}: [(")));
+        // The rest shape on the points and the carried surface, for procedural textures.
+        assert_eq!(usd.matches("point3f[] primvars:rest = ").count(), 2);
         grids.push(std::fs::read(out.join("final_mass.mgrid")).unwrap());
     }
     assert_eq!(

@@ -223,6 +223,14 @@ fn samples(
     writeln!(w, "        }}")
 }
 
+/// Writes `primvars:rest`, each point where it is on the first frame (the rest shape), for
+/// procedural textures that must stick to the body.
+fn rest(w: &mut dyn Write, first: &[Vector3<f64>]) -> std::io::Result<()> {
+    write!(w, "        point3f[] primvars:rest = ")?;
+    vec3s(w, first)?;
+    writeln!(w, " (\n            interpolation = \"vertex\"\n        )")
+}
+
 /// Writes the USD file of `seq` to `path` (atomically).
 pub fn write_usda(path: &Path, seq: &UsdSequence) -> std::io::Result<()> {
     let n = seq.points.len();
@@ -249,6 +257,7 @@ pub fn write_usda(path: &Path, seq: &UsdSequence) -> std::io::Result<()> {
         write!(w, "        float[] widths = ")?;
         list(w, std::iter::repeat_n(seq.width as f32, x0.len()))?;
         writeln!(w)?;
+        rest(w, &x0)?;
         let read = |k: usize| read_points_ply(&at(&seq.points[k]));
         samples(w, seq.start, "point3f[] points", n, |w, k| {
             vec3s(w, &read(k)?.x)
@@ -279,6 +288,7 @@ pub fn write_usda(path: &Path, seq: &UsdSequence) -> std::io::Result<()> {
             write!(w, "\n        int[] faceVertexIndices = ")?;
             list(w, &first.indices)?;
             writeln!(w)?;
+            rest(w, &first.positions)?;
             if !first.uvs.is_empty() && first.uv_indices.iter().all(Option::is_some) {
                 write!(w, "        texCoord2f[] primvars:st = ")?;
                 write!(w, "[")?;
