@@ -475,6 +475,70 @@ fn a_shot_starts_at_its_own_frame_number() {
     assert_eq!(err.lines().count(), 1, "{err}");
 }
 
+/// `morph farm-template openjd`: a template that embeds the resolved scene and runs it with
+/// --resume; an existing file is kept unless --overwrite; a bad morph option is refused.
+#[test]
+fn farm_template_writes_a_resumable_job_and_keeps_existing_files() {
+    let dir = scratch("farm");
+    std::fs::create_dir_all(&*dir).unwrap();
+    let job = dir.join("job.json");
+    let job_s = job.to_str().unwrap();
+    let args = |extra: &[&'static str]| -> Vec<String> {
+        let mut a: Vec<String> = ["farm-template", "openjd", "--template", job_s]
+            .iter()
+            .map(|s| s.to_string())
+            .collect();
+        a.extend(extra.iter().map(|s| s.to_string()));
+        a.extend(
+            [
+                "assets/sphere.obj",
+                "assets/cube.obj",
+                "--preset",
+                "draft",
+                "-o",
+                "shot",
+            ]
+            .map(String::from),
+        );
+        a
+    };
+    let run = |a: Vec<String>| morph(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    let r = run(args(&[]));
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let t: serde_json::Value = serde_json::from_slice(&std::fs::read(&job).unwrap()).unwrap();
+    let on_run = &t["steps"][0]["script"]["actions"]["onRun"];
+    assert!(
+        on_run["args"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .any(|a| a == "--resume")
+    );
+    let scene = t["steps"][0]["script"]["embeddedFiles"][0]["data"]
+        .as_str()
+        .unwrap();
+    assert!(
+        scene.contains("preset") || scene.contains("iterations"),
+        "{scene}"
+    );
+    // The output's default is relative to the template's folder (the specification's rule).
+    let out = t["parameterDefinitions"][1]["default"].as_str().unwrap();
+    assert!(!out.starts_with('/'), "{out}");
+    // Kept without --overwrite; replaced with it.
+    let before = std::fs::read(&job).unwrap();
+    let r = run(args(&[]));
+    assert_eq!(r.status.code(), Some(2));
+    assert!(String::from_utf8_lossy(&r.stderr).contains("--overwrite"));
+    assert_eq!(std::fs::read(&job).unwrap(), before);
+    assert!(run(args(&["--overwrite"])).status.success());
+    // A bad option of the morph: refused, one line.
+    let mut bad = args(&["--overwrite"]);
+    bad.extend(["--resolution", "0"].map(String::from));
+    let r = run(bad);
+    assert_eq!(r.status.code(), Some(2));
+    assert_eq!(String::from_utf8_lossy(&r.stderr).lines().count(), 1);
+}
+
 /// `--progress openjd`: the farm's lines on stdout, the percent rising from 0 to 100 (reached
 /// once every file is written), a status per segment; a failure says `openjd_fail`; it cannot
 /// be combined with `--json`.

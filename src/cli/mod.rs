@@ -13,6 +13,7 @@ macro_rules! say {
 mod assets;
 mod bench;
 mod compare;
+mod farm;
 mod inspect;
 mod morph;
 mod rope;
@@ -111,6 +112,14 @@ enum Command {
     /// the study goes on. Exit 0: ok; 1: cannot write; 2: bad option or folder. Details:
     /// docs/accuracy.md.
     Study(study::StudyArgs),
+    /// Write a render-farm job template that runs a morph: `morph farm-template openjd
+    /// [--template FILE] SOURCE TARGET [morph options]`.
+    ///
+    /// Open Job Description (JSON): the resolved scene embedded (the same morph bit for bit),
+    /// run with --resume (a re-queued task continues, never starts over) and --progress openjd;
+    /// the output folder and the morph executable are job parameters. Exit 0: written; 2: bad
+    /// option, or the file exists (pass --overwrite).
+    FarmTemplate(farm::FarmTemplateArgs),
 }
 
 pub fn main() -> ExitCode {
@@ -175,6 +184,7 @@ fn dispatch(cli: &Cli) -> ExitCode {
         Some(Command::Compare(args)) => compare::run(args),
         Some(Command::Rope(args)) => rope::run(args),
         Some(Command::Assets(args)) => assets::run(args),
+        Some(Command::FarmTemplate(args)) => farm::run(args),
         Some(Command::Study(args)) => study::run(args),
     }
 }

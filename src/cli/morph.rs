@@ -261,7 +261,14 @@ fn default_young_poisson() -> (f64, f64) {
 impl MorphArgs {
     /// The settings, the source and the targets: the scene file's (when given), with the
     /// command line's options and meshes over them.
-    fn job(&self) -> Result<(MorphSettings, PathBuf, Vec<PathBuf>), String> {
+    /// The output folder (`-o`).
+    pub fn output(&self) -> &std::path::Path {
+        &self.output
+    }
+
+    /// The settings, source and targets these options ask for (a scene file read over its
+    /// preset, then each option given).
+    pub fn job(&self) -> Result<(MorphSettings, PathBuf, Vec<PathBuf>), String> {
         let (settings, mut source, mut targets) = match &self.scene {
             Some(path) => {
                 let scene = SceneFile::read(path, self.preset)?;

@@ -10,6 +10,7 @@ mod api;
 pub mod basis;
 mod chain;
 pub mod checkpoint;
+pub mod farm;
 pub mod inbetween;
 pub mod levels;
 pub mod memory;

@@ -1,0 +1,94 @@
+//! `morph farm-template openjd`: a render farm's job template for a morph (the library's
+//! `morph::farm`), from the same options as `morph` itself.
+
+use super::morph::MorphArgs;
+use clap::{Args, Parser, ValueEnum};
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, ValueEnum)]
+pub enum FarmFormat {
+    /// Open Job Description (JSON job template, jobtemplate-2023-09).
+    Openjd,
+}
+
+#[derive(Args, Debug)]
+pub struct FarmTemplateArgs {
+    /// The template's format.
+    format: FarmFormat,
+    /// The template file to write.
+    #[arg(long, default_value = "morph-job.json")]
+    template: PathBuf,
+    /// Replace the template file if it exists.
+    #[arg(long)]
+    overwrite: bool,
+    /// The morph: SOURCE TARGET... and any of `morph`'s options (see morph --help).
+    #[arg(trailing_var_arg = true, allow_hyphen_values = true, required = true)]
+    morph: Vec<String>,
+}
+
+/// The morph's own options, parsed as `morph` parses them.
+#[derive(Parser, Debug)]
+#[command(name = "morph", allow_negative_numbers = true)]
+struct MorphCommand {
+    #[command(flatten)]
+    morph: MorphArgs,
+}
+
+pub fn run(args: &FarmTemplateArgs) -> ExitCode {
+    let parsed = MorphCommand::try_parse_from(
+        std::iter::once("morph".to_string()).chain(args.morph.iter().cloned()),
+    )
+    .map_err(|e| {
+        let text = e.render().to_string();
+        let first = text
+            .lines()
+            .next()
+            .unwrap_or("")
+            .trim_start_matches("error: ");
+        format!("farm-template: the morph's options: {first}")
+    });
+    let job = parsed.and_then(|c| {
+        let (settings, source, targets) = c.morph.job()?;
+        settings.validate()?;
+        settings.validate_targets(targets.len())?;
+        Ok((settings, source, targets, c.morph.output().to_path_buf()))
+    });
+    let (settings, source, targets, out) = match job {
+        Ok(j) => j,
+        Err(e) => return super::fail(false, 2, &e),
+    };
+    if args.template.exists() && !args.overwrite {
+        return super::fail(
+            false,
+            2,
+            &format!(
+                "'{}' exists; pass --overwrite to replace it",
+                args.template.display()
+            ),
+        );
+    }
+    let command = std::env::current_exe().unwrap_or_else(|_| PathBuf::from("morph"));
+    let text = match args.format {
+        FarmFormat::Openjd => {
+            let dir = match args.template.parent() {
+                Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+                _ => PathBuf::from("."),
+            };
+            morph::morph::farm::openjd_template(&settings, &source, &targets, &out, &command, &dir)
+        }
+    };
+    match morph::io::write_atomically(&args.template, |w| {
+        std::io::Write::write_all(w, text.as_bytes())
+    }) {
+        Ok(()) => {
+            say!("{}", args.template.display());
+            ExitCode::SUCCESS
+        }
+        Err(e) => super::fail(
+            false,
+            1,
+            &format!("cannot write template '{}': {e}", args.template.display()),
+        ),
+    }
+}
