@@ -43,6 +43,13 @@ def obj_counts(path):
     return v, vt, f
 
 
+def mgrid_header(path):
+    """The JSON header of a .mgrid file (after its 8-byte magic and 4-byte length)."""
+    raw = path.read_bytes()
+    n = int.from_bytes(raw[8:12], "little")
+    return json.loads(raw[12:12 + n])
+
+
 def frame_range(manifest):
     """The first and last frame numbers (`--start-frame`, 1 by default)."""
     first = manifest["settings"].get("start_frame", 1)
@@ -156,6 +163,23 @@ def check_blender(out, manifest):
         check("blender carried mesh: a UV layer", len(mesh.uv_layers) >= 1, [u.name for u in mesh.uv_layers])
         check("blender carried mesh: rest attribute", "rest" in [a.name for a in mesh.attributes],
               [a.name for a in mesh.attributes])
+
+    # The final mass grid as a volume (OpenVDB), within the grid's extent.
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.object.volume_import(filepath=str(out / "final_mass.vdb"))
+    volume = bpy.context.selected_objects[0]
+    loaded = volume.data.grids.load()
+    check("blender final_mass.vdb: a volume with its grid 'mass'",
+          loaded and [g.name for g in volume.data.grids] == ["mass"], [g.name for g in volume.data.grids])
+    header = mgrid_header(out / "final_mass.mgrid")
+    lo = header["origin"]
+    # Blender bounds a volume by whole leaves (8 voxels a side).
+    hi = [o + 8 * -(-d // 8) * header["dx"] for o, d in zip(lo, header["dims"])]
+    corners = [volume.matrix_world @ __import__("mathutils").Vector(c) for c in volume.bound_box]
+    inside = all(lo[i] - header["dx"] <= min(c[i] for c in corners) and max(c[i] for c in corners) <= hi[i] + header["dx"]
+                 for i in range(3))
+    check("blender final_mass.vdb: bounds within the grid's extent (in whole leaves)", inside,
+          ([min(c[i] for c in corners) for i in range(3)], [max(c[i] for c in corners) for i in range(3)]))
 
     # The loose files: a carried OBJ keeps its UVs; a rebuilt OBJ and a PLY frame import.
     bpy.ops.wm.read_factory_settings(use_empty=True)

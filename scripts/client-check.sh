@@ -22,6 +22,18 @@ if [ -z "$out" ]; then
     --preset draft --resolution 16 --start-frame 1001 --quiet
 fi
 "$venv/bin/python" scripts/check_clients.py "$out"
+# The OpenVDB file with OpenVDB's own library (Debian's python3-openvdb, for the system
+# python), installed when missing and allowed; a loud skip otherwise.
+if ! /usr/bin/python3 -c 'import pyopenvdb' >/dev/null 2>&1; then
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+    apt-get install -y -qq python3-openvdb >/dev/null 2>&1 || true
+  fi
+fi
+if /usr/bin/python3 -c 'import pyopenvdb' >/dev/null 2>&1; then
+  /usr/bin/python3 scripts/check_vdb.py "$out"
+else
+  echo "VDB check skipped: python3-openvdb (Debian) could not be installed" >&2
+fi
 # What a person looks at: frame 1, halfway, arrival and the last frame of the carried and the
 # rebuilt surface next to the target, rendered by Blender (Cycles, CPU) into OUT/contact.png.
 # (morph --overwrite/--resume then refuse OUT until contact.png is moved: not morph's file.)

@@ -4,6 +4,7 @@
 //! OUT/frames/frame_0001.ply ...   binary PLY points: x y z vx vy vz J id (world units)
 //! OUT/meshes/frame_0001.obj ...   closed surface per frame (world units)
 //! OUT/final_mass.mgrid            final nodal mass grid (see io::massgrid)
+//! OUT/final_mass.vdb              the same as an OpenVDB float grid (see io::vdb)
 //! OUT/manifest.json               inputs + hashes, settings, placement, losses, timings, frames
 //! OUT/scene.toml                  the resolved scene: `morph --scene OUT/scene.toml` reruns it
 //! OUT/loss.png, OUT/preview.png
@@ -121,6 +122,7 @@ const STAGING_NAMES: &[&str] = &[
     checkpoint::FOLDER,
     super::scene_file::RESOLVED,
     "final_mass.mgrid",
+    run::FINAL_MASS_VDB,
     "loss.png",
     "preview.png",
     "preview.gif",

@@ -211,7 +211,11 @@ fn quality_over_time(prep: &Prepared, written: &WrittenFrames) -> Vec<JudgedFram
         .collect()
 }
 
-/// Writes the final nodal mass grid (world coordinates) as `final_mass.mgrid`; returns the
+/// The final nodal mass grid as an OpenVDB file.
+pub(super) const FINAL_MASS_VDB: &str = "final_mass.vdb";
+
+/// Writes the final nodal mass grid (world coordinates) as `final_mass.mgrid` and
+/// `final_mass.vdb`; returns the
 /// fill measures of the final state.
 fn write_mass_grid(prep: &Prepared, dir: &Path, last: &State) -> Result<FillMetrics, MorphError> {
     let to_world = prep.geometry.placement.sim_to_world();
@@ -222,6 +226,11 @@ fn write_mass_grid(prep: &Prepared, dir: &Path, last: &State) -> Result<FillMetr
     let mass_path = dir.join("final_mass.mgrid");
     grid.write(&mass_path)
         .map_err(|e| out_err("mass grid", &mass_path, e))?;
+    // The same grid as OpenVDB reads it, for DCCs and volume tools.
+    let vdb_path = dir.join(FINAL_MASS_VDB);
+    let h = &grid.header;
+    crate::io::vdb::write_float_grid(&vdb_path, "mass", h.dims, h.origin, h.dx, &grid.values)
+        .map_err(|e| out_err("mass grid", &vdb_path, e))?;
     Ok(fill_metrics(
         g,
         particle_spacing(prep),
