@@ -26,7 +26,8 @@ fi
 # python), installed when missing and allowed; a loud skip otherwise.
 if ! /usr/bin/python3 -c 'import pyopenvdb' >/dev/null 2>&1; then
   if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
-    apt-get install -y -qq python3-openvdb >/dev/null 2>&1 || true
+    apt-get install -y -qq python3-openvdb >/dev/null 2>&1 ||
+      { apt-get update -qq >/dev/null 2>&1 && apt-get install -y -qq python3-openvdb >/dev/null 2>&1; } || true
   fi
 fi
 if /usr/bin/python3 -c 'import pyopenvdb' >/dev/null 2>&1; then
