@@ -531,6 +531,27 @@ fn farm_template_writes_a_resumable_job_and_keeps_existing_files() {
     assert!(String::from_utf8_lossy(&r.stderr).contains("--overwrite"));
     assert_eq!(std::fs::read(&job).unwrap(), before);
     assert!(run(args(&["--overwrite"])).status.success());
+    // Never one of the morph's inputs, even with --overwrite.
+    let mesh = dir.join("source.obj");
+    std::fs::copy("assets/sphere.obj", &mesh).unwrap();
+    let before = std::fs::read(&mesh).unwrap();
+    let r = morph(&[
+        "farm-template",
+        "openjd",
+        "--overwrite",
+        "--template",
+        mesh.to_str().unwrap(),
+        mesh.to_str().unwrap(),
+        "assets/cube.obj",
+    ]);
+    assert_eq!(
+        r.status.code(),
+        Some(2),
+        "{}",
+        String::from_utf8_lossy(&r.stderr)
+    );
+    assert!(String::from_utf8_lossy(&r.stderr).contains("input"));
+    assert_eq!(std::fs::read(&mesh).unwrap(), before);
     // A bad option of the morph: refused, one line.
     let mut bad = args(&["--overwrite"]);
     bad.extend(["--resolution", "0"].map(String::from));

@@ -58,6 +58,25 @@ pub fn run(args: &FarmTemplateArgs) -> ExitCode {
         Ok(j) => j,
         Err(e) => return super::fail(false, 2, &e),
     };
+    // Never the morph's own inputs, even with --overwrite.
+    let same = |p: &std::path::Path| match (args.template.canonicalize(), p.canonicalize()) {
+        (Ok(a), Ok(b)) => a == b,
+        _ => false,
+    };
+    let mut inputs: Vec<&std::path::Path> = vec![&source];
+    inputs.extend(targets.iter().map(PathBuf::as_path));
+    inputs.extend(settings.colliders.iter().map(|c| c.mesh.as_path()));
+    if let Some(input) = inputs.into_iter().find(|p| same(p)) {
+        return super::fail(
+            false,
+            2,
+            &format!(
+                "the template '{}' would replace the morph's input '{}'; name another file",
+                args.template.display(),
+                input.display()
+            ),
+        );
+    }
     if args.template.exists() && !args.overwrite {
         return super::fail(
             false,

@@ -520,13 +520,14 @@ pub fn run(args: &MorphArgs) -> ExitCode {
                 MorphEvent::Level { level, levels, .. } => {
                     say!("openjd_status: level {level} of {levels}")
                 }
-                MorphEvent::Segment { pass, segment, .. } => say!(
-                    "openjd_status: pass {} of {}, segment {} of {} done",
-                    pass + 1,
-                    settings.passes,
-                    segment + 1,
-                    settings.segments
-                ),
+                MorphEvent::Segment { pass, segment, .. } => {
+                    let (passes, segments) = meter.level_plan();
+                    say!(
+                        "openjd_status: pass {} of {passes}, segment {} of {segments} done",
+                        pass + 1,
+                        segment + 1
+                    )
+                }
                 MorphEvent::Done { .. } => say!("openjd_status: writing the whole-sequence files"),
                 MorphEvent::Iteration { .. } => {}
             }

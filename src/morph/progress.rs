@@ -75,6 +75,17 @@ impl ProgressMeter {
         self.fraction
     }
 
+    /// The passes and segments of the level running now, as the events announced them (the
+    /// resolved shot: `--frames` sets the segment count, and a coarse level has its own).
+    pub fn level_plan(&self) -> (usize, usize) {
+        let passes = if self.level < self.levels {
+            1
+        } else {
+            self.passes
+        };
+        (passes, self.level_segments)
+    }
+
     /// How far the current level is, `segments_done` segments into pass `pass` (a coarse
     /// level's passes are not counted: it is a warm start, an eighth of the work or less).
     fn level_fraction(&self, pass: usize, segments_done: f64) -> f64 {
@@ -183,6 +194,11 @@ mod tests {
         m.observe(&setup(4, 1, 4));
         // Two levels: the coarse one is 1/9 of the work.
         assert_eq!(m.observe(&level(1, 2, 2)), 0.0);
+        assert_eq!(
+            m.level_plan(),
+            (1, 2),
+            "a coarse level's own segments, one pass"
+        );
         let f = m.observe(&iteration(0, 1, 3)); // the coarse level's last evaluation
         assert!((f - 1.0 / 9.0).abs() < 1e-12, "{f}");
         let f = m.observe(&level(2, 2, 4));
