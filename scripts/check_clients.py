@@ -8,11 +8,12 @@ write (`--surface carried|rebuilt|none`) are skipped and say so. Needs the PyPI 
 `.ci/run` installs both into a cached venv and runs this on a small morph.
 
 Checks, each printed with what was read:
-- USD (pxr): the stage's time codes, frame rate, up axis and units; the particles' points,
-  velocities, ids and J primvar per frame; the carried mesh's topology and UVs against the
+- USD (pxr), `morph.usdc` (or `morph.usda`): the stage's time codes, frame rate, up axis and
+  units; the particles' points, velocities and J primvar per frame, bit for bit the PLY
+  frames' float32, and their ids; the carried mesh's topology and UVs against the
   source; the rebuilt mesh's points; and Pixar's validators (what `usdchecker` runs) report no
   error.
-- Blender (bpy): imports morph.usda and reads back the frame range, fps, point count, the
+- Blender (bpy): imports the USD file and reads back the frame range, fps, point count, the
   velocity attribute, the carried mesh's vertex count and UV layer; imports a carried OBJ, a
   rebuilt OBJ and a PLY frame and reads their vertex counts, UVs and attributes.
 Exits 1 with the first failed check.
@@ -56,10 +57,31 @@ def frame_range(manifest):
     return first, first + len(manifest["frames"]) - 1
 
 
+def usd_file(out):
+    """The run's USD file: binary `morph.usdc` (the default) or text `morph.usda` (--usd usda)."""
+    binary = out / "morph.usdc"
+    return binary if binary.exists() else out / "morph.usda"
+
+
+def ply_frame(path):
+    """A frame PLY's float32 columns (x y z vx vy vz J) as a numpy array, one row per point."""
+    import numpy as np
+
+    raw = path.read_bytes()
+    at = raw.index(b"end_header\n") + len(b"end_header\n")
+    header = raw[:at].decode()
+    n = int(header.split("element vertex ")[1].split()[0])
+    props = header.count("property ")
+    return np.frombuffer(raw[at:at + 4 * n * props], dtype="<f4").reshape(n, props)[:, :7]
+
+
 def check_usd(out, manifest):
+    import numpy as np
     from pxr import Usd, UsdGeom, UsdValidation
 
-    path = out / "morph.usda"
+    path = usd_file(out)
+    if path.suffix == ".usdc":
+        check("usd file is binary (crate format)", path.read_bytes()[:8] == b"PXR-USDC", path.name)
     stage = Usd.Stage.Open(str(path))
     n = len(manifest["frames"])
     first, last = frame_range(manifest)
@@ -78,6 +100,14 @@ def check_usd(out, manifest):
         check(f"usd particles at frame {t}: points, velocities",
               len(pts.GetPointsAttr().Get(t)) == count and len(pts.GetVelocitiesAttr().Get(t)) == count,
               count)
+    # The values are the PLY frames' own float32 numbers, bit for bit.
+    for t, frame in ((first, manifest["frames"][0]), (last, manifest["frames"][-1])):
+        ply = ply_frame(out / frame["points"])
+        usd = np.hstack([np.array(pts.GetPointsAttr().Get(t), dtype="<f4"),
+                         np.array(pts.GetVelocitiesAttr().Get(t), dtype="<f4"),
+                         np.array(UsdGeom.PrimvarsAPI(pts).GetPrimvar("J").Get(t), dtype="<f4")[:, None]])
+        check(f"usd particles at frame {t}: points, velocities, J bit for bit the PLY frame's float32",
+              usd.shape == ply.shape and usd.tobytes() == ply.tobytes(), (usd.shape, ply.shape))
     check("usd ids", list(pts.GetIdsAttr().Get()) == list(range(count)))
     j = UsdGeom.PrimvarsAPI(pts).GetPrimvar("J")
     check("usd primvars:J per point", j.GetInterpolation() == "vertex" and len(j.Get(last)) == count)
@@ -131,7 +161,7 @@ def check_blender(out, manifest):
     first, last = frame_range(manifest)
     fps = manifest["fps"]
     bpy.ops.wm.read_factory_settings(use_empty=True)
-    bpy.ops.wm.usd_import(filepath=str(out / "morph.usda"), set_frame_range=True)
+    bpy.ops.wm.usd_import(filepath=str(usd_file(out)), set_frame_range=True)
     scene = bpy.context.scene
     check(f"blender frame range from the USD: {first}..{last} (frame_start = the start frame)",
           (scene.frame_start, scene.frame_end) == (first, last),
@@ -224,10 +254,10 @@ def main():
     manifest = json.load(open(out / "manifest.json"))
     check_usd(out, manifest)
     check_blender(out, manifest)
-    usd = (out / "morph.usda").stat().st_size
+    usd = usd_file(out).stat().st_size
     loose = sum(p.stat().st_size for d in ("frames", "meshes", "carried") if (out / d).is_dir()
                 for p in (out / d).glob("*"))
-    print(f"     sizes: morph.usda {usd / 1e6:.1f} MB, frames/ meshes/ carried/ {loose / 1e6:.1f} MB")
+    print(f"     sizes: {usd_file(out).name} {usd / 1e6:.1f} MB, frames/ meshes/ carried/ {loose / 1e6:.1f} MB")
     print(f"clients: {len(passed)} passed, {len(failures)} failed")
     if failures:
         print(f"first failure: {failures[0]}")

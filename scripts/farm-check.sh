@@ -3,7 +3,7 @@
 # installed into a cached venv outside the repo): the template passes `openjd check`; `openjd
 # run` runs the morph to the end with progress reaching 100; a run cancelled part way (openjd
 # sends SIGTERM, morph keeps its checkpoint) and run again resumes and ends with a
-# final_mass.mgrid and morph.usda bitwise those of the uninterrupted run. Usage:
+# final_mass.mgrid and morph.usdc bitwise those of the uninterrupted run. Usage:
 # scripts/farm-check.sh (builds the release binary if needed).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -45,5 +45,5 @@ echo "ok   openjd cancel: morph stopped on SIGTERM and kept its checkpoint"
 "$oj" run job.json --step Morph -p Output=run >run2.log 2>&1
 grep -q "resumed from the checkpoint" run2.log || { echo "farm check: the second run did not resume" >&2; exit 1; }
 "$morph" compare ref/final_mass.mgrid run/final_mass.mgrid --rtol 0 >/dev/null
-cmp -s ref/morph.usda run/morph.usda
-echo "ok   openjd run again: resumed, final_mass.mgrid and morph.usda bitwise the uninterrupted run's"
+cmp -s ref/morph.usdc run/morph.usdc
+echo "ok   openjd run again: resumed, final_mass.mgrid and morph.usdc bitwise the uninterrupted run's"

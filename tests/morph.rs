@@ -305,6 +305,7 @@ fn command_line_errors() {
         (vec!["--settle-drag", "1000"], 2, "drag and settle drag"),
         (vec!["--inbetween", "morph"], 2, "--inbetween"),
         (vec!["--rebuilt-method", "splat"], 2, "splat"),
+        (vec!["--usd", "binary"], 2, "binary"),
         (vec!["--control", "multiplicative"], 2, "multiplicative"),
         (vec!["--control-resolution", "voxel"], 2, "voxel"),
         (vec!["--memory-limit", "12Q"], 2, "--memory-limit"),
@@ -447,13 +448,31 @@ fn a_shot_starts_at_its_own_frame_number() {
             format!("meshes/frame_{last:04}.obj")
         );
         assert!(out.join(format!("carried/frame_{last:04}.obj")).is_file());
-        let usd = std::fs::read_to_string(out.join("morph.usda")).unwrap();
-        assert!(usd.contains(&format!(
-            "startTimeCode = {first}\n    endTimeCode = {last}\n"
-        )));
-        assert!(usd.contains(&format!("            {last}: [(")));
-        // The rest shape on the points and the carried surface, for procedural textures.
-        assert_eq!(usd.matches("point3f[] primvars:rest = ").count(), 2);
+        // The USD file (binary) read back: its time codes are the shot's frames, and the
+        // rest shape is on the points and the carried surface, for procedural textures.
+        let usd = openusd::usdc::read_file(out.join("morph.usdc")).unwrap();
+        use openusd::sdf::{AbstractData, Value};
+        let field = |path: &str, name: &str| {
+            let path = match path {
+                "/" => openusd::sdf::Path::abs_root(),
+                _ => openusd::sdf::path(path).unwrap(),
+            };
+            usd.get_field(&path, name).unwrap().into_owned()
+        };
+        assert_eq!(field("/", "startTimeCode"), Value::Double(first as f64));
+        assert_eq!(field("/", "endTimeCode"), Value::Double(last as f64));
+        let Value::TimeSamples(samples) = field("/Morph/particles.points", "timeSamples") else {
+            panic!("points without time samples")
+        };
+        assert_eq!(samples.first().map(|s| s.0), Some(first as f64));
+        assert_eq!(samples.last().map(|s| s.0), Some(last as f64));
+        for prim in ["/Morph/particles", "/Morph/carried"] {
+            let rest = field(&format!("{prim}.primvars:rest"), "default");
+            assert!(
+                matches!(rest, Value::Vec3fVec(v) if !v.is_empty()),
+                "{prim}"
+            );
+        }
         grids.push(std::fs::read(out.join("final_mass.mgrid")).unwrap());
     }
     assert_eq!(
@@ -473,6 +492,33 @@ fn a_shot_starts_at_its_own_frame_number() {
         "{err}"
     );
     assert_eq!(err.lines().count(), 1, "{err}");
+}
+
+/// `--usd usda` writes the same stage as text, `--usd none` no USD file; the simulation is the
+/// same either way.
+#[test]
+fn the_usd_format_picks_the_file_and_nothing_else() {
+    let mut grids = Vec::new();
+    for format in ["usda", "none"] {
+        let out = scratch(&format!("usd-{format}"));
+        let mut args: Vec<&str> = SMALL.to_vec();
+        args.extend_from_slice(&["--usd", format, "-o", out.to_str().unwrap(), "--quiet"]);
+        let r = morph(&args);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        assert!(!out.join("morph.usdc").exists());
+        assert_eq!(out.join("morph.usda").exists(), format == "usda");
+        if format == "usda" {
+            use openusd::sdf::{AbstractData, Value};
+            let usd = openusd::usda::read_file(out.join("morph.usda")).unwrap();
+            let n = manifest(&out)["frames"].as_array().unwrap().len();
+            let end = usd
+                .get_field(&openusd::sdf::Path::abs_root(), "endTimeCode")
+                .unwrap();
+            assert_eq!(*end, Value::Double(n as f64));
+        }
+        grids.push(std::fs::read(out.join("final_mass.mgrid")).unwrap());
+    }
+    assert_eq!(grids[0], grids[1]);
 }
 
 /// `morph farm-template openjd`: a template that embeds the resolved scene and runs it with

@@ -12,7 +12,7 @@ use morph::morph::basis::ControlResolution;
 use morph::morph::memory::MemoryLimit;
 use morph::morph::scene_file::SceneFile;
 use morph::morph::segment::Optimizer;
-use morph::morph::settings::{Inbetween, RebuiltMethod, Surfaces, limits};
+use morph::morph::settings::{Inbetween, RebuiltMethod, Surfaces, UsdFormat, limits};
 use morph::morph::{MorphError, MorphEvent, MorphSettings, Preset};
 use morph::mpm::ControlForm;
 use std::path::PathBuf;
@@ -42,7 +42,8 @@ OUTPUT (folder -o, written in the locked OUT.partial and put in place when compl
   loss.png, preview.png      loss curves; a contact sheet of frames
   preview.gif                the sequence animated at its fps
   carried/frame_0001.obj ... the source mesh carried through the morph (--surface)
-  morph.usda                 the whole sequence in one USD file (points, both surfaces)
+  morph.usdc                 the whole sequence in one USD file (points, both surfaces;
+                             --usd usda for text)
   -o is checked before any work; --overwrite replaces only a folder morph provably wrote (its
   manifest.json is morph's and lists every file in it), never anything else; a second run on
   the same -o fails at once. Each completed segment is checkpointed in OUT.partial (sealed
@@ -226,6 +227,8 @@ pub struct MorphArgs {
     rebuilt_method: Option<RebuiltMethod>,
     #[arg(long, value_parser = choice(&Inbetween::ALL), help = format!("What a segment aims at between two keyframes: crossfade (their nodal masses faded into each other) or shape (their signed distances blended: a boundary that sweeps from one to the other) [default {}]", name(&defaults().inbetween)))]
     inbetween: Option<Inbetween>,
+    #[arg(long, value_parser = choice(&UsdFormat::ALL), help = format!("The USD file of the whole sequence: usdc (binary, morph.usdc), usda (text, morph.usda; about three times larger) or none [default {}]", name(&defaults().usd)))]
+    usd: Option<UsdFormat>,
     /// Points only: the same as --surface none.
     #[arg(long, conflicts_with = "surface")]
     no_surfaces: bool,
@@ -436,6 +439,9 @@ impl MorphArgs {
         }
         if self.no_surfaces {
             s.surfaces = Surfaces::None;
+        }
+        if let Some(usd) = self.usd {
+            s.usd = usd;
         }
         Ok(s)
     }

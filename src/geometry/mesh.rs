@@ -469,7 +469,8 @@ pub fn finite_in_f32(points: &[Vector3<f64>], what: &str) -> std::io::Result<()>
 }
 
 /// Runs `write` into `path` + ".tmp" and renames the result over `path`, so readers never
-/// see a half-written file. The temporary file is removed on failure.
+/// see a half-written file. The temporary file is removed on failure. It is open for reading
+/// too, so a writer may go back over what it wrote (through `get_mut` after a flush).
 pub fn write_atomically(
     path: &Path,
     write: impl FnOnce(&mut std::io::BufWriter<std::fs::File>) -> std::io::Result<()>,
@@ -478,7 +479,13 @@ pub fn write_atomically(
     tmp.push(".tmp");
     let tmp = std::path::PathBuf::from(tmp);
     let result = (|| {
-        let mut w = std::io::BufWriter::new(std::fs::File::create(&tmp)?);
+        let file = std::fs::OpenOptions::new()
+            .read(true)
+            .write(true)
+            .create(true)
+            .truncate(true)
+            .open(&tmp)?;
+        let mut w = std::io::BufWriter::new(file);
         write(&mut w)?;
         w.into_inner().map_err(|e| e.into_error())?.sync_all()?;
         std::fs::rename(&tmp, path)

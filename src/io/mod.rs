@@ -7,6 +7,7 @@ pub mod images;
 pub mod massgrid;
 pub mod outdir;
 pub mod usd;
+mod usdc_fix;
 pub mod vdb;
 
 pub use crate::geometry::mesh::write_atomically;

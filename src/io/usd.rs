@@ -1,30 +1,70 @@
-//! One USD file per run (`OUT/morph.usda`): the whole sequence as time samples, for Blender,
-//! Houdini, Maya or any USD client.
+//! One USD file per run (`OUT/morph.usdc`, or `.usda` as text): the whole sequence as time
+//! samples, for Blender, Houdini, Maya or any USD client.
 //!
-//! It is text USD (`.usda`) written directly: the format is plain text with a published
-//! grammar, a run writes only three prims, and no Rust crate reads and writes USD layers well
-//! enough to rely on. The file is assembled once the frames are on disk, from them (the PLY
-//! points and the OBJ surfaces), one attribute at a time, so it needs one frame in memory and
-//! covers frames written before a `--resume` too.
+//! The layer is built with `openusd` (a pure-Rust USD library: its `sdf` data model and its
+//! crate (`.usdc`) and text (`.usda`) writers), so both formats hold the same prims and
+//! values. Binary is the default: about a third of the text's size, and a client opens it
+//! and reads every frame without parsing text. The file is assembled once the frames are on
+//! disk, from them (the PLY points and the OBJ surfaces), so it covers frames written before
+//! a `--resume` too; the writer needs the whole layer in memory (about the size of the
+//! `.usdc`). `openusd` 0.6's binary files need one correction before Pixar's USD opens them
+//! (`usdc_fix.rs`).
 //!
 //! ```text
 //! /Morph                 Xform (kind component), the stage's default prim
-//!   /Morph/particles     Points: points, velocities, ids, widths, primvars:J (vertex)
+//!   /Morph/particles     Points: points, velocities, ids, widths, primvars:J (vertex),
+//!                        primvars:rest (the first frame's points)
 //!   /Morph/carried       Mesh: the source's topology, primvars:st (faceVarying), points and
-//!                        velocities per frame
+//!                        velocities per frame, primvars:rest
 //!   /Morph/rebuilt       Mesh: topology and points per frame
 //! ```
 //!
-//! Frame k (from 1) is time code k; `timeCodesPerSecond` and `framesPerSecond` are the run's
-//! fps, so the sequence plays at the shot's rate. Y is up (the meshes' own convention), and a
-//! unit of the source mesh is taken as a metre.
+//! Frame k (0-based) is time code `start + k` (`--start-frame`); `timeCodesPerSecond` and
+//! `framesPerSecond` are the run's fps, so the sequence plays at the shot's rate. Y is up (the
+//! meshes' own convention), and a unit of the source mesh is taken as a metre.
 
 use nalgebra::Vector3;
-use std::io::{BufRead, Write};
+use openusd::gf;
+use openusd::sdf::{
+    self, ChildrenKey, FieldKey, SpecData, SpecType, Specifier, Value, Variability,
+};
+use serde::{Deserialize, Serialize};
+use std::io::BufRead;
 use std::path::{Path, PathBuf};
 
-/// The file's name in the output folder.
-pub const FILE: &str = "morph.usda";
+/// The stage's default prim, under which everything is.
+const ROOT: &str = "Morph";
+
+/// The files' names in the output folder.
+pub const USDC_FILE: &str = "morph.usdc";
+pub const USDA_FILE: &str = "morph.usda";
+
+/// Which USD file a run writes (`--usd`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum UsdFormat {
+    /// Binary (crate) USD, `morph.usdc`: what DCC exporters write.
+    #[default]
+    Usdc,
+    /// Text USD, `morph.usda`: readable, about three times larger.
+    Usda,
+    /// No USD file.
+    None,
+}
+
+impl UsdFormat {
+    /// Every value, in declaration order (the command line lists them by their serde names).
+    pub const ALL: [UsdFormat; 3] = [UsdFormat::Usdc, UsdFormat::Usda, UsdFormat::None];
+
+    /// The file's name in the output folder, if one is written.
+    pub fn file_name(self) -> Option<&'static str> {
+        match self {
+            UsdFormat::Usdc => Some(USDC_FILE),
+            UsdFormat::Usda => Some(USDA_FILE),
+            UsdFormat::None => None,
+        }
+    }
+}
 
 /// What the USD file is made from: each frame's files, in order, relative to `dir`.
 pub struct UsdSequence<'a> {
@@ -151,33 +191,20 @@ pub fn read_points_ply(path: &Path) -> std::io::Result<PointsFrame> {
     Ok(PointsFrame { x, v, j })
 }
 
-fn vec3s(w: &mut dyn Write, values: &[Vector3<f64>]) -> std::io::Result<()> {
-    write!(w, "[")?;
-    for (i, p) in values.iter().enumerate() {
-        if i > 0 {
-            write!(w, ", ")?;
-        }
-        write!(w, "({}, {}, {})", p.x as f32, p.y as f32, p.z as f32)?;
-    }
-    write!(w, "]")
+fn vec3f(p: &Vector3<f64>) -> gf::Vec3f {
+    gf::Vec3f::from([p.x as f32, p.y as f32, p.z as f32])
 }
 
-fn list<T: std::fmt::Display>(
-    w: &mut dyn Write,
-    values: impl IntoIterator<Item = T>,
-) -> std::io::Result<()> {
-    write!(w, "[")?;
-    for (i, v) in values.into_iter().enumerate() {
-        if i > 0 {
-            write!(w, ", ")?;
-        }
-        write!(w, "{v}")?;
-    }
-    write!(w, "]")
+fn vec3fs(values: &[Vector3<f64>]) -> Value {
+    Value::Vec3fVec(values.iter().map(vec3f).collect())
+}
+
+fn ints(values: &[usize]) -> Value {
+    Value::IntVec(values.iter().map(|&i| i as i32).collect())
 }
 
 /// `extent` of a point set: its bounding box.
-fn extent(points: &[Vector3<f64>]) -> [Vector3<f64>; 2] {
+fn extent(points: &[Vector3<f64>]) -> Value {
     let mut lo = Vector3::repeat(f64::INFINITY);
     let mut hi = Vector3::repeat(f64::NEG_INFINITY);
     for p in points {
@@ -185,165 +212,253 @@ fn extent(points: &[Vector3<f64>]) -> [Vector3<f64>; 2] {
         hi = hi.sup(p);
     }
     if points.is_empty() {
-        [Vector3::zeros(), Vector3::zeros()]
-    } else {
-        [lo, hi]
+        (lo, hi) = (Vector3::zeros(), Vector3::zeros());
     }
+    vec3fs(&[lo, hi])
 }
 
-/// Writes `name.timeSamples = { start + k: value, ... }` for every frame, `value` writing
-/// frame `k`'s (0-based).
-fn samples(
-    w: &mut dyn Write,
-    start: usize,
-    declaration: &str,
+/// Reads every frame `read(k)` in parallel (reading and decoding is most of the cost) and
+/// returns the results in frame order: the same layer on any thread count.
+fn per_frame<T: Send>(
     frames: usize,
-    value: impl Fn(&mut dyn Write, usize) -> std::io::Result<()> + Sync,
-) -> std::io::Result<()> {
+    read: impl Fn(usize) -> std::io::Result<T> + Sync,
+) -> std::io::Result<Vec<T>> {
     use rayon::prelude::*;
-    writeln!(w, "        {declaration}.timeSamples = {{")?;
-    // Frames are read and formatted in parallel, a batch at a time (text is most of the
-    // cost), and written in order: the same bytes on any thread count.
-    const BATCH: usize = 8;
-    for batch in (0..frames).step_by(BATCH) {
-        let texts: Vec<Vec<u8>> = (batch..(batch + BATCH).min(frames))
-            .into_par_iter()
-            .map(|k| {
-                let mut text = Vec::new();
-                write!(text, "            {}: ", start + k)?;
-                value(&mut text, k)?;
-                writeln!(text, ",")?;
-                Ok(text)
-            })
-            .collect::<std::io::Result<_>>()?;
-        for text in texts {
-            w.write_all(&text)?;
+    (0..frames).into_par_iter().map(&read).collect()
+}
+
+/// A USD layer under construction: prims and their attributes, in the order they are
+/// authored. Both file formats are written from it (`openusd`'s crate and text writers).
+struct Layer {
+    data: sdf::Data,
+    /// Frame `k` (0-based) is at time code `start + k`.
+    start: usize,
+}
+
+impl Layer {
+    /// An empty layer with the stage's metadata: the default prim, the time range and rate,
+    /// Y up and metres.
+    fn new(seq: &UsdSequence, frames: usize) -> Layer {
+        let mut data = sdf::Data::new();
+        let root = data.create_spec(sdf::Path::abs_root(), SpecType::PseudoRoot);
+        root.add(FieldKey::DefaultPrim, Value::Token(ROOT.into()));
+        root.add(
+            FieldKey::Documentation,
+            Value::String(format!("morph {} sequence", env!("CARGO_PKG_VERSION"))),
+        );
+        root.add(FieldKey::StartTimeCode, Value::Double(seq.start as f64));
+        let end = seq.start + frames.max(1) - 1;
+        root.add(FieldKey::EndTimeCode, Value::Double(end as f64));
+        root.add(FieldKey::TimeCodesPerSecond, Value::Double(seq.fps));
+        root.add(FieldKey::FramesPerSecond, Value::Double(seq.fps));
+        root.add("upAxis", Value::Token("Y".into()));
+        root.add("metersPerUnit", Value::Double(1.0));
+        Layer {
+            data,
+            start: seq.start,
         }
     }
-    writeln!(w, "        }}")
+
+    /// Appends `name` to the `key` children list of the spec at `parent`.
+    fn add_child(&mut self, parent: &sdf::Path, key: ChildrenKey, name: &str) {
+        let spec = self
+            .data
+            .spec_mut(parent)
+            .expect("the parent was made first");
+        match spec.get_mut(key.as_str()) {
+            Some(Value::TokenVec(names)) => names.push(name.into()),
+            _ => spec.add(key, Value::TokenVec(vec![name.into()])),
+        }
+    }
+
+    /// Defines the prim `parent/name` of schema `type_name`.
+    fn prim(&mut self, parent: &sdf::Path, name: &str, type_name: &str) -> sdf::Path {
+        let path = parent
+            .append_path(name)
+            .expect("prim names are identifiers");
+        self.add_child(parent, ChildrenKey::PrimChildren, name);
+        let spec = self.data.create_spec(path.clone(), SpecType::Prim);
+        spec.add(FieldKey::Specifier, Value::Specifier(Specifier::Def));
+        spec.add(FieldKey::TypeName, Value::Token(type_name.into()));
+        path
+    }
+
+    /// Authors the attribute `prim.name` of USD type `type_name`: `value` for all time, or
+    /// a [`Layer::samples`] value, one per frame.
+    fn attribute(
+        &mut self,
+        prim: &sdf::Path,
+        name: &str,
+        type_name: &str,
+        value: Value,
+    ) -> &mut SpecData {
+        let path = prim
+            .append_property(name)
+            .expect("attribute names are identifiers");
+        self.add_child(prim, ChildrenKey::PropertyChildren, name);
+        let spec = self.data.create_spec(path, SpecType::Attribute);
+        spec.add(FieldKey::TypeName, Value::Token(type_name.into()));
+        let field = match value {
+            Value::TimeSamples(_) => FieldKey::TimeSamples,
+            _ => FieldKey::Default,
+        };
+        spec.add(field, value);
+        spec
+    }
+
+    /// One value per frame, `values[k]` at frame `k`'s time code.
+    fn samples(&self, values: Vec<Value>) -> Value {
+        let start = self.start;
+        Value::TimeSamples(
+            values
+                .into_iter()
+                .enumerate()
+                .map(|(k, v)| ((start + k) as f64, v))
+                .collect(),
+        )
+    }
+
+    /// A per-point primvar (`interpolation = "vertex"`) with one value for all time.
+    fn vertex_primvar(&mut self, prim: &sdf::Path, name: &str, type_name: &str, value: Value) {
+        self.attribute(prim, name, type_name, value)
+            .add("interpolation", Value::Token("vertex".into()));
+    }
+
+    /// A `uniform token` attribute (a schema's fixed choice, e.g. `subdivisionScheme`).
+    fn uniform_token(&mut self, prim: &sdf::Path, name: &str, value: &str) {
+        self.attribute(prim, name, "token", Value::Token(value.into()))
+            .add(
+                FieldKey::Variability,
+                Value::Variability(Variability::Uniform),
+            );
+    }
+}
+/// Writes the USD file of `seq` to `path` (atomically) in `format`.
+pub fn write(path: &Path, seq: &UsdSequence, format: UsdFormat) -> std::io::Result<()> {
+    let layer = build(seq)?;
+    let failed = |e: anyhow::Error| std::io::Error::other(format!("{e:#}"));
+    crate::io::write_atomically(path, |file| match format {
+        UsdFormat::Usdc => {
+            openusd::usdc::CrateWriter::write(&layer.data, file).map_err(failed)?;
+            std::io::Write::flush(file)?;
+            super::usdc_fix::retag_children(file.get_mut())
+        }
+        UsdFormat::Usda => openusd::usda::TextWriter::write(&layer.data, file).map_err(failed),
+        UsdFormat::None => Ok(()),
+    })
 }
 
-/// Writes `primvars:rest`, each point where it is on the first frame (the rest shape), for
-/// procedural textures that must stick to the body.
-fn rest(w: &mut dyn Write, first: &[Vector3<f64>]) -> std::io::Result<()> {
-    write!(w, "        point3f[] primvars:rest = ")?;
-    vec3s(w, first)?;
-    writeln!(w, " (\n            interpolation = \"vertex\"\n        )")
-}
-
-/// Writes the USD file of `seq` to `path` (atomically).
-pub fn write_usda(path: &Path, seq: &UsdSequence) -> std::io::Result<()> {
+/// The stage of `seq`: the frames on disk read back into one layer.
+fn build(seq: &UsdSequence) -> std::io::Result<Layer> {
     let n = seq.points.len();
     let at = |p: &PathBuf| seq.dir.join(p);
-    crate::io::write_atomically(path, |file| {
-        let w: &mut dyn Write = file;
-        writeln!(w, "#usda 1.0")?;
-        writeln!(
-            w,
-            "(\n    defaultPrim = \"Morph\"\n    doc = \"morph {} sequence\"\n    startTimeCode = {start}\n    endTimeCode = {end}\n    timeCodesPerSecond = {fps}\n    framesPerSecond = {fps}\n    upAxis = \"Y\"\n    metersPerUnit = 1\n)\n",
-            env!("CARGO_PKG_VERSION"),
-            start = seq.start,
-            end = seq.start + n - 1,
-            fps = seq.fps
-        )?;
-        writeln!(w, "def Xform \"Morph\" (\n    kind = \"component\"\n)\n{{")?;
+    let mut layer = Layer::new(seq, n);
+    let root = layer.prim(&sdf::Path::abs_root(), ROOT, "Xform");
+    layer
+        .data
+        .spec_mut(&root)
+        .expect("just made")
+        .add(FieldKey::Kind, Value::Token("component".into()));
 
-        // Particles.
-        let x0 = read_points_ply(&at(&seq.points[0]))?.x;
-        writeln!(w, "    def Points \"particles\"\n    {{")?;
-        write!(w, "        int64[] ids = ")?;
-        list(w, 0..x0.len())?;
-        writeln!(w)?;
-        write!(w, "        float[] widths = ")?;
-        list(w, std::iter::repeat_n(seq.width as f32, x0.len()))?;
-        writeln!(w)?;
-        rest(w, &x0)?;
-        let read = |k: usize| read_points_ply(&at(&seq.points[k]));
-        samples(w, seq.start, "point3f[] points", n, |w, k| {
-            vec3s(w, &read(k)?.x)
-        })?;
-        samples(w, seq.start, "vector3f[] velocities", n, |w, k| {
-            vec3s(w, &read(k)?.v)
-        })?;
-        samples(w, seq.start, "float3[] extent", n, |w, k| {
-            vec3s(w, &extent(&read(k)?.x))
-        })?;
-        writeln!(
-            w,
-            "        float[] primvars:J (\n            interpolation = \"vertex\"\n        )"
-        )?;
-        samples(w, seq.start, "float[] primvars:J", n, |w, k| {
-            list(w, read(k)?.j.iter().map(|j| *j as f32))
-        })?;
-        writeln!(w, "    }}")?;
+    // Particles.
+    let frames = per_frame(n, |k| read_points_ply(&at(&seq.points[k])))?;
+    let particles = layer.prim(&root, "particles", "Points");
+    let count = frames.first().map_or(0, |f| f.x.len());
+    layer.attribute(
+        &particles,
+        "ids",
+        "int64[]",
+        Value::Int64Vec((0..count as i64).collect()),
+    );
+    layer.attribute(
+        &particles,
+        "widths",
+        "float[]",
+        Value::FloatVec(vec![seq.width as f32; count]),
+    );
+    if let Some(first) = frames.first() {
+        layer.vertex_primvar(&particles, "primvars:rest", "point3f[]", vec3fs(&first.x));
+    }
+    let each = |f: &dyn Fn(&PointsFrame) -> Value| frames.iter().map(f).collect::<Vec<_>>();
+    let points = layer.samples(each(&|f| vec3fs(&f.x)));
+    layer.attribute(&particles, "points", "point3f[]", points);
+    let velocities = layer.samples(each(&|f| vec3fs(&f.v)));
+    layer.attribute(&particles, "velocities", "vector3f[]", velocities);
+    let extents = layer.samples(each(&|f| extent(&f.x)));
+    layer.attribute(&particles, "extent", "float3[]", extents);
+    let j = layer.samples(each(&|f| {
+        Value::FloatVec(f.j.iter().map(|&j| j as f32).collect())
+    }));
+    layer.vertex_primvar(&particles, "primvars:J", "float[]", j);
+    drop(frames);
 
-        // The carried surface: the source's topology and UVs, points and velocities per frame.
-        if let Some(files) = &seq.carried {
-            let first = read_obj(&at(&files[0]))?;
-            writeln!(w, "\n    def Mesh \"carried\"\n    {{")?;
-            writeln!(w, "        uniform token subdivisionScheme = \"none\"")?;
-            writeln!(w, "        uniform token orientation = \"rightHanded\"")?;
-            write!(w, "        int[] faceVertexCounts = ")?;
-            list(w, &first.counts)?;
-            write!(w, "\n        int[] faceVertexIndices = ")?;
-            list(w, &first.indices)?;
-            writeln!(w)?;
-            rest(w, &first.positions)?;
-            if !first.uvs.is_empty() && first.uv_indices.iter().all(Option::is_some) {
-                write!(w, "        texCoord2f[] primvars:st = ")?;
-                write!(w, "[")?;
-                for (i, t) in first.uvs.iter().enumerate() {
-                    if i > 0 {
-                        write!(w, ", ")?;
-                    }
-                    write!(w, "({}, {})", t[0] as f32, t[1] as f32)?;
-                }
-                writeln!(
-                    w,
-                    "] (\n            interpolation = \"faceVarying\"\n        )"
-                )?;
-                write!(w, "        int[] primvars:st:indices = ")?;
-                list(w, first.uv_indices.iter().map(|i| i.expect("checked")))?;
-                writeln!(w)?;
-            }
-            let read = |k: usize| read_obj(&at(&files[k])).map(|f| f.positions);
-            samples(w, seq.start, "point3f[] points", n, |w, k| {
-                vec3s(w, &read(k)?)
-            })?;
-            // Velocities by central differences of the frames (one-sided at the ends).
-            samples(w, seq.start, "vector3f[] velocities", n, |w, k| {
+    // The carried surface: the source's topology and UVs, points and velocities per frame.
+    if let Some(files) = &seq.carried {
+        let frames = per_frame(n, |k| read_obj(&at(&files[k])))?;
+        let first = &frames[0];
+        let carried = layer.prim(&root, "carried", "Mesh");
+        layer.uniform_token(&carried, "subdivisionScheme", "none");
+        layer.uniform_token(&carried, "orientation", "rightHanded");
+        layer.attribute(&carried, "faceVertexCounts", "int[]", ints(&first.counts));
+        layer.attribute(&carried, "faceVertexIndices", "int[]", ints(&first.indices));
+        layer.vertex_primvar(
+            &carried,
+            "primvars:rest",
+            "point3f[]",
+            vec3fs(&first.positions),
+        );
+        if !first.uvs.is_empty() && first.uv_indices.iter().all(Option::is_some) {
+            let st = first
+                .uvs
+                .iter()
+                .map(|t| gf::Vec2f::from([t[0] as f32, t[1] as f32]))
+                .collect();
+            layer
+                .attribute(&carried, "primvars:st", "texCoord2f[]", Value::Vec2fVec(st))
+                .add("interpolation", Value::Token("faceVarying".into()));
+            let indices: Vec<usize> = first
+                .uv_indices
+                .iter()
+                .map(|i| i.expect("checked"))
+                .collect();
+            layer.attribute(&carried, "primvars:st:indices", "int[]", ints(&indices));
+        }
+        let points = layer.samples(frames.iter().map(|f| vec3fs(&f.positions)).collect());
+        layer.attribute(&carried, "points", "point3f[]", points);
+        // Velocities by central differences of the frames (one-sided at the ends).
+        let velocities = (0..n)
+            .map(|k| {
                 let (a, b) = (k.saturating_sub(1), (k + 1).min(n - 1));
-                let (pa, pb) = (read(a)?, read(b)?);
                 let dt = (b - a).max(1) as f64 / seq.fps;
-                let v: Vec<Vector3<f64>> = pa.iter().zip(&pb).map(|(p, q)| (q - p) / dt).collect();
-                vec3s(w, &v)
-            })?;
-            samples(w, seq.start, "float3[] extent", n, |w, k| {
-                vec3s(w, &extent(&read(k)?))
-            })?;
-            writeln!(w, "    }}")?;
-        }
+                let (pa, pb) = (&frames[a].positions, &frames[b].positions);
+                Value::Vec3fVec(
+                    pa.iter()
+                        .zip(pb)
+                        .map(|(p, q)| vec3f(&((q - p) / dt)))
+                        .collect(),
+                )
+            })
+            .collect();
+        let velocities = layer.samples(velocities);
+        layer.attribute(&carried, "velocities", "vector3f[]", velocities);
+        let extents = layer.samples(frames.iter().map(|f| extent(&f.positions)).collect());
+        layer.attribute(&carried, "extent", "float3[]", extents);
+    }
 
-        // The rebuilt surface: its topology changes from frame to frame.
-        if let Some(files) = &seq.rebuilt {
-            let read = |k: usize| read_obj(&at(&files[k]));
-            writeln!(w, "\n    def Mesh \"rebuilt\"\n    {{")?;
-            writeln!(w, "        uniform token subdivisionScheme = \"none\"")?;
-            samples(w, seq.start, "int[] faceVertexCounts", n, |w, k| {
-                list(w, &read(k)?.counts)
-            })?;
-            samples(w, seq.start, "int[] faceVertexIndices", n, |w, k| {
-                list(w, &read(k)?.indices)
-            })?;
-            samples(w, seq.start, "point3f[] points", n, |w, k| {
-                vec3s(w, &read(k)?.positions)
-            })?;
-            samples(w, seq.start, "float3[] extent", n, |w, k| {
-                vec3s(w, &extent(&read(k)?.positions))
-            })?;
-            writeln!(w, "    }}")?;
-        }
-        writeln!(w, "}}")?;
-        Ok(())
-    })
+    // The rebuilt surface: its topology changes from frame to frame.
+    if let Some(files) = &seq.rebuilt {
+        let frames = per_frame(n, |k| read_obj(&at(&files[k])))?;
+        let rebuilt = layer.prim(&root, "rebuilt", "Mesh");
+        layer.uniform_token(&rebuilt, "subdivisionScheme", "none");
+        let each = |f: &dyn Fn(&ObjFrame) -> Value| frames.iter().map(f).collect::<Vec<_>>();
+        let counts = layer.samples(each(&|f| ints(&f.counts)));
+        layer.attribute(&rebuilt, "faceVertexCounts", "int[]", counts);
+        let indices = layer.samples(each(&|f| ints(&f.indices)));
+        layer.attribute(&rebuilt, "faceVertexIndices", "int[]", indices);
+        let points = layer.samples(each(&|f| vec3fs(&f.positions)));
+        layer.attribute(&rebuilt, "points", "point3f[]", points);
+        let extents = layer.samples(each(&|f| extent(&f.positions)));
+        layer.attribute(&rebuilt, "extent", "float3[]", extents);
+    }
+    Ok(layer)
 }

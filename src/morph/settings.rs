@@ -4,6 +4,7 @@ use super::basis::ControlResolution;
 use super::segment::{Optimizer, OptimizerSettings};
 use crate::geometry::TargetFit;
 use crate::integrator::IntegratorKind;
+pub use crate::io::usd::UsdFormat;
 use crate::loss::MassLossKind;
 use crate::mpm::{ControlForm, KernelKind};
 use crate::scene::MaterialConfig;
@@ -194,6 +195,9 @@ pub struct MorphSettings {
     /// What a segment aims at between two keyframes (`--inbetween`).
     #[serde(default)]
     pub inbetween: Inbetween,
+    /// The USD file of the whole sequence: binary, text or none (`--usd`).
+    #[serde(default)]
+    pub usd: UsdFormat,
 }
 
 /// The shape the schedule puts the body at between two keyframes (docs/morph.md, "Motion").
@@ -404,6 +408,7 @@ impl MorphSettings {
             surfaces: Surfaces::default(),
             rebuilt_method: RebuiltMethod::default(),
             inbetween: Inbetween::default(),
+            usd: UsdFormat::default(),
         }
     }
 

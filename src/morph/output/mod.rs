@@ -126,7 +126,8 @@ const STAGING_NAMES: &[&str] = &[
     "loss.png",
     "preview.png",
     "preview.gif",
-    crate::io::usd::FILE,
+    crate::io::usd::USDC_FILE,
+    crate::io::usd::USDA_FILE,
 ];
 
 /// Morphs `source` into `target` and writes the folder `request.out`; see the module docs.

@@ -172,15 +172,18 @@ pub fn for_folder(
         }));
     }
     let start = settings.start_frame;
-    sinks.push(Box::new(UsdSequence {
-        dir: dir.to_path_buf(),
-        start,
-        count,
-        fps,
-        carried: settings.surfaces.carried(),
-        rebuilt: settings.surfaces.rebuilt(),
-        width: spacing * to_world.scale,
-    }));
+    if settings.usd != crate::io::usd::UsdFormat::None {
+        sinks.push(Box::new(UsdSequence {
+            dir: dir.to_path_buf(),
+            format: settings.usd,
+            start,
+            count,
+            fps,
+            carried: settings.surfaces.carried(),
+            rebuilt: settings.surfaces.rebuilt(),
+            width: spacing * to_world.scale,
+        }));
+    }
     sinks.push(Box::new(PreviewGif {
         dir: dir.to_path_buf(),
         start,

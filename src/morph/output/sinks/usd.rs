@@ -1,13 +1,16 @@
-//! `morph.usda`: the whole sequence as one USD stage (points, and the surfaces the run
-//! wrote), from the frames on disk once they are all there (`io/usd.rs`).
+//! `morph.usdc` (or `.usda`): the whole sequence as one USD stage (points, and the surfaces
+//! the run wrote), from the frames on disk once they are all there (`io/usd.rs`).
 
 use super::{FrameRecord, FrameSink, SinkFrame, frame_files, out_err};
+use crate::io::usd::UsdFormat;
 use crate::morph::MorphError;
 use std::path::PathBuf;
 
 pub struct UsdSequence {
     /// The output folder.
     pub dir: PathBuf,
+    /// Binary or text (never `None`: then there is no sink).
+    pub format: UsdFormat,
     /// The first frame's number (its time code), and how many there are.
     pub start: usize,
     pub count: usize,
@@ -29,9 +32,12 @@ impl FrameSink for UsdSequence {
     }
 
     fn finish(&mut self) -> Result<(), MorphError> {
-        let path = self.dir.join(crate::io::usd::FILE);
+        let Some(name) = self.format.file_name() else {
+            return Ok(());
+        };
+        let path = self.dir.join(name);
         let files = |folder: &str, ext: &str| frame_files(folder, ext, self.start, self.count);
-        crate::io::usd::write_usda(
+        crate::io::usd::write(
             &path,
             &crate::io::usd::UsdSequence {
                 dir: &self.dir,
@@ -42,6 +48,7 @@ impl FrameSink for UsdSequence {
                 rebuilt: self.rebuilt.then(|| files("meshes", "obj")),
                 width: self.width,
             },
+            self.format,
         )
         .map_err(|e| out_err("USD file", &path, e))
     }
