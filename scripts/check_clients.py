@@ -13,6 +13,8 @@ Checks, each printed with what was read:
   frames' float32, and their ids; the carried mesh's topology and UVs against the
   source; the rebuilt mesh's points; and Pixar's validators (what `usdchecker` runs) report no
   error.
+- With --volume: the USD's Volume prim reads each frame's volumes/frame_NNNN.vdb (usd-core),
+  Blender imports it as a volume object, and a frame's VDB as a volume around its surface.
 - Blender (bpy): imports the USD file and reads back the frame range, fps, point count, the
   velocity attribute, the carried mesh's vertex count and UV layer; imports a carried OBJ, a
   rebuilt OBJ and a PLY frame and reads their vertex counts, UVs and attributes.
@@ -125,6 +127,10 @@ def check_usd(out, manifest):
               all(len(rebuilt.GetPointsAttr().Get(t)) > 0 for t in range(first, last + 1)))
     else:
         print("     (no rebuilt surface in this output: its checks skipped)")
+    if manifest["settings"].get("volume"):
+        check_usd_volume(out, manifest, stage)
+    else:
+        print("     (no volumes in this output (--volume): their checks skipped)")
     validators = UsdValidation.ValidationRegistry().GetOrLoadAllValidators()
     errors = UsdValidation.ValidationContext(validators).Validate(stage)
     check(f"usd validators ({len(validators)}, what usdchecker runs): no errors", len(errors) == 0,
@@ -135,6 +141,26 @@ def surfaces_of(manifest):
     """Whether the output has a carried and a rebuilt surface (--surface decides)."""
     first = manifest["frames"][0]
     return "carried_mesh" in first, "mesh" in first
+
+
+def volume_file(frame):
+    """A frame's volume file (--volume): named as its points."""
+    return frame["points"].replace("frames/", "volumes/").replace(".ply", ".vdb")
+
+
+def check_usd_volume(out, manifest, stage):
+    from pxr import UsdVol
+
+    volume = UsdVol.Volume(stage.GetPrimAtPath("/Morph/volume"))
+    fields = volume.GetFieldPaths() if volume else {}
+    check("usd volume: a Volume prim with a density field", list(fields) == ["density"], dict(fields))
+    asset = UsdVol.OpenVDBAsset(stage.GetPrimAtPath(fields.get("density", "/Morph/volume/density")))
+    first, last = frame_range(manifest)
+    for t, frame in ((first, manifest["frames"][0]), (last, manifest["frames"][-1])):
+        path = asset.GetFilePathAttr().Get(t)
+        check(f"usd volume at frame {t}: the density grid's file is the frame's",
+              path is not None and Path(path.resolvedPath) == (out / volume_file(frame)).resolve()
+              and asset.GetFieldNameAttr().Get() == "density", path)
 
 
 def check_usd_carried(out, manifest, stage, last):
@@ -194,6 +220,11 @@ def check_blender(out, manifest):
         check("blender carried mesh: rest attribute", "rest" in [a.name for a in mesh.attributes],
               [a.name for a in mesh.attributes])
 
+    if manifest["settings"].get("volume"):
+        check("blender volume object from the USD", objects.get("volume") is not None
+              and objects["volume"].type == "VOLUME", sorted(objects))
+        check_blender_volume(out, manifest)
+
     # The final mass grid as a volume (OpenVDB), within the grid's extent.
     bpy.ops.wm.read_factory_settings(use_empty=True)
     bpy.ops.object.volume_import(filepath=str(out / "final_mass.vdb"))
@@ -245,6 +276,34 @@ def check_blender(out, manifest):
         size = max(rebuilt_obj.dimensions)
         check("blender PLY (forward -Z, up Y, as the README says) lines up with the OBJ surface",
               max(abs(a[i] - b[i]) for i in range(3)) < 0.05 * size, (a, b))
+
+
+def check_blender_volume(out, manifest):
+    """The last frame's volume imports as a volume around the frame's rebuilt surface."""
+    import bpy
+    from mathutils import Vector
+
+    last = manifest["frames"][-1]
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    bpy.ops.object.volume_import(filepath=str(out / volume_file(last)))
+    volume = bpy.context.selected_objects[0]
+    check("blender frame volume: its grid 'density'",
+          volume.data.grids.load() and [g.name for g in volume.data.grids] == ["density"],
+          [g.name for g in volume.data.grids])
+    corners = [volume.matrix_world @ Vector(c) for c in volume.bound_box]
+    lo = [min(c[i] for c in corners) for i in range(3)]
+    hi = [max(c[i] for c in corners) for i in range(3)]
+    if "mesh" in last:
+        bpy.ops.wm.obj_import(filepath=str(out / last["mesh"]))
+        mesh = bpy.context.selected_objects[0]
+        pts = [mesh.matrix_world @ v.co for v in mesh.data.vertices]
+        mlo = [min(p[i] for p in pts) for i in range(3)]
+        mhi = [max(p[i] for p in pts) for i in range(3)]
+        # Blender bounds a volume by whole leaves (8 voxels): around the surface, not far off.
+        size = max(mhi[i] - mlo[i] for i in range(3))
+        check("blender frame volume: bounds around the frame's rebuilt surface",
+              all(lo[i] <= mlo[i] and mhi[i] <= hi[i] and hi[i] - lo[i] < 2 * size for i in range(3)),
+              (lo, hi, mlo, mhi))
 
 
 def main():

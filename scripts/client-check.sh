@@ -3,7 +3,7 @@
 # validators usdchecker runs) and Blender 4.5 as a Python module (bpy), installed into a cached
 # venv outside the repo; then renders OUT/contact.png (scripts/contact_sheet.py). Usage:
 # scripts/client-check.sh [OUT]; without OUT it makes a small morph of the built-in assets
-# first (numbered from 1001, as a shot is). Needs python3.11 (bpy 4.5's).
+# first (numbered from 1001, as a shot is, with its volumes). Needs python3.11 (bpy 4.5's).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 venv="${MORPH_CLIENT_VENV:-${XDG_CACHE_HOME:-$HOME/.cache}/morph-client-venv}"
@@ -19,7 +19,7 @@ out="${1:-}"
 if [ -z "$out" ]; then
   out="$(mktemp -d)/small"
   cargo run --release --quiet -- assets/sphere.obj assets/two-lobes.obj -o "$out" \
-    --preset draft --resolution 16 --start-frame 1001 --quiet
+    --preset draft --resolution 16 --start-frame 1001 --volume --quiet
 fi
 "$venv/bin/python" scripts/check_clients.py "$out"
 # The OpenVDB file with OpenVDB's own library (Debian's python3-openvdb, for the system

@@ -42,8 +42,9 @@ OUTPUT (folder -o, written in the locked OUT.partial and put in place when compl
   loss.png, preview.png      loss curves; a contact sheet of frames
   preview.gif                the sequence animated at its fps
   carried/frame_0001.obj ... the source mesh carried through the morph (--surface)
-  morph.usdc                 the whole sequence in one USD file (points, both surfaces;
-                             --usd usda for text)
+  volumes/frame_0001.vdb ... the fill field per frame as an OpenVDB density grid (--volume)
+  morph.usdc                 the whole sequence in one USD file (points, both surfaces, the
+                             volume; --usd usda for text)
   -o is checked before any work; --overwrite replaces only a folder morph provably wrote (its
   manifest.json is morph's and lists every file in it), never anything else; a second run on
   the same -o fails at once. Each completed segment is checkpointed in OUT.partial (sealed
@@ -229,6 +230,11 @@ pub struct MorphArgs {
     inbetween: Option<Inbetween>,
     #[arg(long, value_parser = choice(&UsdFormat::ALL), help = format!("The USD file of the whole sequence: usdc (binary, morph.usdc), usda (text, morph.usda; about three times larger) or none [default {}]", name(&defaults().usd)))]
     usd: Option<UsdFormat>,
+    /// Write each frame's fill field (the field the rebuilt surface is made from; 1 inside the
+    /// body, 1/2 on its surface) as an OpenVDB float grid `density` in world units,
+    /// volumes/frame_0001.vdb ..., and a Volume prim in the USD file that reads them.
+    #[arg(long)]
+    volume: bool,
     /// Points only: the same as --surface none.
     #[arg(long, conflicts_with = "surface")]
     no_surfaces: bool,
@@ -442,6 +448,9 @@ impl MorphArgs {
         }
         if let Some(usd) = self.usd {
             s.usd = usd;
+        }
+        if self.volume {
+            s.volume = true;
         }
         Ok(s)
     }

@@ -46,6 +46,16 @@ pub fn extract_surface(
     volumes: &[f64],
     spacing: f64,
 ) -> Result<TriMesh, SurfaceError> {
+    Ok(fill_field(positions, volumes, spacing)?.march())
+}
+
+/// The fill field [`extract_surface`] takes its surface from (the particles' volumes spread
+/// with the quadratic B-spline; 1 inside, 1/2 on the surface).
+pub fn fill_field(
+    positions: &[Vector3<f64>],
+    volumes: &[f64],
+    spacing: f64,
+) -> Result<FillField, SurfaceError> {
     assert_eq!(positions.len(), volumes.len(), "one volume per particle");
     if !(spacing.is_finite() && spacing > 0.0) {
         return Err(SurfaceError::BadSpacing(spacing));
@@ -56,7 +66,7 @@ pub fn extract_surface(
         return Err(SurfaceError::NonFinite(p));
     }
     if positions.is_empty() {
-        return Ok(TriMesh::default());
+        return Ok(FillField::empty(spacing));
     }
     let extent = Aabb::of_points(positions).extent() / spacing;
     let nodes = extent
@@ -66,7 +76,7 @@ pub fn extract_surface(
     if nodes > MAX_NODES as f64 {
         return Err(SurfaceError::TooLarge(nodes as usize));
     }
-    Ok(FillField::splat(positions, volumes, spacing).march())
+    Ok(FillField::splat(positions, volumes, spacing))
 }
 
 /// How wide each particle's kernel is in [`extract_deformed_surface`], in particle spacings
@@ -94,6 +104,16 @@ pub fn extract_deformed_surface(
     rest_volume: f64,
     spacing: f64,
 ) -> Result<TriMesh, SurfaceError> {
+    Ok(deformed_fill_field(positions, deformation, rest_volume, spacing)?.march())
+}
+
+/// The fill field [`extract_deformed_surface`] takes its surface from.
+pub fn deformed_fill_field(
+    positions: &[Vector3<f64>],
+    deformation: &[Matrix3<f64>],
+    rest_volume: f64,
+    spacing: f64,
+) -> Result<FillField, SurfaceError> {
     assert_eq!(positions.len(), deformation.len(), "one F per particle");
     if !(spacing.is_finite() && spacing > 0.0) {
         return Err(SurfaceError::BadSpacing(spacing));
@@ -105,7 +125,7 @@ pub fn extract_deformed_surface(
         return Err(SurfaceError::NonFinite(p));
     }
     if positions.is_empty() {
-        return Ok(TriMesh::default());
+        return Ok(FillField::empty(spacing));
     }
     let clipped: Vec<Matrix3<f64>> = deformation.par_iter().map(clip_stretch).collect();
     let reach = 2.0 * DEFORMED_KERNEL_WIDTH as f64 * spacing * max_row_sum(&clipped);
@@ -114,7 +134,13 @@ pub fn extract_deformed_surface(
     if nodes > MAX_NODES as f64 {
         return Err(SurfaceError::TooLarge(nodes as usize));
     }
-    Ok(FillField::splat_deformed(positions, &clipped, rest_volume, spacing, reach).march())
+    Ok(FillField::splat_deformed(
+        positions,
+        &clipped,
+        rest_volume,
+        spacing,
+        reach,
+    ))
 }
 
 /// The largest row sum of `|F|` over the particles: how far, in rest half-widths, a
@@ -166,15 +192,27 @@ fn support_run(
     (k0 <= k1).then_some((k0 as usize, k1 as usize))
 }
 
-/// Fill fraction on a lattice: node (i, j, k) at `origin + h * (i, j, k)`.
-struct FillField {
-    origin: Vector3<f64>,
-    h: f64,
-    dims: [usize; 3],
-    values: Vec<f64>,
+/// Fill fraction on a lattice: node (i, j, k) at `origin + h * (i, j, k)`, x slowest and z
+/// fastest in `values`. The rebuilt surface is its 1/2 level set; `--volume` writes it as a
+/// density grid.
+pub struct FillField {
+    pub origin: Vector3<f64>,
+    pub h: f64,
+    pub dims: [usize; 3],
+    pub values: Vec<f64>,
 }
 
 impl FillField {
+    /// No particles: an empty lattice (its surface is empty).
+    fn empty(h: f64) -> FillField {
+        FillField {
+            origin: Vector3::zeros(),
+            h,
+            dims: [0; 3],
+            values: Vec::new(),
+        }
+    }
+
     fn splat(positions: &[Vector3<f64>], volumes: &[f64], h: f64) -> FillField {
         let bounds = Aabb::of_points(positions);
         let origin = bounds.min - Vector3::repeat(PAD as f64 * h);
@@ -312,11 +350,14 @@ impl FillField {
         self.origin + self.h * Vector3::new(i as f64, j as f64, k as f64)
     }
 
-    /// Marching tetrahedra. Triangles are found per x-slab in parallel as triples of edge
+    /// The closed surface at fill 1/2, by marching tetrahedra. Triangles are found per x-slab in parallel as triples of edge
     /// keys; vertices are then numbered in order of first use, so the output is the same
     /// for any thread count.
-    fn march(&self) -> TriMesh {
+    pub fn march(&self) -> TriMesh {
         let [nx, ny, nz] = self.dims;
+        if nx < 2 || ny < 2 || nz < 2 {
+            return TriMesh::default();
+        }
         // Lattice offset of cube corner c (bit 0: +x, bit 1: +y, bit 2: +z).
         let corner_offset: [usize; 8] =
             std::array::from_fn(|c| (c & 1) * ny * nz + ((c >> 1) & 1) * nz + ((c >> 2) & 1));

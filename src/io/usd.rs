@@ -17,6 +17,8 @@
 //!   /Morph/carried       Mesh: the source's topology, primvars:st (faceVarying), points and
 //!                        velocities per frame, primvars:rest
 //!   /Morph/rebuilt       Mesh: topology and points per frame
+//!   /Morph/volume        Volume (--volume): field:density -> /Morph/volume/density, an
+//!                        OpenVDBAsset whose filePath is each frame's volumes/frame_NNNN.vdb
 //! ```
 //!
 //! Frame k (0-based) is time code `start + k` (`--start-frame`); `timeCodesPerSecond` and
@@ -75,6 +77,8 @@ pub struct UsdSequence<'a> {
     pub points: Vec<PathBuf>,
     pub carried: Option<Vec<PathBuf>>,
     pub rebuilt: Option<Vec<PathBuf>>,
+    /// Each frame's OpenVDB file (`--volume`), with its grid `density`.
+    pub volumes: Option<Vec<PathBuf>>,
     /// Point width (the particle spacing), world units.
     pub width: f64,
 }
@@ -324,6 +328,19 @@ impl Layer {
             .add("interpolation", Value::Token("vertex".into()));
     }
 
+    /// The relationship `prim.name` to the one prim `target`.
+    fn relationship(&mut self, prim: &sdf::Path, name: &str, target: &sdf::Path) {
+        let path = prim
+            .append_property(name)
+            .expect("relationship names are identifiers");
+        self.add_child(prim, ChildrenKey::PropertyChildren, name);
+        let spec = self.data.create_spec(path, SpecType::Relationship);
+        spec.add(
+            FieldKey::TargetPaths,
+            Value::PathListOp(sdf::PathListOp::explicit([target.clone()])),
+        );
+    }
+
     /// A `uniform token` attribute (a schema's fixed choice, e.g. `subdivisionScheme`).
     fn uniform_token(&mut self, prim: &sdf::Path, name: &str, value: &str) {
         self.attribute(prim, name, "token", Value::Token(value.into()))
@@ -459,6 +476,25 @@ fn build(seq: &UsdSequence) -> std::io::Result<Layer> {
         layer.attribute(&rebuilt, "points", "point3f[]", points);
         let extents = layer.samples(each(&|f| extent(&f.positions)));
         layer.attribute(&rebuilt, "extent", "float3[]", extents);
+    }
+    // The volume: a Volume prim whose `density` field reads each frame's OpenVDB file
+    // (paths relative to this file, as the frames are).
+    if let Some(files) = &seq.volumes {
+        let volume = layer.prim(&root, "volume", "Volume");
+        let density = layer.prim(&volume, "density", "OpenVDBAsset");
+        layer.attribute(
+            &density,
+            "fieldName",
+            "token",
+            Value::Token("density".into()),
+        );
+        let paths = files
+            .iter()
+            .map(|f| Value::AssetPath(sdf::AssetPath::new(format!("./{}", f.display()))))
+            .collect();
+        let paths = layer.samples(paths);
+        layer.attribute(&density, "filePath", "asset", paths);
+        layer.relationship(&volume, "field:density", &density);
     }
     Ok(layer)
 }

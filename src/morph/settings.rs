@@ -198,6 +198,10 @@ pub struct MorphSettings {
     /// The USD file of the whole sequence: binary, text or none (`--usd`).
     #[serde(default)]
     pub usd: UsdFormat,
+    /// Each frame's fill field (the rebuilt surface's) as an OpenVDB density grid in
+    /// `volumes/` (`--volume`), and a Volume prim in the USD file.
+    #[serde(default)]
+    pub volume: bool,
 }
 
 /// The shape the schedule puts the body at between two keyframes (docs/morph.md, "Motion").
@@ -409,6 +413,7 @@ impl MorphSettings {
             rebuilt_method: RebuiltMethod::default(),
             inbetween: Inbetween::default(),
             usd: UsdFormat::default(),
+            volume: false,
         }
     }
 

@@ -119,6 +119,7 @@ const STAGING_NAMES: &[&str] = &[
     "frames",
     "meshes",
     "carried",
+    "volumes",
     checkpoint::FOLDER,
     super::scene_file::RESOLVED,
     "final_mass.mgrid",

@@ -10,12 +10,14 @@ mod gif;
 mod points;
 mod rebuilt;
 mod usd;
+mod volume;
 
 pub use carried::CarriedObj;
 pub use gif::PreviewGif;
 pub use points::PointsPly;
 pub use rebuilt::{RebuiltObj, RebuiltStats};
 pub use usd::UsdSequence;
+pub use volume::VolumeVdb;
 
 use crate::geometry::carried::{CarriedStats, CarriedSurface};
 use crate::geometry::fidelity::Reference;
@@ -110,7 +112,8 @@ pub(crate) fn out_err(what: &str, path: &Path, e: impl std::fmt::Display) -> Mor
 }
 
 /// The sinks a morph's folder gets from its settings, in the order they run: the PLY points,
-/// the carried surface, the rebuilt surface, the USD file and the animated preview. `source`
+/// the carried surface, the rebuilt surface, the volume, the USD file and the animated
+/// preview. `source`
 /// is the source mesh's file (the carried surface is bound to it).
 pub fn for_folder(
     prep: &Prepared,
@@ -171,6 +174,15 @@ pub fn for_folder(
             references,
         }));
     }
+    if settings.volume {
+        sinks.push(Box::new(VolumeVdb {
+            dir: folder(dir, "volumes")?,
+            method: settings.rebuilt_method,
+            spacing,
+            rest_volume: prep.geometry.source.volume,
+            to_world,
+        }));
+    }
     let start = settings.start_frame;
     if settings.usd != crate::io::usd::UsdFormat::None {
         sinks.push(Box::new(UsdSequence {
@@ -181,6 +193,7 @@ pub fn for_folder(
             fps,
             carried: settings.surfaces.carried(),
             rebuilt: settings.surfaces.rebuilt(),
+            volume: settings.volume,
             width: spacing * to_world.scale,
         }));
     }

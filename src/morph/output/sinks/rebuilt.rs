@@ -3,12 +3,12 @@
 //! volume, written with vertex normals, and measured against the source on the first frame
 //! and the target on the last.
 
+use super::volume::fill_field_of;
 use super::{FrameRecord, FrameSink, SinkFrame, out_err};
+use crate::geometry::Similarity;
 use crate::geometry::cleanup::{CleanReport, SurfaceQuality, clean, keep_volume, quality};
 use crate::geometry::fidelity::{Fidelity, Reference, mesh_fidelity};
 use crate::geometry::splashsurf::extract_splashsurf_surface;
-use crate::geometry::surface::extract_deformed_surface;
-use crate::geometry::{Similarity, extract_surface};
 use crate::morph::MorphError;
 use crate::morph::settings::RebuiltMethod;
 use serde::{Deserialize, Serialize};
@@ -53,16 +53,11 @@ impl FrameSink for RebuiltObj {
 
     fn frame(&mut self, frame: &SinkFrame, record: &mut FrameRecord) -> Result<(), MorphError> {
         let clock = std::time::Instant::now();
-        let (state, j) = (frame.state, &frame.world.j);
+        let j = &frame.world.j;
         let raw = match self.method {
-            RebuiltMethod::Lattice => {
-                let volumes: Vec<f64> = j.iter().map(|j| self.rest_volume * j.max(0.0)).collect();
-                extract_surface(&state.x, &volumes, self.spacing)
-            }
-            RebuiltMethod::Deformed => {
-                extract_deformed_surface(&state.x, &state.f, self.rest_volume, self.spacing)
-            }
-            RebuiltMethod::Splashsurf => extract_splashsurf_surface(&state.x, self.spacing),
+            RebuiltMethod::Splashsurf => extract_splashsurf_surface(&frame.state.x, self.spacing),
+            method => fill_field_of(method, frame, self.rest_volume, self.spacing)
+                .map(|field| field.march()),
         }
         .map_err(|e| MorphError::Output(e.to_string()))?;
         let (mut surface, cleanup) = clean(&raw, self.spacing);

@@ -18,6 +18,8 @@ pub struct UsdSequence {
     /// Which surfaces the run writes.
     pub carried: bool,
     pub rebuilt: bool,
+    /// Whether the run writes a volume per frame (`--volume`).
+    pub volume: bool,
     /// The points' width (world units).
     pub width: f64,
 }
@@ -46,6 +48,7 @@ impl FrameSink for UsdSequence {
                 points: files("frames", "ply"),
                 carried: self.carried.then(|| files("carried", "obj")),
                 rebuilt: self.rebuilt.then(|| files("meshes", "obj")),
+                volumes: self.volume.then(|| files("volumes", "vdb")),
                 width: self.width,
             },
             self.format,
