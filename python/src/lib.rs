@@ -140,6 +140,10 @@ fn ask<'py>(
     }
 }
 
+/// A frame kept for Python: its index, time, and positions, velocities and J (world units),
+/// flat.
+type FrameData = (usize, f64, Vec<f64>, Vec<f64>, Vec<f64>);
+
 /// Whether a callback's answer is `False` (`None`, its usual answer, goes on).
 fn is_false(py: Python, answer: &Py<PyAny>) -> bool {
     answer.bind(py).is(&*pyo3::types::PyBool::new(py, false))
@@ -151,8 +155,7 @@ struct PyObserver {
     on_event: Option<Py<PyAny>>,
     on_frame: Option<Py<PyAny>>,
     keep_frames: bool,
-    /// Per frame: its index, time, and positions, velocities and J (world units), flat.
-    frames: Vec<(usize, f64, Vec<f64>, Vec<f64>, Vec<f64>)>,
+    frames: Vec<FrameData>,
     stop: std::cell::Cell<bool>,
     raised: RefCell<Option<PyErr>>,
 }
@@ -216,7 +219,7 @@ impl Observer for PyObserver {
 /// J (n).
 fn frame_dict<'py>(
     py: Python<'py>,
-    (index, time, x, v, j): &(usize, f64, Vec<f64>, Vec<f64>, Vec<f64>),
+    (index, time, x, v, j): &FrameData,
 ) -> PyResult<Bound<'py, PyDict>> {
     let d = PyDict::new(py);
     let n = j.len();
