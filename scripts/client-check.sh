@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Checks a morph's output with the clients studios use: Pixar's USD library (usd-core, and the
-# validators usdchecker runs) and Blender 4.5 as a Python module (bpy), installed into a cached
-# venv outside the repo; then renders OUT/contact.png (scripts/contact_sheet.py). Usage:
+# validators usdchecker runs; and the older usd-core 24.3) and Blender 4.5 as a Python module
+# (bpy), installed into cached venvs outside the repo; then renders OUT/contact.png (scripts/contact_sheet.py). Usage:
 # scripts/client-check.sh [OUT]; without OUT it makes a small morph of the built-in assets
 # first (numbered from 1001, as a shot is, with its volumes). Needs python3.11 (bpy 4.5's).
 set -euo pipefail
@@ -22,6 +22,18 @@ if [ -z "$out" ]; then
     --preset draft --resolution 16 --start-frame 1001 --volume --quiet
 fi
 "$venv/bin/python" scripts/check_clients.py "$out"
+# The USD file with the oldest usd-core on PyPI (24.3: the USD generation of Houdini 20 and
+# Maya 2025), in a venv of its own; a loud skip when it cannot be installed.
+old="${MORPH_OLD_USD_VENV:-${XDG_CACHE_HOME:-$HOME/.cache}/morph-usd24-venv}"
+if ! "$old/bin/python" -c 'import pxr' >/dev/null 2>&1; then
+  python3 -m venv "$old" && "$old/bin/pip" install --quiet --disable-pip-version-check "usd-core==24.3" ||
+    true
+fi
+if "$old/bin/python" -c 'import pxr' >/dev/null 2>&1; then
+  "$old/bin/python" scripts/check_usd_compat.py "$out"
+else
+  echo "older USD check skipped: could not install usd-core 24.3 into $old" >&2
+fi
 # The OpenVDB file with OpenVDB's own library (Debian's python3-openvdb, for the system
 # python), installed when missing and allowed; a loud skip otherwise.
 if ! /usr/bin/python3 -c 'import pyopenvdb' >/dev/null 2>&1; then

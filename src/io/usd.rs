@@ -7,7 +7,7 @@
 //! and reads every frame without parsing text. The file is assembled once the frames are on
 //! disk, from them (the PLY points and the OBJ surfaces), so it covers frames written before
 //! a `--resume` too; the writer needs the whole layer in memory (about the size of the
-//! `.usdc`). `openusd` 0.6's binary files need one correction before Pixar's USD opens them
+//! `.usdc`). `openusd` 0.6's binary files need two corrections before Pixar's USD opens them
 //! (`usdc_fix.rs`).
 //!
 //! ```text
@@ -358,7 +358,7 @@ pub fn write(path: &Path, seq: &UsdSequence, format: UsdFormat) -> std::io::Resu
         UsdFormat::Usdc => {
             openusd::usdc::CrateWriter::write(&layer.data, file).map_err(failed)?;
             std::io::Write::flush(file)?;
-            super::usdc_fix::retag_children(file.get_mut())
+            super::usdc_fix::correct(file.get_mut())
         }
         UsdFormat::Usda => openusd::usda::TextWriter::write(&layer.data, file).map_err(failed),
         UsdFormat::None => Ok(()),

@@ -1,13 +1,20 @@
-//! A correction to `openusd` 0.6's `.usdc` files so Pixar's USD opens them.
+//! Two corrections to `openusd` 0.6's `.usdc` files so Pixar's USD opens them.
 //!
-//! `openusd` 0.6 writes a prim's lists of children (`primChildren`, `properties`) as token
+//! 1. **Children lists.** `openusd` 0.6 writes a prim's lists of children (`primChildren`, `properties`) as token
 //! *arrays* (`VtArray<TfToken>`, type 11 with the array bit). Pixar's crate reader wants them
 //! as `TfTokenVector` (type 41) and, since USD 25.x checks layers as it opens them, refuses the
 //! file: "Invalid children found in primChildren field". Both types are stored the same way
 //! (a u64 count, then u32 token indices), so only the tags differ: this retags those two
-//! fields' values in the `FIELDS` section and moves the sections after it. (0.7 and later need
-//! a newer Rust than ours; the client check runs usd-core and Blender on every CI run, so a
-//! change of layout in a new `openusd` would show there.)
+//! fields' values in the `FIELDS` section and moves the sections after it.
+//! 2. **The format version.** `openusd` stamps every file 0.12.0, the newest crate version,
+//! which USD before 25.x refuses ("file is 0.12.0, software supports 0.10.0": usd-core 24.3,
+//! and the DCCs of its day). Versions 0.9 to 0.12 only added value types (time codes 0.9, path
+//! expressions 0.10, relocates 0.11, ...), none of which a morph's layer holds, so the file is
+//! stamped 0.8.0, as Pixar's own writer stamps the same content.
+//!
+//! (`openusd` 0.7 and later need a newer Rust than ours. The client check opens the file with
+//! usd-core, an older usd-core and Blender on every CI run, so a change of layout in a new
+//! `openusd` would show there.)
 
 use openusd::usdc::CrateFile;
 use std::io::{Read, Seek, SeekFrom, Write};
@@ -17,6 +24,10 @@ const TOKEN: u64 = 11;
 const TOKEN_VECTOR: u64 = 41;
 const ARRAY_BIT: u64 = 1 << 63;
 const TYPE_SHIFT: u32 = 48;
+/// The first type tag newer than crate version 0.8.0 (`TimeCode`, version 0.9.0).
+const FIRST_AFTER_0_8: u64 = 56;
+/// The version the corrected file is stamped with.
+const VERSION: [u8; 3] = [0, 8, 0];
 
 fn bad(why: impl std::fmt::Display) -> std::io::Error {
     std::io::Error::new(std::io::ErrorKind::InvalidData, format!("usdc: {why}"))
@@ -29,10 +40,23 @@ fn u64_at(bytes: &[u8], at: usize) -> std::io::Result<u64> {
         .ok_or_else(|| bad("truncated"))
 }
 
-/// Retags the children lists of `file`, a whole `.usdc` from `openusd`, as Pixar reads them.
-/// Only the end of the file changes (the structural sections and the table of contents come
-/// after the values), so the values are never read or held.
-pub fn retag_children(file: &mut std::fs::File) -> std::io::Result<()> {
+/// Corrects `file`, a whole `.usdc` from `openusd`, as the module docs say: its children lists
+/// retagged, and stamped 0.8.0 when it holds no newer value type. Only the header and the end
+/// of the file change (the structural sections and the table of contents come after the
+/// values), so the values are never read or held.
+pub fn correct(file: &mut std::fs::File) -> std::io::Result<()> {
+    let newest_type = retag_children(file)?;
+    if newest_type < FIRST_AFTER_0_8 {
+        file.seek(SeekFrom::Start(8))?;
+        file.write_all(&VERSION)?;
+    }
+    file.seek(SeekFrom::End(0))?;
+    Ok(())
+}
+
+/// Retags the children lists of `file` (see the module docs); returns the newest type tag of
+/// its fields' values.
+fn retag_children(file: &mut std::fs::File) -> std::io::Result<u64> {
     file.seek(SeekFrom::Start(0))?;
     let crate_file =
         CrateFile::open(std::io::BufReader::new(&mut *file)).map_err(|e| bad(format!("{e:#}")))?;
@@ -43,6 +67,12 @@ pub fn retag_children(file: &mut std::fs::File) -> std::io::Result<()> {
         )
     };
     let mut changed = false;
+    let newest_type = crate_file
+        .fields
+        .iter()
+        .map(|f| (f.value_rep.0 >> TYPE_SHIFT) & 0xff)
+        .max()
+        .unwrap_or(0);
     let reps: Vec<u64> = crate_file
         .fields
         .iter()
@@ -59,7 +89,7 @@ pub fn retag_children(file: &mut std::fs::File) -> std::io::Result<()> {
         })
         .collect();
     if !changed {
-        return Ok(());
+        return Ok(newest_type);
     }
     let fields = crate_file
         .sections
@@ -119,8 +149,7 @@ pub fn retag_children(file: &mut std::fs::File) -> std::io::Result<()> {
     file.set_len(end)?;
     file.seek(SeekFrom::Start(16))?;
     file.write_all(&moved(toc).to_le_bytes())?;
-    file.seek(SeekFrom::Start(end))?;
-    Ok(())
+    Ok(newest_type)
 }
 
 #[cfg(test)]
@@ -161,7 +190,7 @@ mod tests {
             .write(true)
             .open(&path)
             .unwrap();
-        retag_children(&mut file).unwrap();
+        correct(&mut file).unwrap();
         drop(file);
         let out = std::fs::read(&path).unwrap();
         std::fs::remove_file(&path).unwrap();
@@ -192,6 +221,9 @@ mod tests {
         let types = children_types(&after);
         assert_eq!(types.len(), 3);
         assert!(types.iter().all(|t| *t == TOKEN_VECTOR), "{types:?}");
+        // Stamped with the oldest version that holds it (openusd stamps 0.12.0).
+        assert_eq!(&before[8..11], &[0, 12, 0]);
+        assert_eq!(&after[8..11], &VERSION);
         // Same fields and values, read back through the moved sections.
         let read = |bytes: &[u8]| {
             let path = std::env::temp_dir().join(format!("usdc-read-{}.usdc", std::process::id()));
