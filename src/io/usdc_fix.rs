@@ -1,16 +1,17 @@
 //! Two corrections to `openusd` 0.6's `.usdc` files so Pixar's USD opens them.
 //!
-//! 1. **Children lists.** `openusd` 0.6 writes a prim's lists of children (`primChildren`, `properties`) as token
-//! *arrays* (`VtArray<TfToken>`, type 11 with the array bit). Pixar's crate reader wants them
-//! as `TfTokenVector` (type 41) and, since USD 25.x checks layers as it opens them, refuses the
-//! file: "Invalid children found in primChildren field". Both types are stored the same way
-//! (a u64 count, then u32 token indices), so only the tags differ: this retags those two
-//! fields' values in the `FIELDS` section and moves the sections after it.
+//! 1. **Children lists.** `openusd` 0.6 writes a prim's lists of children (`primChildren`,
+//!    `properties`) as token *arrays* (`VtArray<TfToken>`, type 11 with the array bit).
+//!    Pixar's crate reader wants them as `TfTokenVector` (type 41) and, since USD 25.x checks
+//!    layers as it opens them, refuses the file: "Invalid children found in primChildren
+//!    field". Both types are stored the same way (a u64 count, then u32 token indices), so
+//!    only the tags differ: this retags those two fields' values in the `FIELDS` section and
+//!    moves the sections after it.
 //! 2. **The format version.** `openusd` stamps every file 0.12.0, the newest crate version,
-//! which USD before 25.x refuses ("file is 0.12.0, software supports 0.10.0": usd-core 24.3,
-//! and the DCCs of its day). Versions 0.9 to 0.12 only added value types (time codes 0.9, path
-//! expressions 0.10, relocates 0.11, ...), none of which a morph's layer holds, so the file is
-//! stamped 0.8.0, as Pixar's own writer stamps the same content.
+//!    which USD before 25.x refuses ("file is 0.12.0, software supports 0.10.0": usd-core
+//!    24.3, and the DCCs of its day). Versions 0.9 to 0.12 only added value types (time codes
+//!    0.9, path expressions 0.10, relocates 0.11, ...), none of which a morph's layer holds,
+//!    so the file is stamped 0.8.0, as Pixar's own writer stamps the same content.
 //!
 //! (`openusd` 0.7 and later need a newer Rust than ours. The client check opens the file with
 //! usd-core, an older usd-core and Blender on every CI run, so a change of layout in a new
