@@ -134,8 +134,10 @@ class MORPH_OT_morph_to_target(bpy.types.Operator):
         result = self.progress["result"]
         try:
             bpy.ops.wm.usd_import(filepath=str(result.out / "morph.usdc"), set_frame_range=True)
-        except RuntimeError as e:
-            self.report({"ERROR"}, f"morph: importing {result.out / 'morph.usdc'}: {e}")
+        except (RuntimeError, AttributeError) as e:
+            # AttributeError: a Blender built without USD has no importer.
+            self.report({"ERROR"}, f"morph: cannot import {result.out / 'morph.usdc'} ({e}); "
+                        "the frames are in that folder")
             return {"CANCELLED"}
         context.scene.render.use_motion_blur = True
         q = result.quality.get("fill")
