@@ -9,7 +9,7 @@ Settings are the scene file's keys (docs/scenes.md), as keyword arguments: ``pre
 ``resolution``, ``frames``, ``fps``, ``material={"youngs_modulus": 2e5}``, ...
 
 ``on_event(event)`` receives the events ``morph --json`` prints (dicts); ``on_frame(frame)``
-each frame of an in-memory run. Either may return ``False`` to cancel: the run stops at its
+each frame as it is made (a :class:`Frame`). Either may return ``False`` to cancel: the run stops at its
 next evaluation and raises :class:`Cancelled`, as Ctrl-C does. Errors raise a
 :class:`MorphError` subclass whose message is the command line's. The simulation runs without
 the GIL.
@@ -106,7 +106,8 @@ def run(source, targets, at=None, out=None, *, overwrite=False, resume=False, on
     targets = [_mesh(t, f"<target {i + 1}>") for i, t in enumerate(targets)]
     if out is not None:
         summary = json.loads(_morph.run(source, targets, settings_json, out=os.fspath(out),
-                                        overwrite=overwrite, resume=resume, on_event=events))
+                                        overwrite=overwrite, resume=resume, on_event=events,
+                                        on_frame=frames))
         out = Path(summary["output"])
         manifest = json.loads((out / "manifest.json").read_text())
         return Result(quality=summary.get("quality") or {}, initial_loss=summary["initial_loss"],

@@ -256,11 +256,6 @@ fn run<'py>(
         .map(|t| mesh_source(&t))
         .collect::<PyResult<Vec<_>>>()?;
     if let Some(out) = out {
-        if on_frame.is_some() {
-            return Err(SettingsError::new_err(
-                "on_frame is for runs in memory (out=None); a run into a folder writes its frames there",
-            ));
-        }
         let path = |m: MeshSource| match m {
             MeshSource::File(p) => Ok(p),
             MeshSource::Memory { name, .. } => Err(SettingsError::new_err(format!(
@@ -272,8 +267,15 @@ fn run<'py>(
             .into_iter()
             .map(path)
             .collect::<PyResult<Vec<_>>>()?;
+        let callbacks = (on_event, on_frame);
         return run_to_folder(
-            py, &settings, &source, &targets, &out, overwrite, resume, on_event,
+            py,
+            &settings,
+            &source,
+            &targets,
+            &out,
+            (overwrite, resume),
+            callbacks,
         );
     }
     let job = Job {
@@ -320,21 +322,45 @@ fn run<'py>(
 }
 
 /// [`run`] into a folder: the CLI's `morph SOURCE TARGETS -o OUT`.
-#[allow(clippy::too_many_arguments)]
 fn run_to_folder<'py>(
     py: Python<'py>,
     settings: &MorphSettings,
     source: &Path,
     targets: &[PathBuf],
     out: &Path,
-    overwrite: bool,
-    resume: bool,
-    on_event: Option<Py<PyAny>>,
+    (overwrite, resume): (bool, bool),
+    (on_event, on_frame): (Option<Py<PyAny>>, Option<Py<PyAny>>),
 ) -> PyResult<Bound<'py, PyAny>> {
     let stop = AtomicUsize::new(0);
     let raised: Mutex<Option<PyErr>> = Mutex::new(None);
     let keep = |e: PyErr| {
         raised.lock().expect("not poisoned").get_or_insert(e);
+    };
+    let frame_seen = |frame: &Frame| {
+        let Some(cb) = &on_frame else { return };
+        let data = (
+            frame.index,
+            frame.time,
+            flat(&frame.world.x),
+            flat(&frame.world.v),
+            frame.world.j.clone(),
+        );
+        let stopped = Python::attach(|py| match frame_dict(py, &data) {
+            Ok(d) => match cb.call1(py, (d,)) {
+                Ok(answer) => is_false(py, &answer),
+                Err(e) => {
+                    keep(e);
+                    true
+                }
+            },
+            Err(e) => {
+                keep(e);
+                true
+            }
+        });
+        if stopped {
+            stop.store(2, Ordering::SeqCst);
+        }
     };
     let outcome = py.detach(|| {
         let request = OutputRequest {
@@ -344,6 +370,7 @@ fn run_to_folder<'py>(
             stop: Some(&stop),
             memory_limit: Default::default(),
             scene: None,
+            on_frame: Some(&frame_seen),
         };
         morph_to_folder(settings, source, targets, &request, |event| {
             let stopped = Python::attach(|py| {

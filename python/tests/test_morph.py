@@ -142,11 +142,13 @@ def test_a_bad_mesh_raises_the_cli_message(tmp_path):
 
 
 def test_a_run_into_a_folder_is_the_cli_folder(tmp_path):
-    events = []
+    events, frames = [], []
     result = morph.run(ASSETS / "sphere.obj", ASSETS / "cube.obj", out=tmp_path / "out",
-                       on_event=events.append, surfaces="none", usd="none", **SMALL)
+                       on_event=events.append, on_frame=lambda f: frames.append(f.index),
+                       surfaces="none", usd="none", **SMALL)
     assert result.out == tmp_path / "out" and (result.out / "final_mass.mgrid").is_file()
     assert len(result.manifest["frames"]) == 13 and events[-1]["event"] == "done"
+    assert frames == list(range(13))
     cli = tmp_path / "cli"
     subprocess.run([str(MORPH), str(ASSETS / "sphere.obj"), str(ASSETS / "cube.obj"), "-o", str(cli),
                     "--surface", "none", "--usd", "none", "--quiet", *CLI_SMALL], check=True)
@@ -155,6 +157,17 @@ def test_a_run_into_a_folder_is_the_cli_folder(tmp_path):
     # A second run on the same folder is refused, as on the command line.
     with pytest.raises(morph.MorphError, match="already exists; pass --overwrite"):
         morph.run(ASSETS / "sphere.obj", ASSETS / "cube.obj", out=tmp_path / "out", **SMALL)
+
+
+def test_a_run_into_a_folder_cancelled_from_on_frame_keeps_its_checkpoint(tmp_path):
+    with pytest.raises(morph.Cancelled):
+        morph.run(ASSETS / "sphere.obj", ASSETS / "cube.obj", out=tmp_path / "out",
+                  on_frame=lambda f: f.index < 3, **SMALL)
+    # As after Ctrl-C: nothing in place, the completed segment kept for resume=True.
+    assert not (tmp_path / "out").exists() and (tmp_path / "out.partial").is_dir()
+    result = morph.run(ASSETS / "sphere.obj", ASSETS / "cube.obj", out=tmp_path / "out",
+                       resume=True, **SMALL)
+    assert result.summary["resumed_from"]
 
 
 def test_the_gil_is_released_while_it_runs():

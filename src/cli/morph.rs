@@ -621,6 +621,7 @@ pub fn run(args: &MorphArgs) -> ExitCode {
         stop: Some(&stop),
         memory_limit: args.memory_limit,
         scene: args.scene.as_deref(),
+        on_frame: None,
     };
     let result =
         morph::morph::output::morph_to_folder(&settings, &source, &targets, &request, on_event);

@@ -64,6 +64,7 @@ pub fn run(meshes: &Path, only: &[String]) -> anyhow::Result<()> {
                 stop: None,
                 memory_limit: MemoryLimit::Auto,
                 scene: None,
+                on_frame: None,
             },
             |_| {},
         );

@@ -93,7 +93,7 @@ impl Summary {
 }
 
 /// Where and how a morph writes its folder.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy)]
 pub struct OutputRequest<'a> {
     pub out: &'a Path,
     /// Replace an existing morph output folder.
@@ -110,6 +110,9 @@ pub struct OutputRequest<'a> {
     /// The scene file the settings came from, if any: an input like the meshes, so never
     /// inside the output folder.
     pub scene: Option<&'a Path>,
+    /// Called with every frame as the run makes it (world units), on the calling thread
+    /// before the frame is written; a caller that wants to stop sets `stop`.
+    pub on_frame: Option<&'a dyn Fn(&crate::morph::Frame)>,
 }
 
 /// The names a run writes at the top of its staging folder.
@@ -298,6 +301,7 @@ pub fn morph_to_folder(
             &staging.dir,
             resume,
             request.stop,
+            request.on_frame,
             memory,
             setup_s,
             clock,

@@ -31,6 +31,7 @@ pub(super) fn write_run(
     dir: &Path,
     resume: Option<RunProgress>,
     stop: Option<&AtomicUsize>,
+    on_frame: Option<&dyn Fn(&crate::morph::Frame)>,
     memory: MemoryPlan,
     setup_s: f64,
     clock: Instant,
@@ -45,7 +46,7 @@ pub(super) fn write_run(
     let source = Path::new(&identity.inputs[0].path);
     let sinks = sinks::for_folder(prep, dir, source)?;
     let (result, written, sinks) =
-        run_writing_frames(prep, dir, run_id, resume, sinks, stop, on_event)?;
+        run_writing_frames(prep, dir, run_id, resume, sinks, stop, on_frame, on_event)?;
     let frames_summary = FramesSummary::of(&written.stats);
     let (motion, keyframes) = motion_and_keyframes(prep, identity, &written);
     let quality_over_time = quality_over_time(prep, &written);

@@ -39,6 +39,7 @@ pub(super) fn run_writing_frames(
     resume: Option<RunProgress>,
     sinks: Sinks,
     stop: Option<&AtomicUsize>,
+    on_frame: Option<&dyn Fn(&Frame)>,
     on_event: &mut dyn FnMut(&MorphEvent),
 ) -> Result<(MorphResult, WrittenFrames, Sinks), MorphError> {
     let n_frames = prep.frame_count();
@@ -60,6 +61,7 @@ pub(super) fn run_writing_frames(
         judged: Vec::new(),
         progress: prep.progress_judges(),
         stop,
+        on_frame,
         on_event,
     };
     if let Some(p) = &resume
@@ -183,6 +185,8 @@ struct FolderWriter<'a> {
     /// Progress toward each target, measured on every frame (see [`super::motion`]).
     progress: Vec<Progress>,
     stop: Option<&'a AtomicUsize>,
+    /// The caller's look at each frame ([`super::OutputRequest::on_frame`]).
+    on_frame: Option<&'a dyn Fn(&Frame)>,
     on_event: &'a mut dyn FnMut(&MorphEvent),
 }
 
@@ -343,6 +347,9 @@ impl Observer for FolderWriter<'_> {
     }
 
     fn frame(&mut self, frame: &Frame) -> Result<(), MorphError> {
+        if let Some(on_frame) = self.on_frame {
+            on_frame(frame);
+        }
         self.collect(false)?;
         let index = frame.index;
         // A frame written again (a later pass) waits for the writer's earlier answers on it.
