@@ -300,12 +300,14 @@ pub fn morph_to_folder(
             &run_id,
             &staging.dir,
             resume,
-            request.stop,
-            request.on_frame,
             memory,
             setup_s,
             clock,
-            &mut on_event,
+            writer::Caller {
+                stop: request.stop,
+                on_frame: request.on_frame,
+                on_event: &mut on_event,
+            },
         )
     })();
     match result {

@@ -6,18 +6,17 @@ use super::manifest::{
     TargetPlacement, Timings,
 };
 use super::sinks::{self, frame_name, out_err};
-use super::writer::{Sinks, WrittenFrames, halfway, run_writing_frames};
+use super::writer::{Caller, Sinks, WrittenFrames, halfway, run_writing_frames};
 use super::{MANIFEST, Summary};
 use crate::io::outdir;
 use crate::io::{images, massgrid::MassGrid};
 use crate::morph::memory::MemoryPlan;
 use crate::morph::metrics::{FillMetrics, fill_metrics};
 use crate::morph::motion::MotionMeasures;
-use crate::morph::{MorphError, MorphEvent, MorphResult, Prepared, RunProgress, checkpoint};
+use crate::morph::{MorphError, MorphResult, Prepared, RunProgress, checkpoint};
 use crate::mpm::State;
 use std::collections::HashMap;
 use std::path::Path;
-use std::sync::atomic::AtomicUsize;
 use std::time::Instant;
 
 /// Runs the morph into the staging folder `dir` (from `resume` when given) and writes every
@@ -30,12 +29,10 @@ pub(super) fn write_run(
     run_id: &str,
     dir: &Path,
     resume: Option<RunProgress>,
-    stop: Option<&AtomicUsize>,
-    on_frame: Option<&dyn Fn(&crate::morph::Frame)>,
     memory: MemoryPlan,
     setup_s: f64,
     clock: Instant,
-    on_event: &mut dyn FnMut(&MorphEvent),
+    caller: Caller,
 ) -> Result<Summary, MorphError> {
     let settings = &prep.settings;
     let ck = dir.join(checkpoint::FOLDER);
@@ -45,8 +42,7 @@ pub(super) fn write_run(
         .map(|p| checkpoint::describe(p, settings.passes, prep.settings.segments));
     let source = Path::new(&identity.inputs[0].path);
     let sinks = sinks::for_folder(prep, dir, source)?;
-    let (result, written, sinks) =
-        run_writing_frames(prep, dir, run_id, resume, sinks, stop, on_frame, on_event)?;
+    let (result, written, sinks) = run_writing_frames(prep, dir, run_id, resume, sinks, caller)?;
     let frames_summary = FramesSummary::of(&written.stats);
     let (motion, keyframes) = motion_and_keyframes(prep, identity, &written);
     let quality_over_time = quality_over_time(prep, &written);

@@ -29,6 +29,14 @@ pub(super) struct WrittenFrames {
     pub judged: Vec<(usize, usize, Quality)>,
 }
 
+/// What the caller hands a run: its stop flag, its look at each frame
+/// ([`super::OutputRequest`]) and its events.
+pub(super) struct Caller<'a> {
+    pub(super) stop: Option<&'a AtomicUsize>,
+    pub(super) on_frame: Option<&'a dyn Fn(&Frame)>,
+    pub(super) on_event: &'a mut dyn FnMut(&MorphEvent),
+}
+
 /// Runs the chain (from `resume` when given) with every frame written into `dir` through
 /// `sinks` on a thread of their own; returns the chain's result, what the frames measured, and
 /// the sinks to finish.
@@ -38,9 +46,7 @@ pub(super) fn run_writing_frames(
     run_id: &str,
     resume: Option<RunProgress>,
     sinks: Sinks,
-    stop: Option<&AtomicUsize>,
-    on_frame: Option<&dyn Fn(&Frame)>,
-    on_event: &mut dyn FnMut(&MorphEvent),
+    caller: Caller,
 ) -> Result<(MorphResult, WrittenFrames, Sinks), MorphError> {
     let n_frames = prep.frame_count();
     let spacing = prep.model().grid.dx / prep.settings.particles_per_cell as f64;
@@ -60,9 +66,9 @@ pub(super) fn run_writing_frames(
         preview: Vec::new(),
         judged: Vec::new(),
         progress: prep.progress_judges(),
-        stop,
-        on_frame,
-        on_event,
+        stop: caller.stop,
+        on_frame: caller.on_frame,
+        on_event: caller.on_event,
     };
     if let Some(p) = &resume
         && p.pass + 1 == prep.settings.passes
