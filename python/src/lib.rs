@@ -13,7 +13,6 @@ use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray2};
 use pyo3::exceptions::PyException;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
-use std::cell::RefCell;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -123,80 +122,100 @@ fn mesh_source(arg: &Bound<PyAny>) -> PyResult<MeshSource> {
     Ok(MeshSource::File(arg.extract::<PathBuf>()?))
 }
 
-/// Calls `callback(arg)`; whether the run should stop (it returned `False`, or raised: the
-/// exception is kept in `raised` and re-raised when the run ends).
-fn ask<'py>(
-    py: Python<'py>,
-    callback: &Py<PyAny>,
-    arg: impl IntoPyObject<'py>,
-    raised: &RefCell<Option<PyErr>>,
-) -> bool {
-    match callback.call1(py, (arg,)) {
-        Ok(answer) => is_false(py, &answer),
-        Err(e) => {
-            raised.borrow_mut().get_or_insert(e);
-            true
-        }
-    }
+/// The first exception a callback raised (or Ctrl-C's `KeyboardInterrupt`), re-raised when
+/// the run ends.
+type Raised = Mutex<Option<PyErr>>;
+
+fn keep(raised: &Raised, e: PyErr) {
+    raised.lock().expect("not poisoned").get_or_insert(e);
 }
 
-/// A frame kept for Python: its index, time, and positions, velocities and J (world units),
-/// flat.
+/// A frame for Python: its index, time, and positions, velocities and J (world units), flat.
 type FrameData = (usize, f64, Vec<f64>, Vec<f64>, Vec<f64>);
 
-/// Whether a callback's answer is `False` (`None`, its usual answer, goes on).
-fn is_false(py: Python, answer: &Py<PyAny>) -> bool {
-    answer.bind(py).is(&*pyo3::types::PyBool::new(py, false))
+fn frame_data(frame: &Frame) -> FrameData {
+    let flat = |v: &[nalgebra::Vector3<f64>]| v.iter().flat_map(|p| [p.x, p.y, p.z]).collect();
+    (
+        frame.index,
+        frame.time,
+        flat(&frame.world.x),
+        flat(&frame.world.v),
+        frame.world.j.clone(),
+    )
 }
 
-/// Watches a run for Python: events and frames to the callbacks, the frames kept for the
-/// result, a stop when a callback asks or Ctrl-C is pressed.
-struct PyObserver {
+/// The Python callbacks of one run, and whether the run should stop: a callback returned
+/// `False` (`None`, the usual answer, goes on) or raised, or Ctrl-C was pressed. Used from
+/// the thread that runs the morph, without the GIL: each call takes it.
+struct Callbacks {
     on_event: Option<Py<PyAny>>,
     on_frame: Option<Py<PyAny>>,
-    keep_frames: bool,
-    frames: Vec<FrameData>,
-    stop: std::cell::Cell<bool>,
-    raised: RefCell<Option<PyErr>>,
+    raised: Raised,
 }
 
-impl PyObserver {
-    fn event_text(&self, event: &MorphEvent) {
-        if let Some(cb) = &self.on_event {
-            let text = serde_json::to_string(event).expect("events serialize");
-            if Python::attach(|py| ask(py, cb, text, &self.raised)) {
-                self.stop.set(true);
+impl Callbacks {
+    /// Calls `callback(arg)` with the GIL; whether the run should stop.
+    fn ask<'py>(&self, py: Python<'py>, callback: &Py<PyAny>, arg: impl IntoPyObject<'py>) -> bool {
+        match callback.call1(py, (arg,)) {
+            Ok(answer) => answer.bind(py).is(&*pyo3::types::PyBool::new(py, false)),
+            Err(e) => {
+                keep(&self.raised, e);
+                true
             }
         }
     }
+
+    fn event(&self, event: &MorphEvent) -> bool {
+        let Some(cb) = &self.on_event else {
+            return false;
+        };
+        let text = serde_json::to_string(event).expect("events serialize");
+        Python::attach(|py| self.ask(py, cb, text))
+    }
+
+    fn frame(&self, data: &FrameData) -> bool {
+        let Some(cb) = &self.on_frame else {
+            return false;
+        };
+        Python::attach(|py| match frame_dict(py, data) {
+            Ok(d) => self.ask(py, cb, d),
+            Err(e) => {
+                keep(&self.raised, e);
+                true
+            }
+        })
+    }
+
+    /// Ctrl-C in Python: its handler runs when asked.
+    fn interrupted(&self) -> bool {
+        Python::attach(|py| py.check_signals())
+            .map_err(|e| keep(&self.raised, e))
+            .is_err()
+    }
+
+    /// The exception to raise instead of the run's own result, if any.
+    fn raised(&self) -> Option<PyErr> {
+        self.raised.lock().expect("not poisoned").take()
+    }
 }
 
-fn flat(v: &[nalgebra::Vector3<f64>]) -> Vec<f64> {
-    v.iter().flat_map(|p| [p.x, p.y, p.z]).collect()
+/// Watches a run in memory for Python: events and frames to the callbacks, the frames kept
+/// for the result.
+struct PyObserver {
+    callbacks: Callbacks,
+    keep_frames: bool,
+    frames: Vec<FrameData>,
+    stop: bool,
 }
 
 impl Observer for PyObserver {
     fn event(&mut self, event: &MorphEvent) {
-        self.event_text(event);
+        self.stop |= self.callbacks.event(event);
     }
 
     fn frame(&mut self, frame: &Frame) -> Result<(), MorphError> {
-        let data = (
-            frame.index,
-            frame.time,
-            flat(&frame.world.x),
-            flat(&frame.world.v),
-            frame.world.j.clone(),
-        );
-        if let Some(cb) = &self.on_frame {
-            let stop = Python::attach(|py| -> PyResult<bool> {
-                let d = frame_dict(py, &data)?;
-                Ok(ask(py, cb, d, &self.raised))
-            });
-            if stop.unwrap_or(true) {
-                self.stop.set(true);
-            }
-        }
+        let data = frame_data(frame);
+        self.stop |= self.callbacks.frame(&data);
         if self.keep_frames {
             self.frames.push(data);
         }
@@ -204,14 +223,7 @@ impl Observer for PyObserver {
     }
 
     fn stop_requested(&self) -> usize {
-        if !self.stop.get() {
-            // Ctrl-C in Python: the signal handler runs when asked.
-            if let Err(e) = Python::attach(|py| py.check_signals()) {
-                self.raised.borrow_mut().get_or_insert(e);
-                self.stop.set(true);
-            }
-        }
-        usize::from(self.stop.get())
+        usize::from(self.stop || self.callbacks.interrupted())
     }
 }
 
@@ -284,14 +296,16 @@ fn run<'py>(
         settings,
     };
     let mut observer = PyObserver {
-        on_event,
-        on_frame,
+        callbacks: Callbacks {
+            on_event,
+            on_frame,
+            raised: Mutex::new(None),
+        },
         keep_frames,
         frames: Vec::new(),
-        stop: false.into(),
-        raised: RefCell::new(None),
+        stop: false,
     };
-    // The simulation runs without the GIL; the observer takes it for each callback.
+    // The simulation runs without the GIL; the callbacks take it for each call.
     let outcome = {
         let observer = &mut observer;
         let job = &job;
@@ -303,7 +317,7 @@ fn run<'py>(
             })
         })
     };
-    if let Some(e) = observer.raised.take() {
+    if let Some(e) = observer.callbacks.raised() {
         return Err(e);
     }
     let (quality, fps, result) = outcome.map_err(py_err)?;
@@ -332,34 +346,19 @@ fn run_to_folder<'py>(
     (on_event, on_frame): (Option<Py<PyAny>>, Option<Py<PyAny>>),
 ) -> PyResult<Bound<'py, PyAny>> {
     let stop = AtomicUsize::new(0);
-    let raised: Mutex<Option<PyErr>> = Mutex::new(None);
-    let keep = |e: PyErr| {
-        raised.lock().expect("not poisoned").get_or_insert(e);
+    let callbacks = Callbacks {
+        on_event,
+        on_frame,
+        raised: Mutex::new(None),
     };
-    let frame_seen = |frame: &Frame| {
-        let Some(cb) = &on_frame else { return };
-        let data = (
-            frame.index,
-            frame.time,
-            flat(&frame.world.x),
-            flat(&frame.world.v),
-            frame.world.j.clone(),
-        );
-        let stopped = Python::attach(|py| match frame_dict(py, &data) {
-            Ok(d) => match cb.call1(py, (d,)) {
-                Ok(answer) => is_false(py, &answer),
-                Err(e) => {
-                    keep(e);
-                    true
-                }
-            },
-            Err(e) => {
-                keep(e);
-                true
-            }
-        });
+    let asked = |stopped: bool| {
         if stopped {
             stop.store(2, Ordering::SeqCst);
+        }
+    };
+    let frame_seen = |frame: &Frame| {
+        if callbacks.on_frame.is_some() {
+            asked(callbacks.frame(&frame_data(frame)));
         }
     };
     let outcome = py.detach(|| {
@@ -373,26 +372,10 @@ fn run_to_folder<'py>(
             on_frame: Some(&frame_seen),
         };
         morph_to_folder(settings, source, targets, &request, |event| {
-            let stopped = Python::attach(|py| {
-                let asked = on_event.as_ref().is_some_and(|cb| {
-                    let text = serde_json::to_string(event).expect("events serialize");
-                    match cb.call1(py, (text,)) {
-                        Ok(answer) => is_false(py, &answer),
-                        Err(e) => {
-                            keep(e);
-                            true
-                        }
-                    }
-                });
-                // Ctrl-C in Python.
-                asked || py.check_signals().map_err(keep).is_err()
-            });
-            if stopped {
-                stop.store(2, Ordering::SeqCst);
-            }
+            asked(callbacks.event(event) || callbacks.interrupted());
         })
     });
-    if let Some(e) = raised.lock().expect("not poisoned").take() {
+    if let Some(e) = callbacks.raised() {
         return Err(e);
     }
     let summary = outcome.map_err(py_err)?;
