@@ -170,6 +170,17 @@ def test_a_run_into_a_folder_cancelled_from_on_frame_keeps_its_checkpoint(tmp_pa
     assert result.summary["resumed_from"]
 
 
+def test_ctrl_c_stops_a_run():
+    import _thread
+
+    def on_event(event):
+        if event["event"] == "iteration":
+            _thread.interrupt_main()  # what Ctrl-C does: a KeyboardInterrupt in the main thread
+
+    with pytest.raises(KeyboardInterrupt):
+        morph.run(ASSETS / "sphere.obj", ASSETS / "cube.obj", on_event=on_event, **SMALL)
+
+
 def test_the_gil_is_released_while_it_runs():
     ticks = []
     done = threading.Event()
