@@ -38,6 +38,12 @@ for o in bpy.context.scene.objects:
 bpy.context.view_layer.objects.active = sphere
 
 settings = bpy.context.scene.morph
+# The default output is relative to the .blend file, which is not saved yet: refused.
+try:
+    bpy.ops.morph.morph_to_target()
+    check("an output relative to an unsaved .blend is refused", False, "no error")
+except RuntimeError as e:
+    check("an output relative to an unsaved .blend is refused", "save the .blend" in str(e), str(e).strip())
 settings.preset = "draft"
 settings.frames = 25
 settings.arrival = 20

@@ -82,6 +82,9 @@ class MORPH_OT_morph_to_target(bpy.types.Operator):
 
     def prepare(self, context):
         settings = context.scene.morph
+        if settings.output.startswith("//") and not bpy.data.filepath:
+            # A path relative to the .blend file means nothing before it is saved.
+            raise OSError("save the .blend file first, or give an absolute output folder")
         out = Path(bpy.path.abspath(settings.output)).resolve()
         inputs = out.parent / f"{out.name}-inputs"
         inputs.mkdir(parents=True, exist_ok=True)
