@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
 """Renders a morph output's contact sheet with Blender (bpy, Cycles on the CPU): the carried
-and the rebuilt surface on frame 1, the middle of the way, the arrival frame and the last
+and the rebuilt surface (and the volume, with --volume) on frame 1, the middle of the way, the arrival frame and the last
 frame, and the target as the run placed it, in one picture a person can look at.
 
     python scripts/contact_sheet.py OUT [--png PATH] [--frames 1,30,59,73] [--width 1400]
@@ -52,6 +52,38 @@ def material(name, rgb):
     return mat
 
 
+def volume_file(frame):
+    """A frame's volume (--volume): volumes/frame_NNNN.vdb, named as its points."""
+    return frame["points"].replace("frames/", "volumes/").replace(".ply", ".vdb")
+
+
+def load_volume(path, name):
+    """Imports a frame's OpenVDB file as a volume object, turned from morph's Y up to
+    Blender's Z up (as the OBJ importer turns the surfaces)."""
+    bpy.ops.object.volume_import(filepath=path)
+    ob = bpy.context.selected_objects[0]
+    ob.name = name
+    ob.data.grids.load()
+    ob.matrix_world = Matrix.Rotation(math.pi / 2, 4, "X")
+    # A new material's default nodes follow the active object's type: not a volume's.
+    bpy.context.view_layer.objects.active = None
+    return ob
+
+
+def volume_material():
+    """The fill field as smoke: density from the grid, a warm tone."""
+    mat = bpy.data.materials.new("volume")
+    mat.use_nodes = True
+    nodes = mat.node_tree.nodes
+    nodes.clear()
+    shader = nodes.new("ShaderNodeVolumePrincipled")
+    shader.inputs["Color"].default_value = (0.85, 0.55, 0.35, 1)
+    shader.inputs["Density"].default_value = 12.0
+    output = nodes.new("ShaderNodeOutputMaterial")
+    mat.node_tree.links.new(shader.outputs[0], output.inputs["Volume"])
+    return mat
+
+
 def resolve(path, out):
     if os.path.isabs(path) and os.path.exists(path):
         return path
@@ -93,23 +125,25 @@ def main():
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
     rows = []
-    # Each row's files as the manifest lists them per frame.
+    # Each row's files as the manifest lists them per frame (a volume is named as its points).
     for label, key, rgb in (("carried", "carried_mesh", (0.78, 0.47, 0.32)),
                             ("rebuilt", "mesh", (0.35, 0.55, 0.78))):
         if manifest["frames"] and manifest["frames"][0].get(key):
-            rows.append((label, key, material(label, rgb)))
+            rows.append((label, lambda frame, key=key: frame[key], material(label, rgb)))
+    if manifest.get("settings", {}).get("volume"):
+        rows.append(("volume", volume_file, volume_material()))
     if not rows:
         raise SystemExit(f"contact sheet: error: {out}: the run wrote no surfaces (--no-surfaces)")
 
     tiles = []  # (object, row, column)
-    for r, (label, key, mat) in enumerate(rows):
+    for r, (label, file_of, mat) in enumerate(rows):
         for c, f in enumerate(frames):
             if not 1 <= f <= last:
                 raise SystemExit(f"contact sheet: error: frame {f} is not in 1..{last}")
-            path = os.path.join(out, manifest["frames"][f - 1][key])
+            path = os.path.join(out, file_of(manifest["frames"][f - 1]))
             if not os.path.exists(path):
                 raise SystemExit(f"contact sheet: error: {path}: missing")
-            ob = load_obj(path, f"{label}_{f}")
+            ob = (load_volume if label == "volume" else load_obj)(path, f"{label}_{f}")
             ob.data.materials.clear()
             ob.data.materials.append(mat)
             tiles.append((ob, r, c))
