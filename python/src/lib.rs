@@ -18,27 +18,27 @@ use std::sync::Mutex;
 use std::sync::atomic::{AtomicUsize, Ordering};
 
 pyo3::create_exception!(
-    _morph,
+    morph,
     Error,
     PyException,
     "A morph failed; the message is the CLI's."
 );
 pyo3::create_exception!(
-    _morph,
+    morph,
     SettingsError,
     Error,
     "Bad settings (the CLI's exit code 2)."
 );
-pyo3::create_exception!(_morph, MeshError, Error, "A mesh that cannot be morphed.");
-pyo3::create_exception!(_morph, SimulationError, Error, "The simulation failed.");
+pyo3::create_exception!(morph, MeshError, Error, "A mesh that cannot be morphed.");
+pyo3::create_exception!(morph, SimulationError, Error, "The simulation failed.");
 pyo3::create_exception!(
-    _morph,
+    morph,
     OutputError,
     Error,
     "The output folder could not be written."
 );
 pyo3::create_exception!(
-    _morph,
+    morph,
     Cancelled,
     Error,
     "A callback (or Ctrl-C) stopped the run."
