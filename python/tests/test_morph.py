@@ -172,13 +172,20 @@ def test_a_run_into_a_folder_cancelled_from_on_frame_keeps_its_checkpoint(tmp_pa
 
 def test_ctrl_c_stops_a_run():
     import _thread
+    import signal
 
     def on_event(event):
         if event["event"] == "iteration":
             _thread.interrupt_main()  # what Ctrl-C does: a KeyboardInterrupt in the main thread
 
-    with pytest.raises(KeyboardInterrupt):
-        morph.run(ASSETS / "sphere.obj", ASSETS / "cube.obj", on_event=on_event, **SMALL)
+    # Python's own Ctrl-C handler, as in a terminal (a job started in the background, as CI
+    # may run this, inherits SIGINT ignored).
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            morph.run(ASSETS / "sphere.obj", ASSETS / "cube.obj", on_event=on_event, **SMALL)
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def test_the_gil_is_released_while_it_runs():
