@@ -6,7 +6,8 @@ module's files on a path (an unpacked wheel) and a saved .blend (no splash):
     python3 -c "import zipfile,sys; zipfile.ZipFile(sys.argv[1]).extractall(sys.argv[2])" WHEEL SITE
     xvfb-run -a blender START.blend --python scripts/blender_modal_check.py -- SITE OUT
 
-Prints how many 0.5 s interface ticks passed while it ran, then quits. (Run by hand, with
+Prints how many 0.5 s interface ticks passed while it ran, then quits. With
+MORPH_MODAL_SHOT=PNG it also takes a screenshot of the window six seconds in. (Run by hand, with
 Debian's Blender 3.4, which has no USD importer: the operator then reports that it cannot
 import the result, as it should, and the folder is complete.)
 """
@@ -24,6 +25,8 @@ import morph_blender  # noqa: E402
 
 morph_blender.register()
 scene = bpy.context.scene
+for o in scene.objects:  # the start file's own selection
+    o.select_set(False)
 bpy.ops.mesh.primitive_cube_add(size=1.8)
 cube = bpy.context.active_object
 bpy.ops.mesh.primitive_uv_sphere_add(radius=1.0)
@@ -49,6 +52,9 @@ def invoke():
 
 def watch():
     ticks.append(time.time())
+    if len(ticks) == 12 and os.environ.get("MORPH_MODAL_SHOT"):
+        # The window while the morph runs: its progress in the status bar.
+        bpy.ops.screen.screenshot(filepath=os.environ["MORPH_MODAL_SHOT"])
     done = os.path.exists(os.path.join(out, "manifest.json"))
     if done or time.time() - start > 300:
         print(f"{'ok  ' if done and len(ticks) > 4 else 'FAIL'} the interface ticked {len(ticks)} "

@@ -112,12 +112,11 @@ class MORPH_OT_morph_to_target(bpy.types.Operator):
         import morph
 
         def on_event(event):
-            kind = event["event"]
-            if kind == "setup":
-                self.progress["total"] = max(1, event["segments"] * event["passes"])
+            if event["event"] == "setup":
                 self.progress["message"] = f"{event['particles']} particles"
-            elif kind == "segment":
-                self.progress["done"] += 1
+            elif event["event"] == "level":
+                self.progress["message"] = f"level {event['level']} of {event['levels']}"
+            self.progress["done"] = event["progress"]
             return not self.cancel
 
         try:
@@ -179,10 +178,9 @@ class MORPH_OT_morph_to_target(bpy.types.Operator):
         if event.type != "TIMER":
             return {"PASS_THROUGH"}
         wm = context.window_manager
-        total = self.progress.get("total", 1)
-        wm.progress_update(min(1.0, self.progress["done"] / total))
+        wm.progress_update(self.progress["done"])
         context.workspace.status_text_set(
-            f"Morph: {self.progress['message']}, {int(self.progress['done'])}/{total} segments"
+            f"Morph: {self.progress['message']}, {100 * self.progress['done']:.0f}%"
             + (" (cancelling)" if self.cancel else " (Esc to cancel)"))
         if self._thread.is_alive():
             return {"RUNNING_MODAL"}

@@ -8,7 +8,8 @@ Meshes are file paths, or ``(vertices, triangles)`` arrays (n x 3 floats, m x 3 
 Settings are the scene file's keys (docs/scenes.md), as keyword arguments: ``preset``,
 ``resolution``, ``frames``, ``fps``, ``material={"youngs_modulus": 2e5}``, ...
 
-``on_event(event)`` receives the events ``morph --json`` prints (dicts); ``on_frame(frame)``
+``on_event(event)`` receives the events ``morph --json`` prints (dicts), each with
+``progress``, the fraction of the run done (0 to 1, as ``--progress openjd``); ``on_frame(frame)``
 each frame as it is made (a :class:`Frame`). Either may return ``False`` to cancel: the run stops at its
 next evaluation and raises :class:`Cancelled`, as Ctrl-C does. Errors raise a
 :class:`MorphError` subclass whose message is the command line's. The simulation runs without

@@ -7,6 +7,7 @@
 //! its next evaluation, as Ctrl-C does; so does Ctrl-C in Python.
 
 use morph::morph::output::{OutputRequest, morph_to_folder};
+use morph::morph::progress::ProgressMeter;
 use morph::morph::scene_file::SceneFile;
 use morph::{Frame, Job, MeshSource, MorphError, MorphEvent, MorphSettings, Observer};
 use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray2};
@@ -151,6 +152,8 @@ struct Callbacks {
     on_event: Option<Py<PyAny>>,
     on_frame: Option<Py<PyAny>>,
     raised: Raised,
+    /// The fraction done, as `--progress openjd` reports it, added to each event.
+    meter: Mutex<ProgressMeter>,
 }
 
 impl Callbacks {
@@ -165,12 +168,15 @@ impl Callbacks {
         }
     }
 
+    /// The `--json` event with `progress`, the fraction of the run done (0 to 1).
     fn event(&self, event: &MorphEvent) -> bool {
         let Some(cb) = &self.on_event else {
             return false;
         };
-        let text = serde_json::to_string(event).expect("events serialize");
-        Python::attach(|py| self.ask(py, cb, text))
+        let progress = self.meter.lock().expect("not poisoned").observe(event);
+        let mut value = serde_json::to_value(event).expect("events serialize");
+        value["progress"] = progress.into();
+        Python::attach(|py| self.ask(py, cb, value.to_string()))
     }
 
     fn frame(&self, data: &FrameData) -> bool {
@@ -300,6 +306,7 @@ fn run<'py>(
             on_event,
             on_frame,
             raised: Mutex::new(None),
+            meter: Mutex::new(ProgressMeter::new()),
         },
         keep_frames,
         frames: Vec::new(),
@@ -350,6 +357,7 @@ fn run_to_folder<'py>(
         on_event,
         on_frame,
         raised: Mutex::new(None),
+        meter: Mutex::new(ProgressMeter::new()),
     };
     let asked = |stopped: bool| {
         if stopped {

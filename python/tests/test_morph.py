@@ -148,6 +148,8 @@ def test_a_run_into_a_folder_is_the_cli_folder(tmp_path):
                        surfaces="none", usd="none", **SMALL)
     assert result.out == tmp_path / "out" and (result.out / "final_mass.mgrid").is_file()
     assert len(result.manifest["frames"]) == 13 and events[-1]["event"] == "done"
+    progress = [e["progress"] for e in events]
+    assert progress == sorted(progress) and progress[0] == 0 and progress[-1] == 1
     assert frames == list(range(13))
     cli = tmp_path / "cli"
     subprocess.run([str(MORPH), str(ASSETS / "sphere.obj"), str(ASSETS / "cube.obj"), "-o", str(cli),
