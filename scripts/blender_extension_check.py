@@ -76,6 +76,20 @@ if "carried" in objects:
     extent = [max(p[i] for p in xs) - min(p[i] for p in xs) for i in range(3)]
     check("carried mesh at the arrival frame: about the cube's size (1.8)", all(1.4 < e < 2.3 for e in extent), extent)
 
+# A file the add-on did not write is never replaced: a user's own source.obj where the
+# add-on would put its input files.
+guarded = work / "guarded-inputs"
+guarded.mkdir()
+(guarded / "source.obj").write_text("# the user's own file\n")
+settings.output = str(work / "guarded")
+try:
+    bpy.ops.morph.morph_to_target()
+    check("a file the add-on did not write is refused", False, "no error")
+except RuntimeError as e:
+    check("a file the add-on did not write is refused, and kept",
+          "not one of the add-on's input files" in str(e)
+          and (guarded / "source.obj").read_text() == "# the user's own file\n", str(e).strip())
+
 # An error is a report, never a traceback: a source with no volume.
 bpy.ops.mesh.primitive_plane_add()
 plane = bpy.context.active_object

@@ -35,17 +35,27 @@ class MorphSettings(bpy.types.PropertyGroup):
                             description="Replace an earlier morph's output folder")
 
 
+# The first line of every OBJ this add-on writes: a file without it is never replaced.
+MARKER = "# written by the morph Blender extension"
+
+
 def write_obj(obj, path, depsgraph):
     """`obj`'s evaluated mesh in world space as an OBJ, Y up (morph's convention), with its
-    active UV map."""
+    active UV map. An existing file at `path` is replaced only if this add-on wrote it."""
+    if path.exists():
+        with open(path, errors="replace") as f:
+            if f.readline().rstrip("\n") != MARKER:
+                raise OSError(f"'{path}' exists and is not one of the add-on's input files; "
+                              "move it, or choose another output folder")
     evaluated = obj.evaluated_get(depsgraph)
     mesh = evaluated.to_mesh()
     try:
         mesh.transform(obj.matrix_world)
         mesh.calc_loop_triangles()
         uv = mesh.uv_layers.active
-        with open(path, "w") as f:
-            f.write(f"# {obj.name}, from Blender (Y up)\n")
+        tmp = path.with_name(path.name + ".tmp")
+        with open(tmp, "w") as f:
+            f.write(f"{MARKER}\n# {obj.name}, from Blender (Y up)\n")
             for v in mesh.vertices:
                 x, y, z = v.co
                 f.write(f"v {x:.9g} {z:.9g} {-y:.9g}\n")
@@ -61,6 +71,7 @@ def write_obj(obj, path, depsgraph):
                     f.write(f"f {a}/{t} {b}/{t + 1} {c}/{t + 2}\n")
                 else:
                     f.write(f"f {a} {b} {c}\n")
+        os.replace(tmp, path)  # complete, or not there at all
     finally:
         evaluated.to_mesh_clear()
 

@@ -228,7 +228,7 @@ pub struct MorphArgs {
     rebuilt_method: Option<RebuiltMethod>,
     #[arg(long, value_parser = choice(&Inbetween::ALL), help = format!("What a segment aims at between two keyframes: crossfade (their nodal masses faded into each other) or shape (their signed distances blended: a boundary that sweeps from one to the other) [default {}]", name(&defaults().inbetween)))]
     inbetween: Option<Inbetween>,
-    #[arg(long, value_parser = choice(&UsdFormat::ALL), help = format!("The USD file of the whole sequence: usdc (binary, morph.usdc), usda (text, morph.usda; about three times larger) or none [default {}]", name(&defaults().usd)))]
+    #[arg(long, value_parser = choice(&UsdFormat::ALL), help = format!("The USD file of the whole sequence: usdc (binary, morph.usdc), usda (text, morph.usda; about five times larger) or none [default {}]", name(&defaults().usd)))]
     usd: Option<UsdFormat>,
     /// Write each frame's fill field (the field the rebuilt surface is made from; 1 inside the
     /// body, 1/2 on its surface) as an OpenVDB float grid `density` in world units,

@@ -3,8 +3,8 @@
 //!
 //! The layer is built with `openusd` (a pure-Rust USD library: its `sdf` data model and its
 //! crate (`.usdc`) and text (`.usda`) writers), so both formats hold the same prims and
-//! values. Binary is the default: about a third of the text's size, and a client opens it
-//! and reads every frame without parsing text. The file is assembled once the frames are on
+//! values. Binary is the default: the text (floats at double width) is about five times its
+//! size, and a client opens the binary and reads every frame without parsing text. The file is assembled once the frames are on
 //! disk, from them (the PLY points and the OBJ surfaces), so it covers frames written before
 //! a `--resume` too; the writer needs the whole layer in memory (about the size of the
 //! `.usdc`). `openusd` 0.6's binary files need two corrections before Pixar's USD opens them
@@ -48,7 +48,7 @@ pub enum UsdFormat {
     /// Binary (crate) USD, `morph.usdc`: what DCC exporters write.
     #[default]
     Usdc,
-    /// Text USD, `morph.usda`: readable, about three times larger.
+    /// Text USD, `morph.usda`: readable, about five times larger.
     Usda,
     /// No USD file.
     None,

@@ -3,12 +3,12 @@
 //! volume, written with vertex normals, and measured against the source on the first frame
 //! and the target on the last.
 
-use super::volume::fill_field_of;
 use super::{FrameRecord, FrameSink, SinkFrame, out_err};
 use crate::geometry::Similarity;
 use crate::geometry::cleanup::{CleanReport, SurfaceQuality, clean, keep_volume, quality};
 use crate::geometry::fidelity::{Fidelity, Reference, mesh_fidelity};
 use crate::geometry::splashsurf::extract_splashsurf_surface;
+use crate::geometry::surface::{FillField, SurfaceError, deformed_fill_field, fill_field};
 use crate::morph::MorphError;
 use crate::morph::settings::RebuiltMethod;
 use serde::{Deserialize, Serialize};
@@ -29,6 +29,32 @@ pub struct RebuiltStats {
     /// Seconds spent making, cleaning, writing and measuring it (the frame writer's thread).
     #[serde(default)]
     pub seconds: f64,
+}
+
+/// The fill field the rebuilt surface of `method` is made from (simulation units). The
+/// splashsurf pipeline makes its own field inside the library; the deformed kernels' field
+/// stands in for it.
+pub(super) fn fill_field_of(
+    method: RebuiltMethod,
+    frame: &SinkFrame,
+    rest_volume: f64,
+    spacing: f64,
+) -> Result<FillField, SurfaceError> {
+    let state = frame.state;
+    match method {
+        RebuiltMethod::Lattice => {
+            let volumes: Vec<f64> = frame
+                .world
+                .j
+                .iter()
+                .map(|j| rest_volume * j.max(0.0))
+                .collect();
+            fill_field(&state.x, &volumes, spacing)
+        }
+        RebuiltMethod::Deformed | RebuiltMethod::Splashsurf => {
+            deformed_fill_field(&state.x, &state.f, rest_volume, spacing)
+        }
+    }
 }
 
 pub struct RebuiltObj {

@@ -2,41 +2,15 @@
 //! surface is the 1/2 level set of, as an OpenVDB float grid `density` in world units, for
 //! rendering the body as a volume (Blender, Houdini) or meshing it elsewhere.
 
+use super::rebuilt::fill_field_of;
 use super::{FrameRecord, FrameSink, SinkFrame, out_err};
 use crate::geometry::Similarity;
-use crate::geometry::surface::{FillField, SurfaceError, deformed_fill_field, fill_field};
 use crate::morph::MorphError;
 use crate::morph::settings::RebuiltMethod;
 use std::path::PathBuf;
 
 /// The grid's name in each file: what renderers read as a volume's density.
 pub const GRID: &str = "density";
-
-/// The fill field the rebuilt surface of `method` is made from (simulation units). The
-/// splashsurf pipeline makes its own field inside the library; the deformed kernels' field
-/// stands in for it.
-pub(super) fn fill_field_of(
-    method: RebuiltMethod,
-    frame: &SinkFrame,
-    rest_volume: f64,
-    spacing: f64,
-) -> Result<FillField, SurfaceError> {
-    let state = frame.state;
-    match method {
-        RebuiltMethod::Lattice => {
-            let volumes: Vec<f64> = frame
-                .world
-                .j
-                .iter()
-                .map(|j| rest_volume * j.max(0.0))
-                .collect();
-            fill_field(&state.x, &volumes, spacing)
-        }
-        RebuiltMethod::Deformed | RebuiltMethod::Splashsurf => {
-            deformed_fill_field(&state.x, &state.f, rest_volume, spacing)
-        }
-    }
-}
 
 pub struct VolumeVdb {
     /// The `volumes` folder.
