@@ -3,6 +3,7 @@
 //! [`with_integrator!`].
 
 use crate::integrator::IntegratorKind;
+use crate::lanes::SimdLevel;
 use crate::mpm::model::Model;
 use crate::mpm::{Euler, SimError};
 use crate::ode::Rk4;
@@ -28,6 +29,16 @@ impl Engine {
             Engine::Euler(_) => IntegratorKind::Euler,
             Engine::Rk4(_) => IntegratorKind::Rk4,
         }
+    }
+
+    /// The engine running its lane kernels at `simd` (the bits do not change, the speed
+    /// does: [`crate::lanes`]).
+    pub fn with_simd(mut self, simd: SimdLevel) -> Engine {
+        match &mut self {
+            Engine::Euler(s) => s.model.simd = simd,
+            Engine::Rk4(s) => s.model.simd = simd,
+        }
+        self
     }
 
     pub fn model(&self) -> &Model {

@@ -35,6 +35,7 @@ pub mod files;
 pub mod geometry;
 pub mod integrator;
 pub mod io;
+pub mod lanes;
 pub mod loss;
 pub mod material;
 pub mod morph;

@@ -5,13 +5,14 @@ mod common;
 use common::*;
 use morph::effects::WallMode;
 use morph::integrator::{Integrator, IntegratorKind};
+use morph::lanes::SimdLevel;
 use morph::loss::MassLossKind;
 use morph::mpm::{Gradients, KernelKind, State};
 use morph::scene::{EffectConfig, SceneConfig};
 use nalgebra::Vector3;
 
 fn run_with_threads(threads: usize, kernel: KernelKind) -> (State, Gradients) {
-    run_on(threads, kernel, IntegratorKind::Euler, 20)
+    run_on(threads, kernel, IntegratorKind::Euler, 20, SimdLevel::Auto)
 }
 
 /// A deforming ball (about 1,400 particles at radius 7; 2,048 or more for the ODE form's
@@ -21,6 +22,7 @@ fn run_on(
     kernel: KernelKind,
     integrator: IntegratorKind,
     steps: usize,
+    simd: SimdLevel,
 ) -> (State, Gradients) {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
@@ -41,6 +43,7 @@ fn run_on(
             IntegratorKind::Rk4 => 8.0,
         };
         let (engine, mut init) = ball_engine(&scene, radius, integrator);
+        let engine = engine.with_simd(simd);
         let mut rng = Lcg(3);
         deform(&mut init, &mut rng);
         let ctrl = controls(init.len(), steps, 10, 0.05, &mut rng);
@@ -82,7 +85,7 @@ fn one_and_two_threads_give_identical_bits() {
     for kernel in [KernelKind::Quadratic, KernelKind::Cubic] {
         let (s1, g1) = run_with_threads(1, kernel);
         let (s2, g2) = run_with_threads(2, kernel);
-        same_bits(kernel, (s1, g1), (s2, g2));
+        same_bits(kernel, &(s1, g1), &(s2, g2));
     }
 }
 
@@ -90,13 +93,39 @@ fn one_and_two_threads_give_identical_bits() {
 /// rates and their parameter gradients), on the ODE form's parallel path.
 #[test]
 fn rk4_one_and_two_threads_give_identical_bits() {
-    let run = |t| run_on(t, KernelKind::Cubic, IntegratorKind::Rk4, 12);
-    same_bits(KernelKind::Cubic, run(1), run(2));
+    let run = |t| {
+        run_on(
+            t,
+            KernelKind::Cubic,
+            IntegratorKind::Rk4,
+            12,
+            SimdLevel::Auto,
+        )
+    };
+    same_bits(KernelKind::Cubic, &run(1), &run(2));
 }
 
-fn same_bits(kernel: KernelKind, (s1, g1): (State, Gradients), (s2, g2): (State, Gradients)) {
+/// Every vector width this CPU has (`morph::lanes`: the x86-64 baseline, AVX2, AVX-512)
+/// gives the bits of the baseline, forward and reverse, under both integrators: a golden
+/// file made on one machine holds on another.
+#[test]
+fn every_simd_width_gives_the_same_bits() {
+    let levels = SimdLevel::available_levels();
+    println!("widths on this CPU: {levels:?}");
+    for (integrator, steps) in [(IntegratorKind::Euler, 20), (IntegratorKind::Rk4, 6)] {
+        for kernel in [KernelKind::Quadratic, KernelKind::Cubic] {
+            let run = |simd| run_on(2, kernel, integrator, steps, simd);
+            let baseline = run(SimdLevel::Baseline);
+            for &level in &levels[1..] {
+                same_bits(kernel, &baseline, &run(level));
+            }
+        }
+    }
+}
+
+fn same_bits(kernel: KernelKind, (s1, g1): &(State, Gradients), (s2, g2): &(State, Gradients)) {
     {
-        assert!(bits(&s1) == bits(&s2), "{kernel:?}: final states differ");
+        assert!(bits(s1) == bits(s2), "{kernel:?}: final states differ");
         assert!(
             bits(&g1.initial) == bits(&g2.initial),
             "{kernel:?}: initial-state gradients differ"
@@ -110,7 +139,7 @@ fn same_bits(kernel: KernelKind, (s1, g1): (State, Gradients), (s2, g2): (State,
                 .collect()
         };
         assert!(
-            fc_bits(&g1) == fc_bits(&g2),
+            fc_bits(g1) == fc_bits(g2),
             "{kernel:?}: control gradients differ"
         );
         assert_eq!(g1.effect_params, g2.effect_params);

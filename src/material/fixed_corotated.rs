@@ -2,8 +2,13 @@
 //! `Psi = mu sum_k (sigma_k - 1)^2 + lambda/2 (J - 1)^2`,
 //! `P = 2 mu (F - R) + lambda (J - 1) cof F`, with `cof F = J F^-T`.
 
-use super::svd::{Svd3, eigen, eigen_x4, svd3, svd3_from_eigen, svd3_x4};
+use super::svd::{
+    M3s, Svd3, eigen, eigen_lanes, eigen_soa, lane_of, svd_from_eigen_lanes, svd3, svd3_from_eigen,
+    to_lanes,
+};
 use super::{ConstitutiveModel, cofactor, cofactor_differential};
+use crate::lanes::F64s;
+use crate::lanes::{self, SimdLevel};
 use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 
@@ -33,7 +38,128 @@ impl FixedCorotated {
     }
 }
 
+/// The eigen-decomposition of every `f[i]^T f[i]` behind its SVD, the Jacobi sweeps in
+/// vector lanes ([`eigen_lanes`]; the particles that do not fill a batch one at a time),
+/// handed to `finish(i, eigenvalues, V)`: bitwise what [`eigen`] gives, whatever the width.
+struct EigenThen<'a, F: FnMut(usize, Vector3<f64>, Matrix3<f64>)> {
+    f: &'a [Matrix3<f64>],
+    finish: F,
+}
+
+impl<F: FnMut(usize, Vector3<f64>, Matrix3<f64>)> lanes::LaneKernel for EigenThen<'_, F> {
+    type Output = ();
+
+    #[inline(always)]
+    fn run<const L: usize>(mut self) {
+        let n = self.f.len();
+        let mut i = 0;
+        while i + L <= n {
+            let batch: &[Matrix3<f64>; L] = self.f[i..i + L].try_into().expect("L matrices");
+            let eig = eigen_lanes(batch);
+            for (l, (e, v)) in eig.into_iter().enumerate() {
+                (self.finish)(i + l, e, v);
+            }
+            i += L;
+        }
+        for j in i..n {
+            let (e, v) = eigen(&self.f[j]);
+            (self.finish)(j, e, v);
+        }
+    }
+}
+
+/// Column `i` of `f` cross column `j`, per lane.
+#[inline(always)]
+fn cross_of_columns<const L: usize>(f: &M3s<L>, i: usize, j: usize) -> [F64s<L>; 3] {
+    let (a, b) = ([f[0][i], f[1][i], f[2][i]], [f[0][j], f[1][j], f[2][j]]);
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+/// `P(fe[i])` for every particle (and, unless `kept` is empty, the eigen-decomposition
+/// behind each SVD), `L` particles at a time in vector lanes: the SVD
+/// ([`eigen_soa`], [`svd_from_eigen_lanes`]) and the stress
+/// ([`FixedCorotated::stress_lanes`]); the particles that do not fill a batch one at a time.
+struct StressLanes<'a> {
+    model: &'a FixedCorotated,
+    fe: &'a [Matrix3<f64>],
+    out: &'a mut [Matrix3<f64>],
+    kept: &'a mut [f64],
+}
+
+impl lanes::LaneKernel for StressLanes<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn run<const L: usize>(self) {
+        let StressLanes {
+            model,
+            fe,
+            out,
+            kept,
+        } = self;
+        let n = fe.len();
+        let mut i = 0;
+        while i + L <= n {
+            let f = to_lanes::<L>(fe[i..i + L].try_into().expect("L matrices"));
+            let (e, v) = eigen_soa(&f);
+            if !kept.is_empty() {
+                for l in 0..L {
+                    let k = &mut kept[(i + l) * KEPT..(i + l + 1) * KEPT];
+                    for a in 0..3 {
+                        k[a] = e[a].0[l];
+                        // Column-major, as nalgebra stores V.
+                        for b in 0..3 {
+                            k[3 + 3 * a + b] = v[b][a].0[l];
+                        }
+                    }
+                }
+            }
+            let p = model.stress_lanes(&f, &svd_from_eigen_lanes(&f, e, v).rotation());
+            for l in 0..L {
+                out[i + l] = lane_of(&p, l);
+            }
+            i += L;
+        }
+        for j in i..n {
+            let (e, v) = eigen(&fe[j]);
+            if !kept.is_empty() {
+                let k = &mut kept[j * KEPT..(j + 1) * KEPT];
+                k[..3].copy_from_slice(e.as_slice());
+                k[3..].copy_from_slice(v.as_slice());
+            }
+            let svd = svd3_from_eigen(&fe[j], e, v);
+            out[j] = model.stress_with_rotation(&fe[j], &svd.rotation());
+        }
+    }
+}
+
 impl FixedCorotated {
+    /// [`Self::stress_with_rotation`] in lanes, summed in the same order (the cofactor's cross
+    /// products and the dot product as nalgebra forms them): the scalar bits in every lane.
+    #[inline(always)]
+    fn stress_lanes<const L: usize>(&self, f: &M3s<L>, r: &M3s<L>) -> M3s<L> {
+        // cof columns f1 x f2, f2 x f0, f0 x f1 (nalgebra's cross product, entry by entry).
+        let cof = [
+            cross_of_columns(f, 1, 2),
+            cross_of_columns(f, 2, 0),
+            cross_of_columns(f, 0, 1),
+        ];
+        let j = f[0][0] * cof[0][0] + f[1][0] * cof[0][1] + f[2][0] * cof[0][2];
+        let k1 = 2.0 * self.mu;
+        let k2 = (j - 1.0) * self.lambda;
+        let mut p = [[F64s::splat(0.0); 3]; 3];
+        for a in 0..3 {
+            for b in 0..3 {
+                p[a][b] = (f[a][b] - r[a][b]) * k1 + k2 * cof[b][a];
+            }
+        }
+        p
+    }
+
     /// `(P(F), dP(F)[dF])` given the SVD of `F`.
     #[inline]
     fn stress_and_differential_with(
@@ -91,19 +217,8 @@ impl ConstitutiveModel for FixedCorotated {
         self.stress_with_rotation(f, &svd3(f).rotation())
     }
 
-    fn stress_batch(&self, fe: &[Matrix3<f64>], out: &mut [Matrix3<f64>]) {
-        let mut chunks = fe.chunks_exact(4);
-        let mut outs = out.chunks_exact_mut(4);
-        for (f4, p4) in (&mut chunks).zip(&mut outs) {
-            let f4: &[Matrix3<f64>; 4] = f4.try_into().expect("chunk of 4");
-            let svd = svd3_x4(f4);
-            for l in 0..4 {
-                p4[l] = self.stress_with_rotation(&f4[l], &svd[l].rotation());
-            }
-        }
-        for (f, p) in chunks.remainder().iter().zip(outs.into_remainder()) {
-            *p = self.stress(f);
-        }
+    fn stress_batch(&self, simd: SimdLevel, fe: &[Matrix3<f64>], out: &mut [Matrix3<f64>]) {
+        self.stress_batch_keeping(simd, fe, out, &mut []);
     }
 
     fn stress_and_differential(
@@ -116,59 +231,45 @@ impl ConstitutiveModel for FixedCorotated {
 
     fn stress_and_differential_batch(
         &self,
+        simd: SimdLevel,
         f: &[Matrix3<f64>],
         df: &[Matrix3<f64>],
         p: &mut [Matrix3<f64>],
         dp: &mut [Matrix3<f64>],
     ) {
-        let n = f.len();
-        let whole = n - n % 4;
-        for i in (0..whole).step_by(4) {
-            let f4: &[Matrix3<f64>; 4] = f[i..i + 4].try_into().expect("chunk of 4");
-            let svd = svd3_x4(f4);
-            for l in 0..4 {
-                (p[i + l], dp[i + l]) =
-                    self.stress_and_differential_with(&f4[l], &svd[l], &df[i + l]);
-            }
-        }
-        for i in whole..n {
-            (p[i], dp[i]) = self.stress_and_differential(&f[i], &df[i]);
-        }
+        let finish = |i: usize, e, v| {
+            let svd = svd3_from_eigen(&f[i], e, v);
+            (p[i], dp[i]) = self.stress_and_differential_with(&f[i], &svd, &df[i]);
+        };
+        lanes::dispatch(simd, EigenThen { f, finish });
     }
 
     fn kept_per_particle(&self) -> usize {
         KEPT
     }
 
+    /// With `kept` empty, keeps nothing (the plain [`ConstitutiveModel::stress_batch`]).
     fn stress_batch_keeping(
         &self,
+        simd: SimdLevel,
         fe: &[Matrix3<f64>],
         out: &mut [Matrix3<f64>],
         kept: &mut [f64],
     ) {
-        let n = fe.len();
-        let whole = n - n % 4;
-        let mut keep = |i: usize, (eig, v): (Vector3<f64>, Matrix3<f64>)| {
-            let k = &mut kept[i * KEPT..(i + 1) * KEPT];
-            k[..3].copy_from_slice(eig.as_slice());
-            k[3..].copy_from_slice(v.as_slice());
-            svd3_from_eigen(&fe[i], eig, v)
-        };
-        for i in (0..whole).step_by(4) {
-            let f4: &[Matrix3<f64>; 4] = fe[i..i + 4].try_into().expect("chunk of 4");
-            for (l, e) in eigen_x4(f4).into_iter().enumerate() {
-                let svd = keep(i + l, e);
-                out[i + l] = self.stress_with_rotation(&f4[l], &svd.rotation());
-            }
-        }
-        for i in whole..n {
-            let svd = keep(i, eigen(&fe[i]));
-            out[i] = self.stress_with_rotation(&fe[i], &svd.rotation());
-        }
+        lanes::dispatch(
+            simd,
+            StressLanes {
+                model: self,
+                fe,
+                out,
+                kept,
+            },
+        );
     }
 
     fn stress_and_differential_batch_kept(
         &self,
+        _: SimdLevel,
         f: &[Matrix3<f64>],
         kept: &[f64],
         df: &[Matrix3<f64>],
@@ -260,17 +361,34 @@ mod tests {
         checks::differential_is_self_adjoint(&model());
     }
 
+    /// More particles than two batches of the widest lanes, so every width runs whole
+    /// batches and a remainder; some at rest, rotated, inverted or singular.
+    const N: usize = 75;
+
+    fn batch_of(rng: &mut rand_pcg::Pcg64, n: usize) -> Vec<Matrix3<f64>> {
+        let rot = Rotation3::from_euler_angles(0.3, -1.1, 2.0).into_inner();
+        (0..n)
+            .map(|i| match i % 7 {
+                0 => Matrix3::identity(),
+                1 => rot,
+                2 => Matrix3::from_diagonal(&Vector3::new(1.2, 0.9, -0.7)),
+                3 => Matrix3::from_diagonal(&Vector3::new(2.0, 0.0, 1.0)),
+                _ => Matrix3::identity() + random_matrix(rng, 0.5),
+            })
+            .collect()
+    }
+
     #[test]
     fn batched_stress_equals_single() {
         let m = model();
         let mut rng = rand_pcg::Pcg64::seed_from_u64(21);
-        let fe: Vec<Matrix3<f64>> = (0..11)
-            .map(|_| Matrix3::identity() + random_matrix(&mut rng, 0.5))
-            .collect();
-        let mut out = vec![Matrix3::zeros(); fe.len()];
-        m.stress_batch(&fe, &mut out);
-        for (f, p) in fe.iter().zip(&out) {
-            assert_eq!(*p, m.stress(f));
+        let fe = batch_of(&mut rng, N);
+        for simd in SimdLevel::available_levels() {
+            let mut out = vec![Matrix3::zeros(); fe.len()];
+            m.stress_batch(simd, &fe, &mut out);
+            for (f, p) in fe.iter().zip(&out) {
+                assert_eq!(*p, m.stress(f), "{simd:?} {f}");
+            }
         }
     }
 
@@ -278,14 +396,14 @@ mod tests {
     fn batched_differential_equals_single() {
         let m = model();
         let mut rng = rand_pcg::Pcg64::seed_from_u64(22);
-        let f: Vec<Matrix3<f64>> = (0..11)
-            .map(|_| Matrix3::identity() + random_matrix(&mut rng, 0.5))
-            .collect();
-        let df: Vec<Matrix3<f64>> = (0..11).map(|_| random_matrix(&mut rng, 1.0)).collect();
-        let (mut p, mut dp) = (vec![Matrix3::zeros(); 11], vec![Matrix3::zeros(); 11]);
-        m.stress_and_differential_batch(&f, &df, &mut p, &mut dp);
-        for i in 0..11 {
-            assert_eq!((p[i], dp[i]), m.stress_and_differential(&f[i], &df[i]));
+        let f = batch_of(&mut rng, N);
+        let df: Vec<Matrix3<f64>> = (0..N).map(|_| random_matrix(&mut rng, 1.0)).collect();
+        for simd in SimdLevel::available_levels() {
+            let (mut p, mut dp) = (vec![Matrix3::zeros(); N], vec![Matrix3::zeros(); N]);
+            m.stress_and_differential_batch(simd, &f, &df, &mut p, &mut dp);
+            for i in 0..N {
+                assert_eq!((p[i], dp[i]), m.stress_and_differential(&f[i], &df[i]));
+            }
         }
     }
 
@@ -293,17 +411,17 @@ mod tests {
     fn kept_decompositions_give_the_same_bits() {
         let m = model();
         let mut rng = rand_pcg::Pcg64::seed_from_u64(23);
-        let f: Vec<Matrix3<f64>> = (0..11)
-            .map(|_| Matrix3::identity() + random_matrix(&mut rng, 0.5))
-            .collect();
-        let df: Vec<Matrix3<f64>> = (0..11).map(|_| random_matrix(&mut rng, 1.0)).collect();
-        let (mut p, mut kept) = (vec![Matrix3::zeros(); 11], vec![0.0; 11 * KEPT]);
-        m.stress_batch_keeping(&f, &mut p, &mut kept);
-        let (mut pk, mut dpk) = (vec![Matrix3::zeros(); 11], vec![Matrix3::zeros(); 11]);
-        m.stress_and_differential_batch_kept(&f, &kept, &df, &mut pk, &mut dpk);
-        for i in 0..11 {
-            assert_eq!(p[i], m.stress(&f[i]));
-            assert_eq!((pk[i], dpk[i]), m.stress_and_differential(&f[i], &df[i]));
+        let f = batch_of(&mut rng, N);
+        let df: Vec<Matrix3<f64>> = (0..N).map(|_| random_matrix(&mut rng, 1.0)).collect();
+        for simd in SimdLevel::available_levels() {
+            let (mut p, mut kept) = (vec![Matrix3::zeros(); N], vec![0.0; N * KEPT]);
+            m.stress_batch_keeping(simd, &f, &mut p, &mut kept);
+            let (mut pk, mut dpk) = (vec![Matrix3::zeros(); N], vec![Matrix3::zeros(); N]);
+            m.stress_and_differential_batch_kept(simd, &f, &kept, &df, &mut pk, &mut dpk);
+            for i in 0..N {
+                assert_eq!(p[i], m.stress(&f[i]), "{simd:?}");
+                assert_eq!((pk[i], dpk[i]), m.stress_and_differential(&f[i], &df[i]));
+            }
         }
     }
 

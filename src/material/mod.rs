@@ -8,6 +8,7 @@ pub mod svd;
 pub use fixed_corotated::FixedCorotated;
 pub use stable_neo_hookean::StableNeoHookean;
 
+use crate::lanes::SimdLevel;
 use nalgebra::Matrix3;
 use serde::{Deserialize, Serialize};
 use std::sync::Arc;
@@ -91,8 +92,10 @@ pub trait ConstitutiveModel: Send + Sync + std::fmt::Debug {
     /// First Piola-Kirchhoff stress `P = dPsi/dF`.
     fn stress(&self, f: &Matrix3<f64>) -> Matrix3<f64>;
     /// Stress of many elastic gradients at once, `out[i] = P(fe[i])`. Models may override it to
-    /// batch work across particles (fixed-corotated interleaves four SVDs).
-    fn stress_batch(&self, fe: &[Matrix3<f64>], out: &mut [Matrix3<f64>]) {
+    /// batch work across particles in vector lanes of the instruction set `simd` names
+    /// (fixed-corotated: its SVDs, [`crate::lanes`]); the bits are the one-at-a-time call's.
+    fn stress_batch(&self, simd: SimdLevel, fe: &[Matrix3<f64>], out: &mut [Matrix3<f64>]) {
+        let _ = simd;
         for (f, p) in fe.iter().zip(out) {
             *p = self.stress(f);
         }
@@ -105,14 +108,16 @@ pub trait ConstitutiveModel: Send + Sync + std::fmt::Debug {
     ) -> (Matrix3<f64>, Matrix3<f64>);
     /// [`Self::stress_and_differential`] of many particles at once: `(p[i], dp[i]) =
     /// (P(f[i]), dP(f[i])[df[i]])`. Models may override it to batch work across particles
-    /// (fixed-corotated interleaves four SVDs); the results equal the one-at-a-time call's.
+    /// (fixed-corotated: its SVDs in vector lanes); the results equal the one-at-a-time call's.
     fn stress_and_differential_batch(
         &self,
+        simd: SimdLevel,
         f: &[Matrix3<f64>],
         df: &[Matrix3<f64>],
         p: &mut [Matrix3<f64>],
         dp: &mut [Matrix3<f64>],
     ) {
+        let _ = simd;
         for (((f, df), p), dp) in f.iter().zip(df).zip(p).zip(dp) {
             (*p, *dp) = self.stress_and_differential(f, df);
         }
@@ -127,17 +132,19 @@ pub trait ConstitutiveModel: Send + Sync + std::fmt::Debug {
     /// particle).
     fn stress_batch_keeping(
         &self,
+        simd: SimdLevel,
         fe: &[Matrix3<f64>],
         out: &mut [Matrix3<f64>],
         kept: &mut [f64],
     ) {
         debug_assert!(kept.is_empty());
-        self.stress_batch(fe, out)
+        self.stress_batch(simd, fe, out)
     }
     /// [`Self::stress_and_differential_batch`] from what [`Self::stress_batch_keeping`] kept for
     /// the same `f`: the same results, bit for bit.
     fn stress_and_differential_batch_kept(
         &self,
+        simd: SimdLevel,
         f: &[Matrix3<f64>],
         kept: &[f64],
         df: &[Matrix3<f64>],
@@ -145,7 +152,7 @@ pub trait ConstitutiveModel: Send + Sync + std::fmt::Debug {
         dp: &mut [Matrix3<f64>],
     ) {
         debug_assert!(kept.is_empty());
-        self.stress_and_differential_batch(f, df, p, dp)
+        self.stress_and_differential_batch(simd, f, df, p, dp)
     }
     /// The differential `dP(F)[dF]` alone.
     fn stress_differential(&self, f: &Matrix3<f64>, df: &Matrix3<f64>) -> Matrix3<f64> {

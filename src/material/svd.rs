@@ -9,11 +9,14 @@
 //! of the symmetric `F^T F` gives `V`; a Givens QR of `F V` gives `U` and the signed singular
 //! values. The QR step reads the singular values off `F V` directly instead of taking square
 //! roots of eigenvalues, so small singular values keep their precision. nalgebra's general
-//! SVD is about 2x slower on 3x3 (`morph bench` times both). [`svd3_x4`] runs four matrices in
-//! lockstep so their latency chains overlap. Near F = I, Jacobi needs about
+//! SVD is about 2x slower on 3x3 (`morph bench` times both). The stress stage runs the
+//! same arithmetic across vector lanes ([`eigen_soa`], [`svd_from_eigen_lanes`],
+//! [`svd3_batch`]): many matrices at once, so their latency chains overlap, with the bits of
+//! [`svd3`] in every lane. Near F = I, Jacobi needs about
 //! 3 rotating sweeps (measured 4.2 sweeps per call including the final check sweep); the cost
 //! is the latency of each rotation's sqrt/div chain, not flops.
 
+use crate::lanes::{F64s, LaneKernel, Mask, SimdLevel};
 use nalgebra::{Matrix3, Vector3};
 
 /// Result of [`svd3`]: `F = u * diag(sigma) * v^T`.
@@ -38,9 +41,9 @@ impl Svd3 {
 /// remaining off-diagonals `a_rp`, `a_rq`, about 4x fewer flops than updating a full 3x3.
 /// Convergence is quadratic; a pair is skipped once `a_pq` is below 1e-18 of its diagonal.
 /// Each rotation is a dependent chain of divisions and square roots, so a single matrix is
-/// latency-bound; interleaving lanes lets the CPU overlap their chains. Every lane does exactly
-/// the arithmetic it would do alone (a converged lane is skipped), so results do not depend on
-/// how matrices are grouped.
+/// latency-bound. This is the scalar reference (`L = 1` in [`eigen`] and [`svd3`]);
+/// [`eigen_soa`] runs the same arithmetic across vector lanes, where the chains of many
+/// matrices overlap, and gives the same bits.
 fn symmetric_eigen_lanes<const L: usize>(
     a: &[Matrix3<f64>; L],
 ) -> [(Vector3<f64>, Matrix3<f64>); L] {
@@ -97,6 +100,201 @@ fn symmetric_eigen_lanes<const L: usize>(
     std::array::from_fn(|l| (Vector3::new(d[l][0], d[l][1], d[l][2]), v[l]))
 }
 
+/// [`symmetric_eigen_lanes`] across vector lanes ([`crate::lanes`]): lane `l` does exactly
+/// the arithmetic the scalar sweeps do on matrix `l` (a rotation a lane would skip is computed
+/// and discarded by a select), so the results are bitwise those of [`eigen`] on each matrix.
+#[inline(always)]
+pub fn eigen_lanes<const L: usize>(f: &[Matrix3<f64>; L]) -> [(Vector3<f64>, Matrix3<f64>); L] {
+    let (d, v) = eigen_soa(&to_lanes(f));
+    std::array::from_fn(|l| {
+        (
+            Vector3::new(d[0].0[l], d[1].0[l], d[2].0[l]),
+            Matrix3::from_fn(|i, j| v[i][j].0[l]),
+        )
+    })
+}
+
+/// A 3x3 matrix per lane, `m[row][column]`.
+pub type M3s<const L: usize> = [[F64s<L>; 3]; 3];
+
+/// `L` matrices in lanes.
+#[inline(always)]
+pub fn to_lanes<const L: usize>(m: &[Matrix3<f64>; L]) -> M3s<L> {
+    let mut out = [[F64s::splat(0.0); 3]; 3];
+    for (l, m) in m.iter().enumerate() {
+        for i in 0..3 {
+            for j in 0..3 {
+                out[i][j].0[l] = m[(i, j)];
+            }
+        }
+    }
+    out
+}
+
+/// Lane `l` of `m` as a matrix.
+#[inline(always)]
+pub fn lane_of<const L: usize>(m: &M3s<L>, l: usize) -> Matrix3<f64> {
+    let mut out = Matrix3::zeros();
+    for i in 0..3 {
+        for j in 0..3 {
+            out[(i, j)] = m[i][j].0[l];
+        }
+    }
+    out
+}
+
+/// `a b` per lane, each entry summed left to right as nalgebra's 3x3 product does.
+#[inline(always)]
+pub fn mul_lanes<const L: usize>(a: &M3s<L>, b: &M3s<L>) -> M3s<L> {
+    let mut out = [[F64s::splat(0.0); 3]; 3];
+    for i in 0..3 {
+        for j in 0..3 {
+            out[i][j] = a[i][0] * b[0][j] + a[i][1] * b[1][j] + a[i][2] * b[2][j];
+        }
+    }
+    out
+}
+
+/// `a b^T` per lane (summed as [`mul_lanes`]).
+#[inline(always)]
+pub fn mul_transpose_lanes<const L: usize>(a: &M3s<L>, b: &M3s<L>) -> M3s<L> {
+    let mut out = [[F64s::splat(0.0); 3]; 3];
+    for i in 0..3 {
+        for j in 0..3 {
+            out[i][j] = a[i][0] * b[j][0] + a[i][1] * b[j][1] + a[i][2] * b[j][2];
+        }
+    }
+    out
+}
+
+/// The SVD of `L` matrices in lanes: `f = u diag(sigma) v^T` per lane.
+#[derive(Clone, Copy, Debug)]
+pub struct Svd3s<const L: usize> {
+    pub u: M3s<L>,
+    pub sigma: [F64s<L>; 3],
+    pub v: M3s<L>,
+}
+
+impl<const L: usize> Svd3s<L> {
+    /// The polar rotation `u v^T` per lane ([`Svd3::rotation`]'s bits).
+    #[inline(always)]
+    pub fn rotation(&self) -> M3s<L> {
+        mul_transpose_lanes(&self.u, &self.v)
+    }
+}
+
+/// The Jacobi sweeps of [`eigen_lanes`] on `f^T f`, in lanes: (eigenvalues, V).
+#[inline(always)]
+pub fn eigen_soa<const L: usize>(f: &M3s<L>) -> ([F64s<L>; 3], M3s<L>) {
+    // f^T f, each entry summed as nalgebra sums `f.transpose() * f`.
+    let mut a = [[F64s::splat(0.0); 3]; 3];
+    for i in 0..3 {
+        for j in 0..3 {
+            a[i][j] = f[0][i] * f[0][j] + f[1][i] * f[1][j] + f[2][i] * f[2][j];
+        }
+    }
+    let mut d = [a[0][0], a[1][1], a[2][2]];
+    // off[k] is the entry opposite diagonal k, as in the scalar sweeps.
+    let mut off = [a[1][2], a[0][2], a[0][1]];
+    let (zero, one) = (F64s::<L>::splat(0.0), F64s::<L>::splat(1.0));
+    let mut v = [[one, zero, zero], [zero, one, zero], [zero, zero, one]];
+    let mut done = Mask::<L>::splat(false);
+    for _sweep in 0..16 {
+        let mut rotated = Mask::<L>::splat(false);
+        for r in [2usize, 1, 0] {
+            let (p, q) = match r {
+                2 => (0, 1),
+                1 => (0, 2),
+                _ => (1, 2),
+            };
+            let apq = off[r];
+            let skip = done
+                .or(apq.abs().le((d[p].abs() + d[q].abs()) * 1e-18))
+                .or(apq.eq(zero));
+            let act = skip.negate();
+            if !act.any() {
+                continue;
+            }
+            rotated = rotated.or(act);
+            let theta = (d[q] - d[p]) / (apq * 2.0);
+            let t = one.copysign(theta) / (theta.abs() + (theta * theta + 1.0).sqrt());
+            let t = F64s::select(theta.eq(zero), one, t);
+            let c = one / (t * t + 1.0).sqrt();
+            let s = t * c;
+            d[p] = F64s::select(act, d[p] - t * apq, d[p]);
+            d[q] = F64s::select(act, d[q] + t * apq, d[q]);
+            off[r] = F64s::select(act, zero, off[r]);
+            let (arp, arq) = (off[q], off[p]);
+            off[q] = F64s::select(act, c * arp - s * arq, arp);
+            off[p] = F64s::select(act, s * arp + c * arq, arq);
+            for row in &mut v {
+                let (vkp, vkq) = (row[p], row[q]);
+                row[p] = F64s::select(act, c * vkp - s * vkq, vkp);
+                row[q] = F64s::select(act, s * vkp + c * vkq, vkq);
+            }
+        }
+        done = done.or(rotated.negate());
+        if done.all() {
+            break;
+        }
+    }
+    (d, v)
+}
+
+/// [`svd3_from_eigen`] in lanes: sort, then the Givens QR of `F V`, every branch of the
+/// scalar code a select, so each lane gets the scalar bits.
+#[inline(always)]
+pub fn svd_from_eigen_lanes<const L: usize>(
+    f: &M3s<L>,
+    eig: [F64s<L>; 3],
+    mut v: M3s<L>,
+) -> Svd3s<L> {
+    let mut e = eig;
+    for (i, j) in [(0, 1), (0, 2), (1, 2)] {
+        let m = e[i].lt(e[j]);
+        (e[i], e[j]) = (F64s::select(m, e[j], e[i]), F64s::select(m, e[i], e[j]));
+        for row in &mut v {
+            let (vi, vj) = (row[i], row[j]);
+            row[i] = F64s::select(m, vj, vi);
+            row[j] = F64s::select(m, -vi, vj);
+        }
+    }
+    let mut b = mul_lanes(f, &v);
+    let (zero, one) = (F64s::<L>::splat(0.0), F64s::<L>::splat(1.0));
+    let mut u = [[one, zero, zero], [zero, one, zero], [zero, zero, one]];
+    for (i, j, col) in [(0, 1, 0), (0, 2, 0), (1, 2, 1)] {
+        let (a, c_) = (b[i][col], b[j][col]);
+        let r = (a * a + c_ * c_).sqrt();
+        let act = r.eq(zero).or(c_.eq(zero)).negate();
+        if !act.any() {
+            continue;
+        }
+        let (c, s) = (a / r, c_ / r);
+        let (row_i, row_j) = (b[i], b[j]);
+        for k in 0..3 {
+            let (bi, bj) = (row_i[k], row_j[k]);
+            b[i][k] = F64s::select(act, c * bi + s * bj, bi);
+            b[j][k] = F64s::select(act, -s * bi + c * bj, bj);
+        }
+        for row in &mut u {
+            let (qi, qj) = (row[i], row[j]);
+            row[i] = F64s::select(act, c * qi + s * qj, qi);
+            row[j] = F64s::select(act, -s * qi + c * qj, qj);
+        }
+    }
+    let mut sigma = [b[0][0], b[1][1], b[2][2]];
+    for k in 0..2 {
+        let m = sigma[k].lt(zero);
+        sigma[k] = F64s::select(m, -sigma[k], sigma[k]);
+        sigma[2] = F64s::select(m, -sigma[2], sigma[2]);
+        for row in &mut u {
+            row[k] = F64s::select(m, -row[k], row[k]);
+            row[2] = F64s::select(m, -row[2], row[2]);
+        }
+    }
+    Svd3s { u, sigma, v }
+}
+
 /// Givens rotation acting on rows (i, j) of `b` that zeroes `b[(j, col)]` into `b[(i, col)]`;
 /// the same rotation is accumulated into the columns of `q` so that `q * b` is invariant.
 #[inline]
@@ -128,27 +326,47 @@ pub fn svd3(f: &Matrix3<f64>) -> Svd3 {
     finish(f, eig, v)
 }
 
-/// [`svd3`] of four matrices at once (same results, about twice the throughput).
-pub fn svd3_x4(f: &[Matrix3<f64>; 4]) -> [Svd3; 4] {
-    let ata = f.map(|m| m.transpose() * m);
-    let eig = symmetric_eigen_lanes(&ata);
-    std::array::from_fn(|l| finish(&f[l], eig[l].0, eig[l].1))
+/// [`svd3`] of every matrix of `f`, in the vector lanes of `simd` ([`crate::lanes`]; the
+/// matrices that do not fill a batch one at a time): bitwise [`svd3`]'s results.
+pub fn svd3_batch(simd: SimdLevel, f: &[Matrix3<f64>]) -> Vec<Svd3> {
+    struct Batch<'a>(&'a [Matrix3<f64>]);
+    impl LaneKernel for Batch<'_> {
+        type Output = Vec<Svd3>;
+        #[inline(always)]
+        fn run<const L: usize>(self) -> Vec<Svd3> {
+            let mut out = Vec::with_capacity(self.0.len());
+            let mut i = 0;
+            while i + L <= self.0.len() {
+                let f = to_lanes::<L>(self.0[i..i + L].try_into().expect("L matrices"));
+                let (e, v) = eigen_soa(&f);
+                let s = svd_from_eigen_lanes(&f, e, v);
+                for l in 0..L {
+                    out.push(Svd3 {
+                        u: lane_of(&s.u, l),
+                        sigma: Vector3::new(s.sigma[0].0[l], s.sigma[1].0[l], s.sigma[2].0[l]),
+                        v: lane_of(&s.v, l),
+                    });
+                }
+                i += L;
+            }
+            for f in &self.0[i..] {
+                out.push(svd3(f));
+            }
+            out
+        }
+    }
+    crate::lanes::dispatch(simd, Batch(f))
 }
 
-/// The eigen-decomposition of `F^T F` behind [`svd3_x4`]: `(eigenvalues, V)` per lane, as the
-/// Jacobi sweeps leave them. [`svd3_from_eigen`] turns one into the SVD, bitwise what
-/// [`svd3`] gives; the reverse pass keeps it rather than sweeping again.
-pub fn eigen_x4(f: &[Matrix3<f64>; 4]) -> [(Vector3<f64>, Matrix3<f64>); 4] {
-    symmetric_eigen_lanes(&f.map(|m| m.transpose() * m))
-}
-
-/// [`eigen_x4`] of one matrix.
+/// The eigen-decomposition of `F^T F` behind [`svd3`]: `(eigenvalues, V)` as the Jacobi
+/// sweeps leave them. [`svd3_from_eigen`] turns it into the SVD, bitwise what [`svd3`] gives;
+/// the reverse pass keeps it rather than sweeping again.
 pub fn eigen(f: &Matrix3<f64>) -> (Vector3<f64>, Matrix3<f64>) {
     let [e] = symmetric_eigen_lanes(&[f.transpose() * f]);
     e
 }
 
-/// The SVD of `f` from the eigen-decomposition of `F^T F` ([`eigen_x4`], [`eigen`]).
+/// The SVD of `f` from the eigen-decomposition of `F^T F` ([`eigen`], [`eigen_lanes`]).
 pub fn svd3_from_eigen(f: &Matrix3<f64>, eig: Vector3<f64>, v: Matrix3<f64>) -> Svd3 {
     finish(f, eig, v)
 }
@@ -217,22 +435,112 @@ mod tests {
     }
 
     #[test]
-    fn four_lanes_give_the_same_bits_as_one() {
+    fn the_batch_svd_gives_the_scalar_bits_at_every_width() {
         let mut rng = rand_pcg::Pcg64::seed_from_u64(17);
-        for _ in 0..500 {
-            let f: [Matrix3<f64>; 4] = std::array::from_fn(|i| {
-                if i == 1 {
+        let f: Vec<Matrix3<f64>> = (0..203)
+            .map(|i| {
+                if i % 4 == 1 {
                     Matrix3::identity()
                 } else {
                     Matrix3::from_fn(|_, _| rng.random_range(-2.0..2.0))
                 }
-            });
-            let batch = svd3_x4(&f);
-            for l in 0..4 {
-                let one = svd3(&f[l]);
-                assert_eq!(one.u, batch[l].u);
-                assert_eq!(one.sigma, batch[l].sigma);
-                assert_eq!(one.v, batch[l].v);
+            })
+            .collect();
+        for simd in SimdLevel::available_levels() {
+            for (m, s) in f.iter().zip(svd3_batch(simd, &f)) {
+                let one = svd3(m);
+                assert_eq!((one.u, one.sigma, one.v), (s.u, s.sigma, s.v), "{simd:?}");
+            }
+        }
+    }
+
+    /// Eigen-decompositions of a list of matrices, `L` at a time.
+    struct EigenAll<'a>(&'a [Matrix3<f64>]);
+    impl crate::lanes::LaneKernel for EigenAll<'_> {
+        type Output = Vec<(Vector3<f64>, Matrix3<f64>)>;
+        #[inline(always)]
+        fn run<const L: usize>(self) -> Self::Output {
+            let mut out = vec![(Vector3::zeros(), Matrix3::zeros()); self.0.len()];
+            let mut i = 0;
+            while i + L <= self.0.len() {
+                let batch: &[Matrix3<f64>; L] = self.0[i..i + L].try_into().expect("L");
+                out[i..i + L].copy_from_slice(&eigen_lanes::<L>(batch));
+                i += L;
+            }
+            out.truncate(i);
+            out
+        }
+    }
+
+    #[test]
+    fn lanes_give_the_scalar_bits_at_every_width() {
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(23);
+        let f: Vec<Matrix3<f64>> = (0..800)
+            .map(|i| match i % 5 {
+                0 => Matrix3::identity(),
+                1 => Matrix3::identity() + Matrix3::from_fn(|_, _| rng.random_range(-0.05..0.05)),
+                2 => Matrix3::from_diagonal(&Vector3::new(2.0, 2.0, 0.5)),
+                _ => Matrix3::from_fn(|_, _| rng.random_range(-2.0..2.0)),
+            })
+            .collect();
+        for level in crate::lanes::SimdLevel::available_levels() {
+            let out = crate::lanes::dispatch(level, EigenAll(&f));
+            for (m, (eig, v)) in f.iter().zip(&out) {
+                let (e1, v1) = eigen(m);
+                assert_eq!(e1, *eig, "{level:?}");
+                assert_eq!(v1, *v, "{level:?}");
+            }
+        }
+    }
+
+    struct SvdAll<'a>(&'a [Matrix3<f64>]);
+    impl crate::lanes::LaneKernel for SvdAll<'_> {
+        type Output = Vec<(Svd3, Matrix3<f64>)>;
+        #[inline(always)]
+        fn run<const L: usize>(self) -> Self::Output {
+            let mut out = Vec::new();
+            let mut i = 0;
+            while i + L <= self.0.len() {
+                let f = to_lanes::<L>(self.0[i..i + L].try_into().expect("L"));
+                let (e, v) = eigen_soa(&f);
+                let s = svd_from_eigen_lanes(&f, e, v);
+                let r = s.rotation();
+                for l in 0..L {
+                    let svd = Svd3 {
+                        u: lane_of(&s.u, l),
+                        sigma: Vector3::new(s.sigma[0].0[l], s.sigma[1].0[l], s.sigma[2].0[l]),
+                        v: lane_of(&s.v, l),
+                    };
+                    out.push((svd, lane_of(&r, l)));
+                }
+                i += L;
+            }
+            out
+        }
+    }
+
+    #[test]
+    fn the_lane_svd_gives_the_scalar_bits_at_every_width() {
+        let mut rng = rand_pcg::Pcg64::seed_from_u64(29);
+        let f: Vec<Matrix3<f64>> = (0..1024)
+            .map(|i| match i % 6 {
+                0 => Matrix3::identity(),
+                1 => Matrix3::identity() + Matrix3::from_fn(|_, _| rng.random_range(-0.05..0.05)),
+                2 => Matrix3::from_diagonal(&Vector3::new(1.0, 1.0, -1.0)),
+                3 => Matrix3::from_diagonal(&Vector3::new(0.5, 2.0, 2.0)),
+                4 => Matrix3::zeros(),
+                _ => Matrix3::from_fn(|_, _| rng.random_range(-2.0..2.0)),
+            })
+            .collect();
+        for level in crate::lanes::SimdLevel::available_levels() {
+            let out = crate::lanes::dispatch(level, SvdAll(&f));
+            assert_eq!(out.len(), f.len());
+            for (m, (s, r)) in f.iter().zip(&out) {
+                let one = svd3(m);
+                assert_eq!(one.u, s.u, "{level:?} {m}");
+                assert_eq!(one.sigma, s.sigma, "{level:?} {m}");
+                assert_eq!(one.v, s.v, "{level:?} {m}");
+                assert_eq!(one.rotation(), *r, "{level:?} {m}");
             }
         }
     }

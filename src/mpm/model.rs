@@ -6,6 +6,7 @@ use super::ControlForm;
 use super::effect::Effect;
 use super::transfer;
 use super::{GridSpec, KernelKind, SimError};
+use crate::lanes::SimdLevel;
 use crate::material::ConstitutiveModel;
 use crate::mpm::{ControlKind, ControlParams, ControlPlan};
 use nalgebra::{Matrix3, Vector3};
@@ -30,6 +31,9 @@ pub struct Model {
     pub controls: ControlPlan,
     /// How a deformation-gradient control `Fc` acts on `F` (see [`ControlForm`]).
     pub control_form: ControlForm,
+    /// The vector instruction set the lane kernels run (the widest this CPU has unless set):
+    /// it changes the speed, never the bits ([`crate::lanes`]).
+    pub simd: SimdLevel,
     /// The kinematic control moving each particle (`FREE` for free particles).
     clamp_of: Vec<u32>,
 }
@@ -63,6 +67,7 @@ impl Model {
             max_cfl: 1.0,
             controls: ControlPlan::none(1),
             control_form: ControlForm::default(),
+            simd: SimdLevel::Auto,
         })
     }
 

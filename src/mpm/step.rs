@@ -286,9 +286,9 @@ impl Euler {
                     };
                 }
                 if keep > 0 {
-                    self.material.stress_batch_keeping(fe, a, kept);
+                    self.material.stress_batch_keeping(self.simd, fe, a, kept);
                 } else {
-                    self.material.stress_batch(fe, a);
+                    self.material.stress_batch(self.simd, fe, a);
                 }
                 for (i, (a, fe)) in a.iter_mut().zip(fe.iter()).enumerate() {
                     let p = k * CHUNK + i;
@@ -649,8 +649,8 @@ impl Euler {
         );
         laps.lap(Stage::RevGrid);
 
-        // P2G reverse (gather) and P1 reverse, in batches whose stress differentials share
-        // interleaved SVDs.
+        // P2G reverse (gather) and P1 reverse, in batches of CHUNK particles (the material
+        // takes their stress differentials together).
         let retention = self.momentum_retention(tape.step);
         let body = values.map(|v| self.body_accelerations(v));
         let mut grad_fc = vec![Matrix3::zeros(); n];
@@ -699,6 +699,7 @@ impl Euler {
                 let keep = self.material.kept_per_particle();
                 if tape.kept.is_empty() {
                     self.material.stress_and_differential_batch(
+                        self.simd,
                         &fe[p0..p0 + len],
                         &grad_p[..len],
                         &mut stress[..len],
@@ -706,6 +707,7 @@ impl Euler {
                     );
                 } else {
                     self.material.stress_and_differential_batch_kept(
+                        self.simd,
                         &fe[p0..p0 + len],
                         &tape.kept[p0 * keep..(p0 + len) * keep],
                         &grad_p[..len],

@@ -249,8 +249,8 @@ impl Rk4 {
         buf.mark_active::<N>(&s.x, &origin, dx, &strides);
         let par = n >= PARALLEL_MIN;
         let body = self.body_accelerations(values);
-        // Stresses in chunks, so a material can batch them (fixed-corotated interleaves four
-        // SVDs); the same bits as one at a time.
+        // Stresses in chunks, so a material can batch them (fixed-corotated runs its SVDs in
+        // vector lanes); the same bits as one at a time.
         const CHUNK: usize = 64;
         let mut stress_force = vec![Matrix3::zeros(); n];
         stress_force
@@ -259,7 +259,7 @@ impl Rk4 {
             .with_min_len(PARALLEL_MIN / CHUNK)
             .enumerate()
             .for_each(|(k, (out, f))| {
-                self.material.stress_batch(f, out);
+                self.material.stress_batch(self.simd, f, out);
                 for (i, (o, f)) in out.iter_mut().zip(f).enumerate() {
                     *o = self.stress_inputs(k * CHUNK + i).affine_from_stress(
                         &Matrix3::zeros(),

@@ -11,8 +11,9 @@ pub mod roofline;
 
 use crate::engine::Engine;
 use crate::integrator::{Integrator, IntegratorKind};
+use crate::lanes::SimdLevel;
 use crate::loss::{MassLoss, MassLossKind};
-use crate::material::svd::{svd3, svd3_x4};
+use crate::material::svd::{svd3, svd3_batch};
 use crate::mpm::{KernelKind, SimError, State, StateGrad};
 use crate::scene::{EffectConfig, SceneConfig, ball_particles};
 use nalgebra::{Matrix3, Vector3};
@@ -151,23 +152,20 @@ pub fn run(
     };
     let ours = time_it(&|m| svd3(m).sigma[0]);
     let theirs = time_it(&|m| m.svd(true, true).singular_values[0]);
-    // Four lanes at a time: time per matrix.
-    let batched = {
+    // In vector lanes, at each width this CPU has: time per matrix.
+    let mut lanes = serde_json::Map::new();
+    for simd in SimdLevel::available_levels() {
         let mut best = f64::INFINITY;
         for _ in 0..repeats.max(1) {
             let t0 = Instant::now();
-            let mut acc = 0.0;
-            for c in mats.chunks_exact(4) {
-                acc += svd3_x4(c.try_into().expect("4"))[0].sigma[0];
-            }
-            std::hint::black_box(acc);
+            std::hint::black_box(svd3_batch(simd, &mats));
             best = best.min(t0.elapsed().as_secs_f64());
         }
-        best / mats.len() as f64 * 1e9
-    };
+        lanes.insert(simd.name().into(), json!(best / mats.len() as f64 * 1e9));
+    }
     println!(
         "{}",
-        json!({"bench": "svd3", "ns_per_call_morph": ours, "ns_per_call_morph_x4": batched,
+        json!({"bench": "svd3", "ns_per_call_morph": ours, "ns_per_call_morph_lanes": lanes,
                "ns_per_call_nalgebra": theirs})
     );
 
