@@ -3,8 +3,8 @@
 //! `P = 2 mu (F - R) + lambda (J - 1) cof F`, with `cof F = J F^-T`.
 
 use super::svd::{
-    M3s, Svd3, eigen, eigen_lanes, eigen_soa, lane_of, svd_from_eigen_lanes, svd3, svd3_from_eigen,
-    to_lanes,
+    M3s, Svd3, Svd3s, eigen, eigen_soa, lane_of, mul_lanes, mul_transpose_lanes,
+    svd_from_eigen_lanes, svd3, svd3_from_eigen, to_lanes, transpose_mul_lanes,
 };
 use super::{ConstitutiveModel, cofactor, cofactor_differential};
 use crate::lanes::F64s;
@@ -38,36 +38,6 @@ impl FixedCorotated {
     }
 }
 
-/// The eigen-decomposition of every `f[i]^T f[i]` behind its SVD, the Jacobi sweeps in
-/// vector lanes ([`eigen_lanes`]; the particles that do not fill a batch one at a time),
-/// handed to `finish(i, eigenvalues, V)`: bitwise what [`eigen`] gives, whatever the width.
-struct EigenThen<'a, F: FnMut(usize, Vector3<f64>, Matrix3<f64>)> {
-    f: &'a [Matrix3<f64>],
-    finish: F,
-}
-
-impl<F: FnMut(usize, Vector3<f64>, Matrix3<f64>)> lanes::LaneKernel for EigenThen<'_, F> {
-    type Output = ();
-
-    #[inline(always)]
-    fn run<const L: usize>(mut self) {
-        let n = self.f.len();
-        let mut i = 0;
-        while i + L <= n {
-            let batch: &[Matrix3<f64>; L] = self.f[i..i + L].try_into().expect("L matrices");
-            let eig = eigen_lanes(batch);
-            for (l, (e, v)) in eig.into_iter().enumerate() {
-                (self.finish)(i + l, e, v);
-            }
-            i += L;
-        }
-        for j in i..n {
-            let (e, v) = eigen(&self.f[j]);
-            (self.finish)(j, e, v);
-        }
-    }
-}
-
 /// Column `i` of `f` cross column `j`, per lane.
 #[inline(always)]
 fn cross_of_columns<const L: usize>(f: &M3s<L>, i: usize, j: usize) -> [F64s<L>; 3] {
@@ -77,6 +47,92 @@ fn cross_of_columns<const L: usize>(f: &M3s<L>, i: usize, j: usize) -> [F64s<L>;
         a[2] * b[0] - a[0] * b[2],
         a[0] * b[1] - a[1] * b[0],
     ]
+}
+
+/// Column `i` of `a` cross column `j` of `b`, per lane.
+#[inline(always)]
+fn cross_columns_of<const L: usize>(a: &M3s<L>, i: usize, b: &M3s<L>, j: usize) -> [F64s<L>; 3] {
+    let (a, b) = ([a[0][i], a[1][i], a[2][i]], [b[0][j], b[1][j], b[2][j]]);
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+#[inline(always)]
+fn add3<const L: usize>(a: [F64s<L>; 3], b: [F64s<L>; 3]) -> [F64s<L>; 3] {
+    [a[0] + b[0], a[1] + b[1], a[2] + b[2]]
+}
+
+/// `(P(f[i]), dP(f[i])[df[i]])` for every particle, `L` at a time in vector lanes: the SVD
+/// from the decompositions the forward pass kept (or from new Jacobi sweeps when `kept` is
+/// empty), then [`FixedCorotated::stress_and_differential_lanes`]; the bits of one at a time.
+struct DifferentialLanes<'a> {
+    model: &'a FixedCorotated,
+    f: &'a [Matrix3<f64>],
+    kept: &'a [f64],
+    df: &'a [Matrix3<f64>],
+    p: &'a mut [Matrix3<f64>],
+    dp: &'a mut [Matrix3<f64>],
+}
+
+impl lanes::LaneKernel for DifferentialLanes<'_> {
+    type Output = ();
+
+    #[inline(always)]
+    fn run<const L: usize>(self) {
+        let DifferentialLanes {
+            model,
+            f,
+            kept,
+            df,
+            p,
+            dp,
+        } = self;
+        let n = f.len();
+        let mut i = 0;
+        while i + L <= n {
+            let fl = to_lanes::<L>(f[i..i + L].try_into().expect("L matrices"));
+            let (e, v) = if kept.is_empty() {
+                eigen_soa(&fl)
+            } else {
+                let zero = F64s::<L>::splat(0.0);
+                let (mut e, mut v) = ([zero; 3], [[zero; 3]; 3]);
+                for l in 0..L {
+                    let k = &kept[(i + l) * KEPT..(i + l + 1) * KEPT];
+                    for a in 0..3 {
+                        e[a].0[l] = k[a];
+                        for b in 0..3 {
+                            v[b][a].0[l] = k[3 + 3 * a + b];
+                        }
+                    }
+                }
+                (e, v)
+            };
+            let svd = svd_from_eigen_lanes(&fl, e, v);
+            let dfl = to_lanes::<L>(df[i..i + L].try_into().expect("L matrices"));
+            let (pl, dpl) = model.stress_and_differential_lanes(&fl, &svd, &dfl);
+            for l in 0..L {
+                p[i + l] = lane_of(&pl, l);
+                dp[i + l] = lane_of(&dpl, l);
+            }
+            i += L;
+        }
+        for j in i..n {
+            let (e, v) = if kept.is_empty() {
+                eigen(&f[j])
+            } else {
+                let k = &kept[j * KEPT..(j + 1) * KEPT];
+                (
+                    Vector3::from_column_slice(&k[..3]),
+                    Matrix3::from_column_slice(&k[3..]),
+                )
+            };
+            let svd = svd3_from_eigen(&f[j], e, v);
+            (p[j], dp[j]) = model.stress_and_differential_with(&f[j], &svd, &df[j]);
+        }
+    }
 }
 
 /// `P(fe[i])` for every particle (and, unless `kept` is empty, the eigen-decomposition
@@ -160,6 +216,60 @@ impl FixedCorotated {
         p
     }
 
+    /// [`Self::stress_and_differential_with`] in lanes, every sum in its order (nalgebra's
+    /// products left to right, `sum()` column by column from zero), the clamp a select.
+    #[inline(always)]
+    fn stress_and_differential_lanes<const L: usize>(
+        &self,
+        f: &M3s<L>,
+        s: &Svd3s<L>,
+        df: &M3s<L>,
+    ) -> (M3s<L>, M3s<L>) {
+        let r = s.rotation();
+        let cof = [
+            cross_of_columns(f, 1, 2),
+            cross_of_columns(f, 2, 0),
+            cross_of_columns(f, 0, 1),
+        ];
+        let j = f[0][0] * cof[0][0] + f[1][0] * cof[0][1] + f[2][0] * cof[0][2];
+        let zero = F64s::<L>::splat(0.0);
+        let g = mul_lanes(&transpose_mul_lanes(&s.u, df), &s.v);
+        let mut w = [[zero; 3]; 3];
+        for (i, jj) in [(0usize, 1usize), (0, 2), (1, 2)] {
+            let sum = s.sigma[i] + s.sigma[jj];
+            let clamped = F64s::splat(MIN_SIGMA_SUM).copysign(sum);
+            let denom = F64s::select(sum.abs().lt(F64s::splat(MIN_SIGMA_SUM)), clamped, sum);
+            let wij = (g[i][jj] - g[jj][i]) / denom;
+            w[i][jj] = wij;
+            w[jj][i] = -wij;
+        }
+        let dr = mul_transpose_lanes(&mul_lanes(&s.u, &w), &s.v);
+        // cof . dF summed column by column, as nalgebra's `sum()` does.
+        let mut dj = zero;
+        for b in 0..3 {
+            for a in 0..3 {
+                dj += cof[b][a] * df[a][b];
+            }
+        }
+        // d cof[dF]: columns d1 x f2 + f1 x d2, d2 x f0 + f2 x d0, d0 x f1 + f0 x d1.
+        let dcof = [
+            add3(cross_columns_of(df, 1, f, 2), cross_columns_of(f, 1, df, 2)),
+            add3(cross_columns_of(df, 2, f, 0), cross_columns_of(f, 2, df, 0)),
+            add3(cross_columns_of(df, 0, f, 1), cross_columns_of(f, 0, df, 1)),
+        ];
+        let (k1, k2) = (2.0 * self.mu, (j - 1.0) * self.lambda);
+        let jm1 = j - 1.0;
+        let (mut p, mut dp) = ([[zero; 3]; 3], [[zero; 3]; 3]);
+        for a in 0..3 {
+            for b in 0..3 {
+                p[a][b] = (f[a][b] - r[a][b]) * k1 + k2 * cof[b][a];
+                dp[a][b] =
+                    (df[a][b] - dr[a][b]) * k1 + (dj * cof[b][a] + jm1 * dcof[b][a]) * self.lambda;
+            }
+        }
+        (p, dp)
+    }
+
     /// `(P(F), dP(F)[dF])` given the SVD of `F`.
     #[inline]
     fn stress_and_differential_with(
@@ -237,11 +347,15 @@ impl ConstitutiveModel for FixedCorotated {
         p: &mut [Matrix3<f64>],
         dp: &mut [Matrix3<f64>],
     ) {
-        let finish = |i: usize, e, v| {
-            let svd = svd3_from_eigen(&f[i], e, v);
-            (p[i], dp[i]) = self.stress_and_differential_with(&f[i], &svd, &df[i]);
+        let kernel = DifferentialLanes {
+            model: self,
+            f,
+            kept: &[],
+            df,
+            p,
+            dp,
         };
-        lanes::dispatch(simd, EigenThen { f, finish });
+        lanes::dispatch(simd, kernel);
     }
 
     fn kept_per_particle(&self) -> usize {
@@ -269,19 +383,27 @@ impl ConstitutiveModel for FixedCorotated {
 
     fn stress_and_differential_batch_kept(
         &self,
-        _: SimdLevel,
+        simd: SimdLevel,
         f: &[Matrix3<f64>],
         kept: &[f64],
         df: &[Matrix3<f64>],
         p: &mut [Matrix3<f64>],
         dp: &mut [Matrix3<f64>],
     ) {
-        for (i, k) in kept.chunks_exact(KEPT).enumerate() {
-            let eig = Vector3::from_column_slice(&k[..3]);
-            let v = Matrix3::from_column_slice(&k[3..]);
-            let svd = svd3_from_eigen(&f[i], eig, v);
-            (p[i], dp[i]) = self.stress_and_differential_with(&f[i], &svd, &df[i]);
-        }
+        assert_eq!(
+            kept.len(),
+            f.len() * KEPT,
+            "kept decompositions for every particle"
+        );
+        let kernel = DifferentialLanes {
+            model: self,
+            f,
+            kept,
+            df,
+            p,
+            dp,
+        };
+        lanes::dispatch(simd, kernel);
     }
 
     fn wave_modulus(&self) -> f64 {

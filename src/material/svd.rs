@@ -155,6 +155,18 @@ pub fn mul_lanes<const L: usize>(a: &M3s<L>, b: &M3s<L>) -> M3s<L> {
     out
 }
 
+/// `a^T b` per lane (summed as [`mul_lanes`]).
+#[inline(always)]
+pub fn transpose_mul_lanes<const L: usize>(a: &M3s<L>, b: &M3s<L>) -> M3s<L> {
+    let mut out = [[F64s::splat(0.0); 3]; 3];
+    for i in 0..3 {
+        for j in 0..3 {
+            out[i][j] = a[0][i] * b[0][j] + a[1][i] * b[1][j] + a[2][i] * b[2][j];
+        }
+    }
+    out
+}
+
 /// `a b^T` per lane (summed as [`mul_lanes`]).
 #[inline(always)]
 pub fn mul_transpose_lanes<const L: usize>(a: &M3s<L>, b: &M3s<L>) -> M3s<L> {
