@@ -16,11 +16,13 @@
 //!   placement) and surfaces out;
 //! - [`morph`]: the morph (segment optimizers, the chained multi-pass driver with its
 //!   [`morph::Observer`], checkpoints, the output folder writer);
-//! - [`control`]: control of deformable objects (the rope scene, gradient control, MPPI);
+//! - [`apps`]: what is built on the engine besides the morph: the rope (control of deformable
+//!   objects: gradient control, MPPI), `morph study` (what accuracy costs in time) and the
+//!   benchmark workloads;
 //! - [`io`]: frame, mass-grid and image files, and the guarded output folder;
 //! - [`optim`]: Adam, shared by the morph and the gradient controller;
-//! - [`study`]: `morph study`, what accuracy costs in time (a grid of settings, each judged);
-//! - [`bench`](mod@bench): the benchmark workloads.
+//! - [`lanes`]: vector lanes, the same per-particle arithmetic on many particles at once, run
+//!   with the widest instruction set the CPU has and the bits of the scalar code.
 //!
 //! The `morph` binary (`src/cli/`, one file per subcommand) only parses and reports.
 //!

@@ -100,20 +100,6 @@ fn symmetric_eigen_lanes<const L: usize>(
     std::array::from_fn(|l| (Vector3::new(d[l][0], d[l][1], d[l][2]), v[l]))
 }
 
-/// [`symmetric_eigen_lanes`] across vector lanes ([`crate::lanes`]): lane `l` does exactly
-/// the arithmetic the scalar sweeps do on matrix `l` (a rotation a lane would skip is computed
-/// and discarded by a select), so the results are bitwise those of [`eigen`] on each matrix.
-#[inline(always)]
-pub fn eigen_lanes<const L: usize>(f: &[Matrix3<f64>; L]) -> [(Vector3<f64>, Matrix3<f64>); L] {
-    let (d, v) = eigen_soa(&to_lanes(f));
-    std::array::from_fn(|l| {
-        (
-            Vector3::new(d[0].0[l], d[1].0[l], d[2].0[l]),
-            Matrix3::from_fn(|i, j| v[i][j].0[l]),
-        )
-    })
-}
-
 /// A 3x3 matrix per lane, `m[row][column]`.
 pub type M3s<const L: usize> = [[F64s<L>; 3]; 3];
 
@@ -195,7 +181,10 @@ impl<const L: usize> Svd3s<L> {
     }
 }
 
-/// The Jacobi sweeps of [`eigen_lanes`] on `f^T f`, in lanes: (eigenvalues, V).
+/// The Jacobi sweeps of [`eigen`] on `f^T f` for `L` matrices in vector lanes
+/// ([`crate::lanes`]): (eigenvalues, V). Lane `l` does exactly the arithmetic the scalar
+/// sweeps do on matrix `l` (a rotation a lane would skip is computed and discarded by a
+/// select), so each lane gets [`eigen`]'s bits.
 #[inline(always)]
 pub fn eigen_soa<const L: usize>(f: &M3s<L>) -> ([F64s<L>; 3], M3s<L>) {
     // f^T f, each entry summed as nalgebra sums `f.transpose() * f`.
@@ -378,7 +367,7 @@ pub fn eigen(f: &Matrix3<f64>) -> (Vector3<f64>, Matrix3<f64>) {
     e
 }
 
-/// The SVD of `f` from the eigen-decomposition of `F^T F` ([`eigen`], [`eigen_lanes`]).
+/// The SVD of `f` from the eigen-decomposition of `F^T F` ([`eigen`]).
 pub fn svd3_from_eigen(f: &Matrix3<f64>, eig: Vector3<f64>, v: Matrix3<f64>) -> Svd3 {
     finish(f, eig, v)
 }
@@ -449,92 +438,9 @@ mod tests {
     #[test]
     fn the_batch_svd_gives_the_scalar_bits_at_every_width() {
         let mut rng = rand_pcg::Pcg64::seed_from_u64(17);
+        // Enough for whole batches and a remainder at every width; at rest, near rest,
+        // inverted, with repeated singular values, singular, and at random.
         let f: Vec<Matrix3<f64>> = (0..203)
-            .map(|i| {
-                if i % 4 == 1 {
-                    Matrix3::identity()
-                } else {
-                    Matrix3::from_fn(|_, _| rng.random_range(-2.0..2.0))
-                }
-            })
-            .collect();
-        for simd in SimdLevel::available_levels() {
-            for (m, s) in f.iter().zip(svd3_batch(simd, &f)) {
-                let one = svd3(m);
-                assert_eq!((one.u, one.sigma, one.v), (s.u, s.sigma, s.v), "{simd:?}");
-            }
-        }
-    }
-
-    /// Eigen-decompositions of a list of matrices, `L` at a time.
-    struct EigenAll<'a>(&'a [Matrix3<f64>]);
-    impl crate::lanes::LaneKernel for EigenAll<'_> {
-        type Output = Vec<(Vector3<f64>, Matrix3<f64>)>;
-        #[inline(always)]
-        fn run<const L: usize>(self) -> Self::Output {
-            let mut out = vec![(Vector3::zeros(), Matrix3::zeros()); self.0.len()];
-            let mut i = 0;
-            while i + L <= self.0.len() {
-                let batch: &[Matrix3<f64>; L] = self.0[i..i + L].try_into().expect("L");
-                out[i..i + L].copy_from_slice(&eigen_lanes::<L>(batch));
-                i += L;
-            }
-            out.truncate(i);
-            out
-        }
-    }
-
-    #[test]
-    fn lanes_give_the_scalar_bits_at_every_width() {
-        let mut rng = rand_pcg::Pcg64::seed_from_u64(23);
-        let f: Vec<Matrix3<f64>> = (0..800)
-            .map(|i| match i % 5 {
-                0 => Matrix3::identity(),
-                1 => Matrix3::identity() + Matrix3::from_fn(|_, _| rng.random_range(-0.05..0.05)),
-                2 => Matrix3::from_diagonal(&Vector3::new(2.0, 2.0, 0.5)),
-                _ => Matrix3::from_fn(|_, _| rng.random_range(-2.0..2.0)),
-            })
-            .collect();
-        for level in crate::lanes::SimdLevel::available_levels() {
-            let out = crate::lanes::dispatch(level, EigenAll(&f));
-            for (m, (eig, v)) in f.iter().zip(&out) {
-                let (e1, v1) = eigen(m);
-                assert_eq!(e1, *eig, "{level:?}");
-                assert_eq!(v1, *v, "{level:?}");
-            }
-        }
-    }
-
-    struct SvdAll<'a>(&'a [Matrix3<f64>]);
-    impl crate::lanes::LaneKernel for SvdAll<'_> {
-        type Output = Vec<(Svd3, Matrix3<f64>)>;
-        #[inline(always)]
-        fn run<const L: usize>(self) -> Self::Output {
-            let mut out = Vec::new();
-            let mut i = 0;
-            while i + L <= self.0.len() {
-                let f = to_lanes::<L>(self.0[i..i + L].try_into().expect("L"));
-                let (e, v) = eigen_soa(&f);
-                let s = svd_from_eigen_lanes(&f, e, v);
-                let r = s.rotation();
-                for l in 0..L {
-                    let svd = Svd3 {
-                        u: lane_of(&s.u, l),
-                        sigma: Vector3::new(s.sigma[0].0[l], s.sigma[1].0[l], s.sigma[2].0[l]),
-                        v: lane_of(&s.v, l),
-                    };
-                    out.push((svd, lane_of(&r, l)));
-                }
-                i += L;
-            }
-            out
-        }
-    }
-
-    #[test]
-    fn the_lane_svd_gives_the_scalar_bits_at_every_width() {
-        let mut rng = rand_pcg::Pcg64::seed_from_u64(29);
-        let f: Vec<Matrix3<f64>> = (0..1024)
             .map(|i| match i % 6 {
                 0 => Matrix3::identity(),
                 1 => Matrix3::identity() + Matrix3::from_fn(|_, _| rng.random_range(-0.05..0.05)),
@@ -544,15 +450,10 @@ mod tests {
                 _ => Matrix3::from_fn(|_, _| rng.random_range(-2.0..2.0)),
             })
             .collect();
-        for level in crate::lanes::SimdLevel::available_levels() {
-            let out = crate::lanes::dispatch(level, SvdAll(&f));
-            assert_eq!(out.len(), f.len());
-            for (m, (s, r)) in f.iter().zip(&out) {
+        for simd in SimdLevel::available_levels() {
+            for (m, s) in f.iter().zip(svd3_batch(simd, &f)) {
                 let one = svd3(m);
-                assert_eq!(one.u, s.u, "{level:?} {m}");
-                assert_eq!(one.sigma, s.sigma, "{level:?} {m}");
-                assert_eq!(one.v, s.v, "{level:?} {m}");
-                assert_eq!(one.rotation(), *r, "{level:?} {m}");
+                assert_eq!((one.u, one.sigma, one.v), (s.u, s.sigma, s.v), "{simd:?}");
             }
         }
     }
