@@ -11,6 +11,7 @@ use crate::engine::Engine;
 use crate::integrator::IntegratorKind;
 use crate::mpm::profile::{Stage, StageClock};
 use crate::mpm::{KernelKind, SimError};
+use nalgebra::Vector3;
 use rayon::prelude::*;
 use serde_json::json;
 use std::sync::Arc;
@@ -190,17 +191,52 @@ fn stage_seconds(steps: usize, repeats: usize) -> Result<(usize, usize, StageTim
     Ok((particles, nodes, secs))
 }
 
+/// The share of `threads` threads a coloured scatter over `bins` keeps busy: the particles
+/// over `threads`, against the sum over the colours of the longest thread's load when each
+/// colour's blocks are shared out largest first to the least loaded thread (rayon's work
+/// stealing does about as well; a block is never split). 1 on one thread.
+pub fn scatter_efficiency(bins: &crate::mpm::grid::Bins, threads: usize) -> f64 {
+    let mut span = 0usize;
+    for blocks in &bins.colours {
+        let mut sizes: Vec<usize> = blocks.iter().map(|r| (r.end - r.start) as usize).collect();
+        sizes.sort_unstable_by(|a, b| b.cmp(a));
+        let mut load = vec![0usize; threads.max(1)];
+        for size in sizes {
+            let least = load.iter_mut().min().expect("at least one thread");
+            *least += size;
+        }
+        span += load.into_iter().max().unwrap_or(0);
+    }
+    let particles = bins.order.len();
+    if span == 0 {
+        1.0
+    } else {
+        particles as f64 / threads.max(1) as f64 / span as f64
+    }
+}
+
 /// Runs the stage timings and roofline at each thread count: JSON lines on stdout, a
 /// markdown table on stderr.
 pub fn run(steps: usize, repeats: usize, threads: &[usize]) -> anyhow::Result<()> {
-    // The parallelism the coloured scatters offer: non-empty 4^3-cell blocks per colour.
-    let w = reference_workload(KernelKind::Cubic, IntegratorKind::Euler, steps)?;
-    let bins = crate::mpm::grid::Bins::build(&w.engine.model().grid, &w.initial.x, 4, 0)?;
-    let blocks: Vec<usize> = bins.colours.iter().map(|c| c.len()).collect();
-    println!(
-        "{}",
-        json!({"bench": "colours", "particles": w.initial.len(), "blocks_per_colour": blocks})
-    );
+    // The parallelism the coloured scatters offer: non-empty 4^3-cell blocks per colour, and
+    // how well they can share out among more threads than this machine has (the model's
+    // input for a larger machine, docs/engine.md): the reference ball and a ball of about
+    // 300,000 particles.
+    for (radius, cells) in [(8.0, 32), (21.0, 48)] {
+        let grid = crate::mpm::grid::GridSpec::centred_cube(cells, 1.0);
+        let (x, _) = crate::scene::ball_particles(&grid, Vector3::zeros(), radius, 2);
+        let bins = crate::mpm::grid::Bins::build(&grid, &x, 4, 0)?;
+        let blocks: Vec<usize> = bins.colours.iter().map(|c| c.len()).collect();
+        let efficiency: serde_json::Map<String, serde_json::Value> = [1, 2, 4, 8, 16, 32]
+            .iter()
+            .map(|&t| (t.to_string(), json!(scatter_efficiency(&bins, t))))
+            .collect();
+        println!(
+            "{}",
+            json!({"bench": "colours", "particles": x.len(), "blocks_per_colour": blocks,
+                   "scatter_efficiency_by_threads": efficiency})
+        );
+    }
     let mut table: Vec<Measured> = Vec::new();
     let mut sizes = (0, 0);
     for &t in threads {
