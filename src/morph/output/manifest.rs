@@ -459,7 +459,7 @@ pub struct KeyframeReport {
     pub motion: Option<MotionMeasures>,
 }
 
-#[derive(Clone, Copy, Serialize, Deserialize)]
+#[derive(Clone, Serialize, Deserialize)]
 pub struct Timings {
     pub setup_s: f64,
     pub optimize_s: f64,
@@ -469,6 +469,14 @@ pub struct Timings {
     pub usd_s: f64,
     #[serde(default)]
     pub previews_s: f64,
+    /// What ran the optimization, so timings from two machines can be read side by side:
+    /// worker threads, and the vector instruction set of the lane kernels (`baseline`,
+    /// `avx2`, `avx512`; it changes the speed, never the bits). Absent in manifests written
+    /// before they were recorded.
+    #[serde(default)]
+    pub threads: usize,
+    #[serde(default)]
+    pub simd: String,
 }
 
 fn sha256_hex(bytes: &[u8]) -> String {

@@ -95,6 +95,8 @@ pub(super) fn write_run(
             total_s,
             usd_s: finish_s.get("usd").copied().unwrap_or(0.0),
             previews_s,
+            threads: rayon::current_num_threads(),
+            simd: prep.model().simd.resolved().name().into(),
         },
         frames: frame_entries(prep, written.stats),
         final_mass: "final_mass.mgrid".into(),
