@@ -6,7 +6,8 @@
 //! width, a comparison and a select pick values without rounding, and Rust never fuses a
 //! multiplication and an addition into an FMA on its own. So a lane kernel gives the bits of
 //! the scalar code on every width, and results do not depend on the machine
-//! (`tests/lanes.rs` runs the step at each width this CPU has and compares the bits).
+//! (`tests/determinism.rs` runs both integrators, forward and reverse, at each width this CPU
+//! has and compares the bits).
 //!
 //! [`dispatch`] runs a kernel compiled for the widest instruction set the CPU has (or the one
 //! a [`SimdLevel`] names): `pulp` detects the CPU and enables the target features for the
@@ -25,11 +26,11 @@ pub enum SimdLevel {
     /// The widest this CPU has (decided once, at run time).
     #[default]
     Auto,
-    /// The x86-64 baseline (SSE2: two f64 lanes), or the target's own on other CPUs.
+    /// The x86-64 baseline (SSE2: two f64 a register), or the target's own on other CPUs.
     Baseline,
-    /// AVX2 and FMA (x86-64-v3: four f64 lanes).
+    /// AVX2 (x86-64-v3: four f64 a register; its FMA is never used).
     Avx2,
-    /// AVX-512 (x86-64-v4: eight f64 lanes).
+    /// AVX-512 (x86-64-v4: eight f64 a register).
     Avx512,
 }
 
