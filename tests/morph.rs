@@ -780,8 +780,28 @@ fn bench_stages_times_every_stage() {
     let kind = |k: &str| lines.iter().filter(|l| l["bench"] == k).count();
     assert_eq!(
         (kind("colours"), kind("machine"), kind("stage")),
-        (1, 1, 10)
+        (2, 1, 10)
     );
+    // The scatters' parallel efficiency: 1 on one thread, never more, falling with the
+    // threads, and a body of 310,000 particles keeps more of 16 threads busy than the
+    // reference ball's 17,000.
+    let efficiency =
+        |l: &serde_json::Value, t: &str| l["scatter_efficiency_by_threads"][t].as_f64().unwrap();
+    let colours: Vec<&serde_json::Value> =
+        lines.iter().filter(|l| l["bench"] == "colours").collect();
+    for l in &colours {
+        assert_eq!(efficiency(l, "1"), 1.0, "{l}");
+        let e: Vec<f64> = ["2", "4", "8", "16", "32"]
+            .iter()
+            .map(|t| efficiency(l, t))
+            .collect();
+        assert!(
+            e.windows(2).all(|w| w[1] <= w[0]) && e.iter().all(|&x| x > 0.0 && x <= 1.0),
+            "{l}"
+        );
+    }
+    assert!(colours[1]["particles"].as_u64() > colours[0]["particles"].as_u64());
+    assert!(efficiency(colours[1], "16") > efficiency(colours[0], "16"));
     let machine = lines.iter().find(|l| l["bench"] == "machine").unwrap();
     assert!(machine["stream_triad_gb_s"].as_f64().unwrap() > 0.1);
     assert!(machine["peak_gflops"].as_f64().unwrap() > 0.1);
