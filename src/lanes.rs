@@ -74,14 +74,18 @@ impl SimdLevel {
 
     /// `Auto` resolved on this CPU; an unavailable level falls back to the widest available
     /// below it.
+    /// Without allocating: [`dispatch`] resolves the level on every call, on the hot path
+    /// (the availability checks are pulp's cached flags).
     pub fn resolved(self) -> SimdLevel {
-        let widest = *SimdLevel::available_levels()
-            .last()
-            .expect("the baseline is always available");
         match self {
-            SimdLevel::Auto => widest,
-            l if l.available() => l,
-            SimdLevel::Avx512 if SimdLevel::Avx2.available() => SimdLevel::Avx2,
+            SimdLevel::Auto | SimdLevel::Avx512 if SimdLevel::Avx512.available() => {
+                SimdLevel::Avx512
+            }
+            SimdLevel::Auto | SimdLevel::Avx512 | SimdLevel::Avx2
+                if SimdLevel::Avx2.available() =>
+            {
+                SimdLevel::Avx2
+            }
             _ => SimdLevel::Baseline,
         }
     }

@@ -38,17 +38,6 @@ impl FixedCorotated {
     }
 }
 
-/// Column `i` of `f` cross column `j`, per lane.
-#[inline(always)]
-fn cross_of_columns<const L: usize>(f: &M3s<L>, i: usize, j: usize) -> [F64s<L>; 3] {
-    let (a, b) = ([f[0][i], f[1][i], f[2][i]], [f[0][j], f[1][j], f[2][j]]);
-    [
-        a[1] * b[2] - a[2] * b[1],
-        a[2] * b[0] - a[0] * b[2],
-        a[0] * b[1] - a[1] * b[0],
-    ]
-}
-
 /// Column `i` of `a` cross column `j` of `b`, per lane.
 #[inline(always)]
 fn cross_columns_of<const L: usize>(a: &M3s<L>, i: usize, b: &M3s<L>, j: usize) -> [F64s<L>; 3] {
@@ -58,6 +47,19 @@ fn cross_columns_of<const L: usize>(a: &M3s<L>, i: usize, b: &M3s<L>, j: usize) 
         a[2] * b[0] - a[0] * b[2],
         a[0] * b[1] - a[1] * b[0],
     ]
+}
+
+/// `cof F` in lanes, its columns `f1 x f2, f2 x f0, f0 x f1` (`cof[column][row]`, each
+/// entry as nalgebra's cross product forms it), and `J = f0 . cof0` as nalgebra's `dot` sums.
+#[inline(always)]
+fn cofactor_lanes<const L: usize>(f: &M3s<L>) -> ([[F64s<L>; 3]; 3], F64s<L>) {
+    let cof = [
+        cross_columns_of(f, 1, f, 2),
+        cross_columns_of(f, 2, f, 0),
+        cross_columns_of(f, 0, f, 1),
+    ];
+    let j = f[0][0] * cof[0][0] + f[1][0] * cof[0][1] + f[2][0] * cof[0][2];
+    (cof, j)
 }
 
 #[inline(always)]
@@ -198,13 +200,19 @@ impl FixedCorotated {
     /// products and the dot product as nalgebra forms them): the scalar bits in every lane.
     #[inline(always)]
     fn stress_lanes<const L: usize>(&self, f: &M3s<L>, r: &M3s<L>) -> M3s<L> {
-        // cof columns f1 x f2, f2 x f0, f0 x f1 (nalgebra's cross product, entry by entry).
-        let cof = [
-            cross_of_columns(f, 1, 2),
-            cross_of_columns(f, 2, 0),
-            cross_of_columns(f, 0, 1),
-        ];
-        let j = f[0][0] * cof[0][0] + f[1][0] * cof[0][1] + f[2][0] * cof[0][2];
+        let (cof, j) = cofactor_lanes(f);
+        self.stress_from_cofactor(f, r, &cof, j)
+    }
+
+    /// `2 mu (F - R) + lambda (J - 1) cof F` in lanes, from the cofactor and `J`.
+    #[inline(always)]
+    fn stress_from_cofactor<const L: usize>(
+        &self,
+        f: &M3s<L>,
+        r: &M3s<L>,
+        cof: &[[F64s<L>; 3]; 3],
+        j: F64s<L>,
+    ) -> M3s<L> {
         let k1 = 2.0 * self.mu;
         let k2 = (j - 1.0) * self.lambda;
         let mut p = [[F64s::splat(0.0); 3]; 3];
@@ -225,13 +233,8 @@ impl FixedCorotated {
         s: &Svd3s<L>,
         df: &M3s<L>,
     ) -> (M3s<L>, M3s<L>) {
-        let r = s.rotation();
-        let cof = [
-            cross_of_columns(f, 1, 2),
-            cross_of_columns(f, 2, 0),
-            cross_of_columns(f, 0, 1),
-        ];
-        let j = f[0][0] * cof[0][0] + f[1][0] * cof[0][1] + f[2][0] * cof[0][2];
+        let (cof, j) = cofactor_lanes(f);
+        let p = self.stress_from_cofactor(f, &s.rotation(), &cof, j);
         let zero = F64s::<L>::splat(0.0);
         let g = mul_lanes(&transpose_mul_lanes(&s.u, df), &s.v);
         let mut w = [[zero; 3]; 3];
@@ -257,12 +260,10 @@ impl FixedCorotated {
             add3(cross_columns_of(df, 2, f, 0), cross_columns_of(f, 2, df, 0)),
             add3(cross_columns_of(df, 0, f, 1), cross_columns_of(f, 0, df, 1)),
         ];
-        let (k1, k2) = (2.0 * self.mu, (j - 1.0) * self.lambda);
-        let jm1 = j - 1.0;
-        let (mut p, mut dp) = ([[zero; 3]; 3], [[zero; 3]; 3]);
+        let (k1, jm1) = (2.0 * self.mu, j - 1.0);
+        let mut dp = [[zero; 3]; 3];
         for a in 0..3 {
             for b in 0..3 {
-                p[a][b] = (f[a][b] - r[a][b]) * k1 + k2 * cof[b][a];
                 dp[a][b] =
                     (df[a][b] - dr[a][b]) * k1 + (dj * cof[b][a] + jm1 * dcof[b][a]) * self.lambda;
             }
