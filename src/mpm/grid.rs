@@ -232,4 +232,15 @@ impl<'a, T> SharedMut<'a, T> {
         debug_assert!(i < self.len);
         unsafe { &mut *self.ptr.add(i) }
     }
+
+    /// Elements `start..start + len`.
+    ///
+    /// # Safety
+    /// No other thread may access them while the returned slice lives.
+    #[inline(always)]
+    #[allow(clippy::mut_from_ref)]
+    pub unsafe fn run(&self, start: usize, len: usize) -> &mut [T] {
+        assert!(start + len <= self.len);
+        unsafe { std::slice::from_raw_parts_mut(self.ptr.add(start), len) }
+    }
 }

@@ -59,6 +59,43 @@ pub fn floor(v: f64) -> f64 {
     }
 }
 
+/// Per-particle stencils kept between the transfers of one step (built once, read again):
+/// the quadratic and the cubic kernel's, whichever the step uses.
+#[derive(Clone, Debug, Default)]
+pub struct StencilCache {
+    quadratic: Vec<Stencil<3>>,
+    cubic: Vec<Stencil<4>>,
+}
+
+/// The stencils a [`StencilCache`] holds for this support.
+pub trait Cached: Sized {
+    fn slot(cache: &mut StencilCache) -> &mut Vec<Self>;
+}
+
+impl Cached for Stencil<3> {
+    fn slot(cache: &mut StencilCache) -> &mut Vec<Self> {
+        &mut cache.quadratic
+    }
+}
+
+impl Cached for Stencil<4> {
+    fn slot(cache: &mut StencilCache) -> &mut Vec<Self> {
+        &mut cache.cubic
+    }
+}
+
+impl StencilCache {
+    /// Room for `n` stencils of support `N` (their contents are whatever was there).
+    pub fn sized<const N: usize>(&mut self, n: usize) -> &mut Vec<Stencil<N>>
+    where
+        Stencil<N>: Cached,
+    {
+        let v = <Stencil<N> as Cached>::slot(self);
+        v.resize(n, Stencil::ZERO);
+        v
+    }
+}
+
 /// Weights of one particle on its `N^3` stencil, per axis.
 #[derive(Clone, Copy, Debug)]
 pub struct Stencil<const N: usize> {
@@ -74,6 +111,13 @@ pub struct Stencil<const N: usize> {
 }
 
 impl<const N: usize> Stencil<N> {
+    pub const ZERO: Self = Stencil {
+        base: [0; 3],
+        w: [[0.0; N]; 3],
+        dw: [[0.0; N]; 3],
+        dpos: [[0.0; N]; 3],
+    };
+
     /// Flat index of the stencil's first node in a grid with these node strides.
     #[inline(always)]
     pub fn base_index(&self, strides: &[usize; 3]) -> usize {

@@ -5,12 +5,12 @@ use super::effect::GridContext;
 use super::error::SimError;
 use super::grid::{Bins, SharedMut};
 use super::grid_update::{grid_velocity, grid_velocity_reverse};
-use super::kernel::{KernelKind, Stencil};
+use super::kernel::{Cached, KernelKind, Stencil, StencilCache};
 use super::model::Model;
 use super::profile::{Laps, Stage, StageClock};
 use super::state::{State, StateGrad};
 use super::stress::StressInputs;
-use super::transfer::{self, Affine, Node};
+use super::transfer::{self, Affine, AxisField, AxisNodes, Node};
 use crate::mpm::ControlParams;
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
@@ -52,6 +52,8 @@ pub struct Workspace {
     fe: Vec<Matrix3<f64>>,
     affine: Vec<Matrix3<f64>>,
     kept: Vec<f64>,
+    stencils: StencilCache,
+    grid_axes: AxisField,
 }
 
 /// Scratch buffers of the reverse pass, reused across its steps.
@@ -63,6 +65,10 @@ struct ReverseWorkspace {
     effect_inputs: Vec<Vec<Vector3<f64>>>,
     grad_grid_v: Vec<Vector3<f64>>,
     grad_nodes: Vec<Node<1>>,
+    stencils: StencilCache,
+    grid_axes: AxisField,
+    grad_axes: AxisField,
+    grad_node_axes: AxisNodes<1>,
 }
 
 /// One step of the reverse pass for the model's kernel ([`Euler::reverse_impl`]).
@@ -251,7 +257,10 @@ impl Euler {
         step: usize,
         ws: &mut Workspace,
         tape: Option<&mut Vec<StepTape>>,
-    ) -> Result<(), SimError> {
+    ) -> Result<(), SimError>
+    where
+        Stencil<N>: Cached,
+    {
         self.check_size(state.len())?;
         self.check_control(fc, step)?;
         let n = state.len();
@@ -319,13 +328,19 @@ impl Euler {
         {
             let nodes = SharedMut::new(&mut ws.nodes);
             let (affine, mass) = (&ws.affine, &self.mass);
+            let stencils = ws.stencils.sized::<N>(state.len());
+            stencils
+                .par_iter_mut()
+                .zip(state.x.par_iter())
+                .for_each(|(s, x)| *s = Stencil::<N>::new(x, &origin, dx));
+            let stencils = &*stencils;
             ws.bins.for_each_coloured(|p| {
-                let s = Stencil::<N>::new(&state.x[p], &origin, dx);
+                let s = &stencils[p];
                 let momentum = Affine {
                     value: self.particle_momentum(state, values, body.as_deref(), retention, p),
                     slope: affine[p],
                 };
-                transfer::scatter(&s, &strides, mass[p], &[momentum], &nodes);
+                transfer::scatter(s, &strides, mass[p], &[momentum], &nodes);
             });
         }
         laps.lap(Stage::P2g);
@@ -379,16 +394,19 @@ impl Euler {
         }
 
         // G2P and P2 (per-particle gather, in place).
-        let grid_v = &ws.grid_v;
+        ws.grid_axes.set_from(&ws.grid_v);
+        let grid_v = &ws.grid_axes;
         let fe = &ws.fe;
+        let stencils = ws.stencils.sized::<N>(state.len());
         let State { x, v, c, f } = state;
         x.par_iter_mut()
             .zip(v.par_iter_mut())
             .zip(c.par_iter_mut().zip(f.par_iter_mut()))
             .enumerate()
             .for_each(|(p, ((x, v), (c, f)))| {
-                let s = Stencil::<N>::new(x, &origin, dx);
-                let (mut vel, mut cn) = transfer::gather_affine(&s, &strides, grid_v, inv_d);
+                let s = &stencils[p];
+                let (mut vel, mut cn) =
+                    transfer::gather_affine(self.simd, s, &strides, grid_v, inv_d);
                 if let Some(u) = values.and_then(|vals| self.prescribed_velocity(vals, p)) {
                     vel = u;
                     cn = Matrix3::zeros();
@@ -530,7 +548,10 @@ impl Euler {
         adj: &mut StateGrad,
         effect_params: &mut [Vec<f64>],
         rws: &mut ReverseWorkspace,
-    ) -> (Vec<Matrix3<f64>>, Vec<Vector3<f64>>) {
+    ) -> (Vec<Matrix3<f64>>, Vec<Vector3<f64>>)
+    where
+        Stencil<N>: Cached,
+    {
         let mut laps = Laps::start(self.clock.as_deref());
         let pre = &tape.pre;
         let n = pre.len();
@@ -577,7 +598,8 @@ impl Euler {
             }
             None => Vec::new(),
         };
-        let grid_v = &rws.grid_v;
+        rws.grid_axes.set_from(&rws.grid_v);
+        let grid_v = &rws.grid_axes;
         laps.lap(Stage::RevSetup);
 
         // P2 reverse and G2P reverse, fused per particle (coloured: it scatters into the grid
@@ -586,8 +608,7 @@ impl Euler {
         let clamped = |p: usize| values.is_some() && self.is_clamped(p);
         let mut grad_u = vec![Vector3::zeros(); if values.is_some() { n } else { 0 }];
         rws.grad_fe.resize(n, Matrix3::zeros());
-        rws.grad_grid_v.clear();
-        rws.grad_grid_v.resize(nodes, Vector3::zeros());
+        rws.grad_axes.set_zero(nodes);
         let StateGrad {
             x: ax,
             v: av,
@@ -595,34 +616,41 @@ impl Euler {
             f: af,
         } = adj;
         {
-            let ggv = SharedMut::new(&mut rws.grad_grid_v);
+            let ggv = rws.grad_axes.shared();
             let gx = SharedMut::new(ax);
             let gfe = SharedMut::new(&mut rws.grad_fe);
             let gu = SharedMut::new(&mut grad_u);
             let (av, ac, af) = (&*av, &*ac, &*af);
+            let stencils = rws.stencils.sized::<N>(n);
+            stencils
+                .par_iter_mut()
+                .zip(pre.x.par_iter())
+                .for_each(|(s, x)| *s = Stencil::<N>::new(x, &origin, dx));
+            let stencils = &*stencils;
             tape.bins.for_each_coloured(|p| {
                 // SAFETY: each particle is visited exactly once.
                 let (x_adj, fe_adj) = unsafe { (gx.get(p), gfe.get(p)) };
                 let g = advance_reverse(&fe[p], &post.c[p], dt, x_adj, &av[p], &ac[p], &af[p]);
                 *fe_adj = g.fe;
-                let s = Stencil::<N>::new(&pre.x[p], &origin, dx);
+                let s = &stencils[p];
                 // The gather's own velocity (a clamped particle's state holds the prescribed
                 // one instead).
                 let (grad_vel, gathered) = if clamped(p) {
                     // SAFETY: as above.
                     unsafe { *gu.get(p) = av[p] + dt * *x_adj };
-                    let v = transfer::gather_affine(&s, &strides, grid_v, inv_d).0;
+                    let v = transfer::gather_affine(self.simd, s, &strides, grid_v, inv_d).0;
                     (Vector3::zeros(), v)
                 } else {
                     (g.vel, post.v[p])
                 };
                 *x_adj += transfer::gather_affine_reverse(
-                    &s, &strides, grid_v, inv_d, &grad_vel, &g.c, &gathered, &ggv,
+                    self.simd, s, &strides, grid_v, inv_d, &grad_vel, &g.c, &gathered, &ggv,
                 );
             });
         }
         laps.lap(Stage::RevG2p);
 
+        rws.grad_axes.write_vectors(&mut rws.grad_grid_v);
         // The clamped nodes' velocities are the controls' values.
         let grad_grid_v = &mut rws.grad_grid_v;
         let mut grad_clamp = vec![Vector3::zeros(); self.controls.effects.len()];
@@ -657,7 +685,9 @@ impl Euler {
         // dL/d(scattered momentum) per particle, for the controls.
         let mut grad_mom = vec![Vector3::zeros(); if values.is_some() { n } else { 0 }];
         let gm = SharedMut::new(&mut grad_mom);
-        let (grad_nodes, grad_fe) = (&rws.grad_nodes, &rws.grad_fe);
+        rws.grad_node_axes.set_from(&rws.grad_nodes);
+        let (grad_nodes, grad_fe) = (&rws.grad_node_axes, &rws.grad_fe);
+        let stencils = &rws.stencils.sized::<N>(n)[..];
         (
             ax.par_chunks_mut(CHUNK),
             av.par_chunks_mut(CHUNK),
@@ -674,13 +704,20 @@ impl Euler {
                 let mut grad_p = [Matrix3::zeros(); CHUNK];
                 for i in 0..len {
                     let p = p0 + i;
-                    let s = Stencil::<N>::new(&pre.x[p], &origin, dx);
+                    let s = &stencils[p];
                     let m = self.mass[p];
                     let momentum = Affine {
                         value: self.particle_momentum(pre, values, body.as_deref(), retention, p),
                         slope: tape.affine[p],
                     };
-                    let g = transfer::scatter_reverse(&s, &strides, m, &[momentum], grad_nodes);
+                    let g = transfer::scatter_reverse(
+                        self.simd,
+                        s,
+                        &strides,
+                        m,
+                        &[momentum],
+                        grad_nodes,
+                    );
                     gx[i] += g.x;
                     gv[i] = if clamped(p) {
                         Vector3::zeros()

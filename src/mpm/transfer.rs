@@ -15,7 +15,9 @@
 use super::error::SimError;
 use super::grid::{Bins, GridSpec, SharedMut};
 use super::kernel::{KernelKind, Stencil};
+use crate::lanes::{RowKernel, Rows, SimdLevel, dispatch_rows};
 use nalgebra::{Matrix3, Vector3};
+use rayon::prelude::*;
 
 /// A grid node: mass and `K` vector fields (momentum, force...).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -34,6 +36,92 @@ impl<const K: usize> Node<K> {
 impl<const K: usize> Default for Node<K> {
     fn default() -> Self {
         Node::ZERO
+    }
+}
+
+/// A grid vector field stored by axis: `axes[k][i]` is component `k` at node `i`, so one
+/// component of a stencil row is four consecutive values (one load; see
+/// [`crate::lanes::Rows`]).
+#[derive(Clone, Debug, Default)]
+pub struct AxisField {
+    pub axes: [Vec<f64>; 3],
+}
+
+impl AxisField {
+    pub fn from_vectors(v: &[Vector3<f64>]) -> Self {
+        let mut f = AxisField::default();
+        f.set_from(v);
+        f
+    }
+
+    /// Takes the values of `v` (keeping this field's buffers).
+    pub fn set_from(&mut self, v: &[Vector3<f64>]) {
+        for (k, axis) in self.axes.iter_mut().enumerate() {
+            axis.clear();
+            axis.par_extend(v.par_iter().map(|x| x[k]));
+        }
+    }
+
+    /// `n` zero vectors (keeping this field's buffers).
+    pub fn set_zero(&mut self, n: usize) {
+        for axis in &mut self.axes {
+            axis.clear();
+            axis.resize(n, 0.0);
+        }
+    }
+
+    /// Writes the field into `out`, one vector a node.
+    pub fn write_vectors(&self, out: &mut Vec<Vector3<f64>>) {
+        let [x, y, z] = &self.axes;
+        out.clear();
+        out.par_extend(
+            (x.par_iter(), y.par_iter(), z.par_iter())
+                .into_par_iter()
+                .map(|(&x, &y, &z)| Vector3::new(x, y, z)),
+        );
+    }
+
+    /// Shared for a coloured scatter.
+    pub fn shared(&mut self) -> SharedAxes<'_> {
+        let [x, y, z] = &mut self.axes;
+        SharedAxes {
+            axes: [SharedMut::new(x), SharedMut::new(y), SharedMut::new(z)],
+        }
+    }
+}
+
+/// An [`AxisField`] shared across the threads of a coloured scatter.
+pub struct SharedAxes<'a> {
+    pub axes: [SharedMut<'a, f64>; 3],
+}
+
+/// Grid nodes stored by axis: the masses, and each of the `K` fields as an [`AxisField`].
+#[derive(Clone, Debug)]
+pub struct AxisNodes<const K: usize> {
+    pub mass: Vec<f64>,
+    pub fields: [AxisField; K],
+}
+
+impl<const K: usize> Default for AxisNodes<K> {
+    fn default() -> Self {
+        AxisNodes {
+            mass: Vec::new(),
+            fields: std::array::from_fn(|_| AxisField::default()),
+        }
+    }
+}
+
+impl<const K: usize> AxisNodes<K> {
+    /// Takes the values of `nodes` (keeping the buffers).
+    pub fn set_from(&mut self, nodes: &[Node<K>]) {
+        self.mass.clear();
+        self.mass.par_extend(nodes.par_iter().map(|n| n.mass));
+        for (k, field) in self.fields.iter_mut().enumerate() {
+            for (j, axis) in field.axes.iter_mut().enumerate() {
+                axis.clear();
+                axis.par_extend(nodes.par_iter().map(|n| n.fields[k][j]));
+            }
+        }
     }
 }
 
@@ -98,84 +186,127 @@ pub struct ScatterGrad<const K: usize> {
     pub x: Vector3<f64>,
 }
 
-/// Reverse of [`scatter`]: gathers the node adjoints `grad_nodes` (dL/dm_i, dL/dq_ik).
-///
-/// Every sum over the stencil is taken one axis at a time, as in [`gather_affine`]: the
-/// weight `w_a w_b w_c`, its gradient and the offset `x_i - x_p` are products of per-axis
-/// factors, so the innermost loop adds each node's adjoint into a few per-row sums and the
-/// per-axis factors are applied once per row and plane.
+/// Reverse of [`scatter`]: gathers the node adjoints `grad_nodes` (dL/dm_i, dL/dq_ik), on
+/// four-lane stencil rows as [`gather_affine`]: every sum over the stencil is kept per lane
+/// (the row's node) through the planes and rows, and the row's per-node factors (`w_c`,
+/// `w_c d_c`, `w_c'`) multiply the lanes once at the end.
 #[inline]
 pub fn scatter_reverse<const N: usize, const K: usize>(
+    simd: SimdLevel,
     s: &Stencil<N>,
     strides: &[usize; 3],
     mass: f64,
     fields: &[Affine; K],
-    grad_nodes: &[Node<K>],
+    grad_nodes: &AxisNodes<K>,
 ) -> ScatterGrad<K> {
-    let i0 = s.base_index(strides);
-    let zero = [Vector3::zeros(); K];
-    let mut value = zero;
-    // Columns of dL/d(slope_k): sum w g (x_i - x_p)_j.
-    let mut col = [zero; 3];
-    // dL/dx through the weights, per axis: sum (d w / d x_j) e_i.
-    let mut gx = [0.0; 3];
-    let w2d2: [f64; N] = std::array::from_fn(|c| s.w[2][c] * s.dpos[2][c]);
-    for a in 0..N {
-        let qa: [Vector3<f64>; K] =
-            std::array::from_fn(|k| fields[k].value + fields[k].slope.column(0) * s.dpos[0][a]);
-        // Sums over the plane a: sum_b w_b (row sums), sum_b w_b d_b (.), and the e sums.
-        let (mut sb, mut sb_d1, mut sb_z) = (zero, zero, zero);
-        let (mut e_w, mut e_dw1, mut e_dw2) = (0.0, 0.0, 0.0);
-        for b in 0..N {
-            let qab: [Vector3<f64>; K] =
-                std::array::from_fn(|k| qa[k] + fields[k].slope.column(1) * s.dpos[1][b]);
-            let row = i0 + a * strides[0] + b * strides[1];
-            // Row sums over c: sum w_c g, sum w_c d_c g, sum w_c e, sum w_c' e.
-            let (mut sc, mut sc_z) = (zero, zero);
-            let (mut ec, mut ec_d) = (0.0, 0.0);
-            for c in 0..N {
-                let g = &grad_nodes[row + c];
-                let mut e = mass * g.mass;
-                for k in 0..K {
-                    let q = qab[k] + fields[k].slope.column(2) * s.dpos[2][c];
-                    e += g.fields[k].dot(&q);
-                    sc[k] += s.w[2][c] * g.fields[k];
-                    sc_z[k] += w2d2[c] * g.fields[k];
-                }
-                ec += s.w[2][c] * e;
-                ec_d += s.dw[2][c] * e;
-            }
-            let (wb, db) = (s.w[1][b], s.w[1][b] * s.dpos[1][b]);
+    struct Kernel<'a, const N: usize, const K: usize> {
+        s: &'a Stencil<N>,
+        strides: &'a [usize; 3],
+        mass: f64,
+        fields: &'a [Affine; K],
+        grad_nodes: &'a AxisNodes<K>,
+    }
+    impl<const N: usize, const K: usize> RowKernel for Kernel<'_, N, K> {
+        type Output = ScatterGrad<K>;
+        #[inline(always)]
+        fn run<R: Rows>(self, r: R) -> ScatterGrad<K> {
+            let Kernel {
+                s,
+                strides,
+                mass,
+                fields,
+                grad_nodes,
+            } = self;
+            let i0 = s.base_index(strides);
+            let zero = r.zero();
+            let zeros = [[zero; 3]; K];
+            let dc = r.load_first(&s.dpos[2], N);
+            let mut slope_z = [[zero; 3]; K];
             for k in 0..K {
-                sb[k] += wb * sc[k];
-                sb_d1[k] += db * sc[k];
-                sb_z[k] += wb * sc_z[k];
+                for j in 0..3 {
+                    slope_z[k][j] = r.splat(fields[k].slope[(j, 2)]);
+                }
             }
-            e_w += wb * ec;
-            e_dw1 += s.dw[1][b] * ec;
-            e_dw2 += wb * ec_d;
+            // Per lane, per field and component: sum_ab w_a w_b g, the same with d_a, with d_b.
+            let (mut value, mut col0, mut col1) = (zeros, zeros, zeros);
+            // Per lane: sum_a w_a' sum_b w_b e, sum_a w_a sum_b w_b' e, sum_a w_a sum_b w_b e.
+            let (mut g0, mut g1, mut g2) = (zero, zero, zero);
+            let mass = r.splat(mass);
+            for a in 0..N {
+                let qa: [Vector3<f64>; K] = std::array::from_fn(|k| {
+                    fields[k].value + fields[k].slope.column(0) * s.dpos[0][a]
+                });
+                let (mut sb, mut sb1) = (zeros, zeros);
+                let (mut e_w, mut e_dw1) = (zero, zero);
+                for b in 0..N {
+                    let row = i0 + a * strides[0] + b * strides[1];
+                    let (wb, wbd) = (r.splat(s.w[1][b]), r.splat(s.w[1][b] * s.dpos[1][b]));
+                    // e_i = m dL/dm_i + sum_k dL/dq_ik . q_k(x_i).
+                    let mut e = r.mul(mass, r.load_first(&grad_nodes.mass[row..], N));
+                    for k in 0..K {
+                        let qab = qa[k] + fields[k].slope.column(1) * s.dpos[1][b];
+                        let mut dot = zero;
+                        for j in 0..3 {
+                            let g = r.load_first(&grad_nodes.fields[k].axes[j][row..], N);
+                            let q = r.add_mul(r.splat(qab[j]), slope_z[k][j], dc);
+                            dot = if j == 0 {
+                                r.mul(g, q)
+                            } else {
+                                r.add_mul(dot, g, q)
+                            };
+                            sb[k][j] = r.add_mul(sb[k][j], wb, g);
+                            sb1[k][j] = r.add_mul(sb1[k][j], wbd, g);
+                        }
+                        e = r.add(e, dot);
+                    }
+                    e_w = r.add_mul(e_w, wb, e);
+                    e_dw1 = r.add_mul(e_dw1, r.splat(s.dw[1][b]), e);
+                }
+                let (wa, wad) = (r.splat(s.w[0][a]), r.splat(s.w[0][a] * s.dpos[0][a]));
+                for k in 0..K {
+                    for j in 0..3 {
+                        value[k][j] = r.add_mul(value[k][j], wa, sb[k][j]);
+                        col0[k][j] = r.add_mul(col0[k][j], wad, sb[k][j]);
+                        col1[k][j] = r.add_mul(col1[k][j], wa, sb1[k][j]);
+                    }
+                }
+                g0 = r.add_mul(g0, r.splat(s.dw[0][a]), e_w);
+                g1 = r.add_mul(g1, wa, e_dw1);
+                g2 = r.add_mul(g2, wa, e_w);
+            }
+            let wc = r.load_first(&s.w[2], N);
+            let wcd = r.mul(wc, dc);
+            let dwc = r.load_first(&s.dw[2], N);
+            let mut out = ScatterGrad {
+                value: [Vector3::zeros(); K],
+                slope: [Matrix3::zeros(); K],
+                x: Vector3::new(r.dot(wc, g0), r.dot(wc, g1), r.dot(dwc, g2)),
+            };
+            for k in 0..K {
+                for j in 0..3 {
+                    out.value[k][j] = r.dot(wc, value[k][j]);
+                    out.slope[k][(j, 0)] = r.dot(wc, col0[k][j]);
+                    out.slope[k][(j, 1)] = r.dot(wc, col1[k][j]);
+                    out.slope[k][(j, 2)] = r.dot(wcd, value[k][j]);
+                }
+            }
+            // The offsets x_i - x_p move with the particle (derivative -I).
+            for (field, value) in fields.iter().zip(&out.value) {
+                out.x -= field.slope.transpose() * value;
+            }
+            out
         }
-        let (wa, da) = (s.w[0][a], s.w[0][a] * s.dpos[0][a]);
-        for k in 0..K {
-            value[k] += wa * sb[k];
-            col[0][k] += da * sb[k];
-            col[1][k] += wa * sb_d1[k];
-            col[2][k] += wa * sb_z[k];
-        }
-        gx[0] += s.dw[0][a] * e_w;
-        gx[1] += wa * e_dw1;
-        gx[2] += wa * e_dw2;
     }
-    let mut out = ScatterGrad {
-        value,
-        slope: std::array::from_fn(|k| Matrix3::from_columns(&[col[0][k], col[1][k], col[2][k]])),
-        x: Vector3::new(gx[0], gx[1], gx[2]),
-    };
-    // The offsets x_i - x_p move with the particle (derivative -I).
-    for (field, value) in fields.iter().zip(&out.value) {
-        out.x -= field.slope.transpose() * value;
-    }
-    out
+    dispatch_rows(
+        simd,
+        Kernel {
+            s,
+            strides,
+            mass,
+            fields,
+            grad_nodes,
+        },
+    )
 }
 
 /// Grid quotient of one node: `q_k / m` (zero on a node without mass).
@@ -209,88 +340,170 @@ pub fn quotient_reverse<const K: usize>(
 }
 
 /// Forward gather of a grid velocity: `(v_p, C_p)` with `v_p = sum w v_i` and
-/// `C_p = D^-1 sum w v_i (x_i - x_p)^T`.
+/// `C_p = D^-1 sum w v_i (x_i - x_p)^T`, on four-lane stencil rows (see [`AxisField`]).
+///
+/// The nodes of a row are the lanes: each lane sums over the rows its node's share
+/// (`sum_ab w_a w_b v`, and the same with `d_a` and `d_b`), and the row's weights `w_c`
+/// (and `w_c d_c`) multiply the lanes once at the end.
 #[inline]
 pub fn gather_affine<const N: usize>(
+    simd: SimdLevel,
     s: &Stencil<N>,
     strides: &[usize; 3],
-    grid_v: &[Vector3<f64>],
+    grid_v: &AxisField,
+    inv_d: f64,
+) -> (Vector3<f64>, Matrix3<f64>) {
+    struct Kernel<'a, const N: usize>(&'a Stencil<N>, &'a [usize; 3], &'a AxisField, f64);
+    impl<const N: usize> RowKernel for Kernel<'_, N> {
+        type Output = (Vector3<f64>, Matrix3<f64>);
+        #[inline(always)]
+        fn run<R: Rows>(self, r: R) -> Self::Output {
+            gather_affine_rows(r, self.0, self.1, self.2, self.3)
+        }
+    }
+    dispatch_rows(simd, Kernel(s, strides, grid_v, inv_d))
+}
+
+#[inline(always)]
+fn gather_affine_rows<R: Rows, const N: usize>(
+    r: R,
+    s: &Stencil<N>,
+    strides: &[usize; 3],
+    grid_v: &AxisField,
     inv_d: f64,
 ) -> (Vector3<f64>, Matrix3<f64>) {
     let i0 = s.base_index(strides);
-    let mut vel = Vector3::zeros();
-    let mut b_mat = Matrix3::zeros(); // sum w v (x_i - x_p)^T
+    let zero = [r.zero(); 3];
+    // Per lane c, per component: sum_ab w_a w_b v, sum_ab w_a d_a w_b v, sum_ab w_a w_b d_b v.
+    let (mut acc, mut acc0, mut acc1) = (zero, zero, zero);
     for a in 0..N {
-        let mut sum_a = Vector3::zeros(); // sum over (b, c) of w_b w_c v
+        let (mut sa, mut sa1) = (zero, zero);
         for b in 0..N {
             let row = i0 + a * strides[0] + b * strides[1];
-            let mut sum_c = Vector3::zeros();
-            let mut sum_cz = Vector3::zeros();
-            for c in 0..N {
-                let wv: Vector3<f64> = grid_v[row + c] * s.w[2][c];
-                sum_c += wv;
-                sum_cz += wv * s.dpos[2][c];
+            let (wb, wbd) = (r.splat(s.w[1][b]), r.splat(s.w[1][b] * s.dpos[1][b]));
+            for k in 0..3 {
+                let v = r.load_first(&grid_v.axes[k][row..], N);
+                sa[k] = r.add_mul(sa[k], wb, v);
+                sa1[k] = r.add_mul(sa1[k], wbd, v);
             }
-            let wb = s.w[0][a] * s.w[1][b];
-            let t = s.w[1][b] * sum_c;
-            sum_a += t;
-            b_mat.column_mut(1).axpy(wb * s.dpos[1][b], &sum_c, 1.0);
-            b_mat.column_mut(2).axpy(wb, &sum_cz, 1.0);
         }
-        vel.axpy(s.w[0][a], &sum_a, 1.0);
-        b_mat
-            .column_mut(0)
-            .axpy(s.w[0][a] * s.dpos[0][a], &sum_a, 1.0);
+        let (wa, wad) = (r.splat(s.w[0][a]), r.splat(s.w[0][a] * s.dpos[0][a]));
+        for k in 0..3 {
+            acc[k] = r.add_mul(acc[k], wa, sa[k]);
+            acc0[k] = r.add_mul(acc0[k], wad, sa[k]);
+            acc1[k] = r.add_mul(acc1[k], wa, sa1[k]);
+        }
+    }
+    let wc = r.load_first(&s.w[2], N);
+    let wcd = r.mul(wc, r.load_first(&s.dpos[2], N));
+    let mut vel = Vector3::zeros();
+    let mut b_mat = Matrix3::zeros(); // sum w v (x_i - x_p)^T
+    for k in 0..3 {
+        vel[k] = r.dot(wc, acc[k]);
+        b_mat[(k, 0)] = r.dot(wc, acc0[k]);
+        b_mat[(k, 1)] = r.dot(wc, acc1[k]);
+        b_mat[(k, 2)] = r.dot(wcd, acc[k]);
     }
     (vel, inv_d * b_mat)
 }
 
-/// Reverse of [`gather_affine`]: given dL/dv_p and dL/dC_p (and the forward `v_p`), scatters
+/// Reverse of [`gather_affine`]: given dL/dv_p and dL/dC_p (and the forward `v_p`), adds
 /// dL/dv_i into `grad_grid_v` (under the colouring) and returns this gather's part of dL/dx_p:
 /// `sum_i grad w_ip (v_i . u_i) - D^-1 gC^T v_p` with `u_i = gv + D^-1 gC (x_i - x_p)`.
-/// The weight gradient's sum is taken one axis at a time (see [`scatter_reverse`]).
+/// On stencil rows, as the forward gather: the weight gradient's sums are kept per lane and
+/// weighted by the row's `w_c` (or `w_c'`) at the end.
 #[inline]
 #[allow(clippy::too_many_arguments)]
 pub fn gather_affine_reverse<const N: usize>(
+    simd: SimdLevel,
     s: &Stencil<N>,
     strides: &[usize; 3],
-    grid_v: &[Vector3<f64>],
+    grid_v: &AxisField,
     inv_d: f64,
     grad_vel: &Vector3<f64>,
     grad_c: &Matrix3<f64>,
     vel: &Vector3<f64>,
-    grad_grid_v: &SharedMut<Vector3<f64>>,
+    grad_grid_v: &SharedAxes,
 ) -> Vector3<f64> {
-    let i0 = s.base_index(strides);
-    let gc = inv_d * grad_c;
-    let (gx_col, gy_col, gz_col) = (gc.column(0), gc.column(1), gc.column(2));
-    let mut gx = [0.0; 3];
-    for a in 0..N {
-        let ua = grad_vel + gx_col * s.dpos[0][a];
-        let (mut e_w, mut e_dw1, mut e_dw2) = (0.0, 0.0, 0.0);
-        for b in 0..N {
-            let uab = ua + gy_col * s.dpos[1][b];
-            let wab = s.w[0][a] * s.w[1][b];
-            let row = i0 + a * strides[0] + b * strides[1];
-            let (mut ec, mut ec_d) = (0.0, 0.0);
-            for c in 0..N {
-                let u = uab + gz_col * s.dpos[2][c];
-                let node = row + c;
-                let vu = grid_v[node].dot(&u);
-                ec += s.w[2][c] * vu;
-                ec_d += s.dw[2][c] * vu;
-                // SAFETY: exclusive stencil access under the colouring.
-                unsafe { *grad_grid_v.get(node) += (wab * s.w[2][c]) * u };
-            }
-            e_w += s.w[1][b] * ec;
-            e_dw1 += s.dw[1][b] * ec;
-            e_dw2 += s.w[1][b] * ec_d;
-        }
-        gx[0] += s.dw[0][a] * e_w;
-        gx[1] += s.w[0][a] * e_dw1;
-        gx[2] += s.w[0][a] * e_dw2;
+    struct Kernel<'a, const N: usize> {
+        s: &'a Stencil<N>,
+        strides: &'a [usize; 3],
+        grid_v: &'a AxisField,
+        gc: Matrix3<f64>,
+        grad_vel: &'a Vector3<f64>,
+        grad_grid_v: &'a SharedAxes<'a>,
     }
-    Vector3::new(gx[0], gx[1], gx[2]) - gc.transpose() * vel
+    impl<const N: usize> RowKernel for Kernel<'_, N> {
+        type Output = Vector3<f64>;
+        #[inline(always)]
+        fn run<R: Rows>(self, r: R) -> Vector3<f64> {
+            let Kernel {
+                s,
+                strides,
+                grid_v,
+                gc,
+                grad_vel,
+                grad_grid_v,
+            } = self;
+            let i0 = s.base_index(strides);
+            let zero = r.zero();
+            let wc = r.load_first(&s.w[2], N);
+            let dwc = r.load_first(&s.dw[2], N);
+            let dc = r.load_first(&s.dpos[2], N);
+            let gz = [
+                r.splat(gc[(0, 2)]),
+                r.splat(gc[(1, 2)]),
+                r.splat(gc[(2, 2)]),
+            ];
+            // Per lane: sum_a w_a' sum_b w_b e, sum_a w_a sum_b w_b' e, sum_a w_a sum_b w_b e.
+            let (mut g0, mut g1, mut g2) = (zero, zero, zero);
+            for a in 0..N {
+                let ua = grad_vel + gc.column(0) * s.dpos[0][a];
+                let (mut e_w, mut e_dw1) = (zero, zero);
+                for b in 0..N {
+                    let uab = ua + gc.column(1) * s.dpos[1][b];
+                    let row = i0 + a * strides[0] + b * strides[1];
+                    let mut u = [zero; 3];
+                    let mut vu = zero;
+                    for k in 0..3 {
+                        u[k] = r.add_mul(r.splat(uab[k]), gz[k], dc);
+                        let v = r.load_first(&grid_v.axes[k][row..], N);
+                        vu = if k == 0 {
+                            r.mul(v, u[k])
+                        } else {
+                            r.add_mul(vu, v, u[k])
+                        };
+                    }
+                    // dL/dv_i += w_i u_i.
+                    let w = r.mul(r.splat(s.w[0][a] * s.w[1][b]), wc);
+                    for k in 0..3 {
+                        // SAFETY: exclusive stencil access under the colouring.
+                        let out = unsafe { grad_grid_v.axes[k].run(row, N) };
+                        r.add_into(out, r.mul(w, u[k]));
+                    }
+                    e_w = r.add_mul(e_w, r.splat(s.w[1][b]), vu);
+                    e_dw1 = r.add_mul(e_dw1, r.splat(s.dw[1][b]), vu);
+                }
+                g0 = r.add_mul(g0, r.splat(s.dw[0][a]), e_w);
+                g1 = r.add_mul(g1, r.splat(s.w[0][a]), e_dw1);
+                g2 = r.add_mul(g2, r.splat(s.w[0][a]), e_w);
+            }
+            Vector3::new(r.dot(wc, g0), r.dot(wc, g1), r.dot(dwc, g2))
+        }
+    }
+    let gc = inv_d * grad_c;
+    let gx = dispatch_rows(
+        simd,
+        Kernel {
+            s,
+            strides,
+            grid_v,
+            gc,
+            grad_vel,
+            grad_grid_v,
+        },
+    );
+    gx - gc.transpose() * vel
 }
 
 /// Forward gather of a grid field's value alone: `sum w a_i`.
@@ -401,7 +614,6 @@ pub fn mass_grid_reverse(
     masses: &[f64],
     grad_mass: &[f64],
 ) -> Vec<Vector3<f64>> {
-    use rayon::prelude::*;
     let (strides, origin, dx) = (grid.strides(), grid.origin_vec(), grid.dx);
     positions
         .par_iter()

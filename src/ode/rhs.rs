@@ -18,7 +18,7 @@ use crate::mpm::grid::{Bins, SharedMut};
 use crate::mpm::kernel::{KernelKind, Stencil};
 use crate::mpm::model::Model;
 use crate::mpm::stress::StressInputs;
-use crate::mpm::transfer::{self, Affine, Node};
+use crate::mpm::transfer::{self, Affine, AxisField, AxisNodes, Node};
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
@@ -316,20 +316,21 @@ impl Rk4 {
             });
         }
         let inv_d = self.inv_d();
-        let gathered: Vec<Gathered> = s
-            .x
-            .par_iter()
-            .with_min_len(PARALLEL_MIN)
-            .map(|x| {
-                let st = Stencil::<N>::new(x, &origin, dx);
-                let (velocity, grad_v) = transfer::gather_affine(&st, &strides, &buf.grid_v, inv_d);
-                Gathered {
-                    velocity,
-                    acceleration: transfer::interpolate(&st, &strides, &buf.grid_a),
-                    grad_v,
-                }
-            })
-            .collect();
+        let grid_axes = AxisField::from_vectors(&buf.grid_v);
+        let gathered: Vec<Gathered> =
+            s.x.par_iter()
+                .with_min_len(PARALLEL_MIN)
+                .map(|x| {
+                    let st = Stencil::<N>::new(x, &origin, dx);
+                    let (velocity, grad_v) =
+                        transfer::gather_affine(self.simd, &st, &strides, &grid_axes, inv_d);
+                    Gathered {
+                        velocity,
+                        acceleration: transfer::interpolate(&st, &strides, &buf.grid_a),
+                        grad_v,
+                    }
+                })
+                .collect();
         Ok(Forward {
             bins,
             body,
@@ -406,14 +407,14 @@ impl Rk4 {
                 active,
                 ..
             } = &mut fw.buf;
-            let ggv = SharedMut::new(grad_v);
+            let grid_axes = AxisField::from_vectors(grid_v);
+            let mut grad_axes = AxisField::default();
+            grad_axes.set_zero(grid_v.len());
+            let ggv = grad_axes.shared();
             let gga = SharedMut::new(grad_a);
             active.par_iter().with_min_len(1024).for_each(|&i| {
                 // SAFETY: active node indices are distinct.
-                unsafe {
-                    *ggv.get(i as usize) = Vector3::zeros();
-                    *gga.get(i as usize) = Vector3::zeros();
-                }
+                unsafe { *gga.get(i as usize) = Vector3::zeros() };
             });
             let gx = SharedMut::new(&mut grad.x);
             let gf = SharedMut::new(&mut grad.f);
@@ -436,9 +437,10 @@ impl Rk4 {
                 let st = Stencil::<N>::new(&s.x[p], &origin, dx);
                 let d =
                     transfer::gather_affine_reverse(
+                        self.simd,
                         &st,
                         &strides,
-                        grid_v,
+                        &grid_axes,
                         inv_d,
                         &g.velocity,
                         &g.grad_v,
@@ -451,6 +453,7 @@ impl Rk4 {
                     *gf.get(p) += g_out.grad_v.transpose() * g_df;
                 }
             });
+            grad_axes.write_vectors(grad_v);
         }
 
         // Grid reverse: the effects backwards (each given its inputs, replayed from the
@@ -516,7 +519,9 @@ impl Rk4 {
 
         // P2G reverse (gather) and the stress reverse.
         let mut grad_body = vec![Vector3::zeros(); n];
-        let grad_nodes = &fw.buf.grad_nodes;
+        let mut grad_nodes = AxisNodes::default();
+        grad_nodes.set_from(&fw.buf.grad_nodes);
+        let grad_nodes = &grad_nodes;
         (
             grad.x.par_iter_mut(),
             grad.v.par_iter_mut(),
@@ -531,7 +536,7 @@ impl Rk4 {
                 let st = Stencil::<N>::new(&s.x[p], &origin, dx);
                 let fields = self.scatter_fields(s, values, &fw.stress_force, &fw.body, p);
                 let m = self.mass[p];
-                let g = transfer::scatter_reverse(&st, &strides, m, &fields, grad_nodes);
+                let g = transfer::scatter_reverse(self.simd, &st, &strides, m, &fields, grad_nodes);
                 *gx += g.x;
                 // Momentum field m v~, force field m b + K (x_i - x_p).
                 match self.is_clamped(p) {

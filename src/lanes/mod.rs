@@ -16,6 +16,11 @@
 //! calls in its hot loop must be inlined into it (`#[inline(always)]`, plain loops rather than
 //! iterator chains): a function compiled apart runs without the kernel's instruction set.
 
+mod row;
+#[cfg(target_arch = "x86_64")]
+pub use row::Avx;
+pub use row::{Portable, RowKernel, Rows, dispatch_rows};
+
 use serde::{Deserialize, Serialize};
 use std::ops::{Add, AddAssign, Div, DivAssign, Mul, MulAssign, Neg, Sub, SubAssign};
 
