@@ -53,6 +53,7 @@ pub struct Workspace {
     affine: Vec<Matrix3<f64>>,
     kept: Vec<f64>,
     stencils: StencilCache,
+    node_axes: AxisNodes<1>,
     grid_axes: AxisField,
 }
 
@@ -321,12 +322,11 @@ impl Euler {
         laps.lap(Stage::Stress);
 
         // P2G (coloured scatter).
-        ws.nodes.clear();
-        ws.nodes.resize(self.grid.node_count(), Node::ZERO);
+        ws.node_axes.set_zero(self.grid.node_count());
         let retention = self.momentum_retention(step);
         let body = values.map(|v| self.body_accelerations(v));
         {
-            let nodes = SharedMut::new(&mut ws.nodes);
+            let nodes = ws.node_axes.shared();
             let (affine, mass) = (&ws.affine, &self.mass);
             let stencils = ws.stencils.sized::<N>(state.len());
             stencils
@@ -340,9 +340,10 @@ impl Euler {
                     value: self.particle_momentum(state, values, body.as_deref(), retention, p),
                     slope: affine[p],
                 };
-                transfer::scatter(s, &strides, mass[p], &[momentum], &nodes);
+                transfer::scatter(self.simd, s, &strides, mass[p], &[momentum], &nodes);
             });
         }
+        ws.node_axes.write_nodes(&mut ws.nodes);
         laps.lap(Stage::P2g);
 
         // G: grid velocity, then effects.

@@ -123,6 +123,43 @@ impl<const K: usize> AxisNodes<K> {
             }
         }
     }
+
+    /// `n` nodes of zeros (keeping the buffers).
+    pub fn set_zero(&mut self, n: usize) {
+        self.mass.clear();
+        self.mass.resize(n, 0.0);
+        for field in &mut self.fields {
+            field.set_zero(n);
+        }
+    }
+
+    /// Writes the nodes into `out`, one [`Node`] each.
+    pub fn write_nodes(&self, out: &mut Vec<Node<K>>) {
+        out.clear();
+        out.par_extend((0..self.mass.len()).into_par_iter().map(|i| Node {
+            mass: self.mass[i],
+            fields: std::array::from_fn(|k| {
+                let [x, y, z] = &self.fields[k].axes;
+                Vector3::new(x[i], y[i], z[i])
+            }),
+        }));
+    }
+
+    /// Shared for a coloured scatter.
+    pub fn shared(&mut self) -> SharedNodes<'_, K> {
+        let AxisNodes { mass, fields } = self;
+        let mut fields = fields.iter_mut().map(AxisField::shared);
+        SharedNodes {
+            mass: SharedMut::new(mass),
+            fields: std::array::from_fn(|_| fields.next().expect("K fields")),
+        }
+    }
+}
+
+/// [`AxisNodes`] shared across the threads of a coloured scatter.
+pub struct SharedNodes<'a, const K: usize> {
+    pub mass: SharedMut<'a, f64>,
+    pub fields: [SharedAxes<'a>; K],
 }
 
 /// A field that varies linearly across a particle's stencil: `value + slope (x_i - x_p)`.
@@ -141,38 +178,81 @@ fn grad_w<const N: usize>(s: &Stencil<N>, a: usize, b: usize, c: usize) -> Vecto
     )
 }
 
-/// Forward scatter of one particle. Safety: the caller runs it under
-/// [`super::grid::Bins::for_each_coloured`] (or sequentially).
+/// Forward scatter of one particle, on four-lane stencil rows (the row's nodes are the
+/// lanes): every node receives `w m` and `w q_k(x_i)`, each formed and added as in a
+/// node-by-node loop, so its bits do not depend on the lanes. Safety: the caller runs it
+/// under [`super::grid::Bins::for_each_coloured`] (or sequentially).
 #[inline]
 pub fn scatter<const N: usize, const K: usize>(
+    simd: SimdLevel,
     s: &Stencil<N>,
     strides: &[usize; 3],
     mass: f64,
     fields: &[Affine; K],
-    nodes: &SharedMut<Node<K>>,
+    nodes: &SharedNodes<'_, K>,
 ) {
-    let i0 = s.base_index(strides);
-    // The fields are built up one axis at a time: q = value + s_x dx + s_y dy + s_z dz.
-    for a in 0..N {
-        let qa: [Vector3<f64>; K] =
-            std::array::from_fn(|k| fields[k].value + fields[k].slope.column(0) * s.dpos[0][a]);
-        for b in 0..N {
-            let wab = s.w[0][a] * s.w[1][b];
-            let qab: [Vector3<f64>; K] =
-                std::array::from_fn(|k| qa[k] + fields[k].slope.column(1) * s.dpos[1][b]);
-            let row = i0 + a * strides[0] + b * strides[1];
-            for c in 0..N {
-                let w = wab * s.w[2][c];
-                // SAFETY: the colouring gives this thread exclusive use of the stencil's nodes.
-                let node = unsafe { nodes.get(row + c) };
-                node.mass += w * mass;
-                for k in 0..K {
-                    let q = qab[k] + fields[k].slope.column(2) * s.dpos[2][c];
-                    node.fields[k] += w * q;
+    struct Kernel<'a, const N: usize, const K: usize> {
+        s: &'a Stencil<N>,
+        strides: &'a [usize; 3],
+        mass: f64,
+        fields: &'a [Affine; K],
+        nodes: &'a SharedNodes<'a, K>,
+    }
+    impl<const N: usize, const K: usize> RowKernel for Kernel<'_, N, K> {
+        type Output = ();
+        #[inline(always)]
+        #[allow(clippy::needless_range_loop)]
+        fn run<R: Rows>(self, r: R) {
+            let Kernel {
+                s,
+                strides,
+                mass,
+                fields,
+                nodes,
+            } = self;
+            let i0 = s.base_index(strides);
+            let (wc, dc) = (r.load_first(&s.w[2], N), r.load_first(&s.dpos[2], N));
+            let mass = r.splat(mass);
+            let mut slope_z = [[r.zero(); 3]; K];
+            for k in 0..K {
+                for j in 0..3 {
+                    slope_z[k][j] = r.splat(fields[k].slope[(j, 2)]);
+                }
+            }
+            // The fields are built up one axis at a time: q = value + s_x dx + s_y dy + s_z dz.
+            for a in 0..N {
+                let qa: [Vector3<f64>; K] = std::array::from_fn(|k| {
+                    fields[k].value + fields[k].slope.column(0) * s.dpos[0][a]
+                });
+                for b in 0..N {
+                    let row = i0 + a * strides[0] + b * strides[1];
+                    let w = r.mul(r.splat(s.w[0][a] * s.w[1][b]), wc);
+                    // SAFETY: the colouring gives this thread exclusive use of the stencil's
+                    // nodes (the row's first N).
+                    r.add_into(unsafe { nodes.mass.run(row, N) }, r.mul(w, mass));
+                    for k in 0..K {
+                        let qab = qa[k] + fields[k].slope.column(1) * s.dpos[1][b];
+                        for j in 0..3 {
+                            let q = r.add_mul(r.splat(qab[j]), slope_z[k][j], dc);
+                            // SAFETY: as above.
+                            let out = unsafe { nodes.fields[k].axes[j].run(row, N) };
+                            r.add_into(out, r.mul(w, q));
+                        }
+                    }
                 }
             }
         }
     }
+    dispatch_rows(
+        simd,
+        Kernel {
+            s,
+            strides,
+            mass,
+            fields,
+            nodes,
+        },
+    );
 }
 
 /// Adjoints of one particle's [`scatter`] inputs.

@@ -269,17 +269,15 @@ impl Rk4 {
                 }
             });
         {
-            let Buffers { nodes, active, .. } = &mut buf;
-            let shared = SharedMut::new(nodes);
-            active.par_iter().with_min_len(1024).for_each(|&i| {
-                // SAFETY: active node indices are distinct.
-                unsafe { *shared.get(i as usize) = Node::ZERO };
-            });
+            let mut node_axes = AxisNodes::default();
+            node_axes.set_zero(buf.nodes.len());
+            let shared = node_axes.shared();
             visit_coloured(&bins, par, |p| {
                 let st = Stencil::<N>::new(&s.x[p], &origin, dx);
                 let fields = self.scatter_fields(s, values, &stress_force, &body, p);
-                transfer::scatter(&st, &strides, self.mass[p], &fields, &shared);
+                transfer::scatter(self.simd, &st, &strides, self.mass[p], &fields, &shared);
             });
+            node_axes.write_nodes(&mut buf.nodes);
         }
         {
             let Buffers {
