@@ -65,9 +65,25 @@ impl ControlForm {
     /// Forward: the elastic deformation gradient after the control.
     #[inline]
     pub fn apply(self, f: &Matrix3<f64>, fc: &Matrix3<f64>) -> Matrix3<f64> {
+        self.apply_scaled(f, fc, self.scale(fc))
+    }
+
+    /// The plastic form's volume factor `det(I + Fc)^(-1/3)` (1 for the additive form): the
+    /// Euler step keeps it on the tape, so that its reverse takes no cube roots.
+    #[inline]
+    pub fn scale(self, fc: &Matrix3<f64>) -> f64 {
+        match self {
+            ControlForm::Additive => 1.0,
+            ControlForm::Plastic => plastic_factor(fc).2,
+        }
+    }
+
+    /// [`ControlForm::apply`] given [`ControlForm::scale`]`(fc)`.
+    #[inline]
+    pub fn apply_scaled(self, f: &Matrix3<f64>, fc: &Matrix3<f64>, scale: f64) -> Matrix3<f64> {
         match self {
             ControlForm::Additive => f + fc,
-            ControlForm::Plastic => f * plastic_factor(fc).0,
+            ControlForm::Plastic => f * ((Matrix3::identity() + fc) * scale),
         }
     }
 
@@ -79,10 +95,23 @@ impl ControlForm {
         fc: &Matrix3<f64>,
         grad_fe: &Matrix3<f64>,
     ) -> (Matrix3<f64>, Matrix3<f64>) {
+        self.apply_reverse_scaled(f, fc, self.scale(fc), grad_fe)
+    }
+
+    /// [`ControlForm::apply_reverse`] given [`ControlForm::scale`]`(fc)`.
+    #[inline]
+    pub fn apply_reverse_scaled(
+        self,
+        f: &Matrix3<f64>,
+        fc: &Matrix3<f64>,
+        scale: f64,
+        grad_fe: &Matrix3<f64>,
+    ) -> (Matrix3<f64>, Matrix3<f64>) {
         match self {
             ControlForm::Additive => (*grad_fe, *grad_fe),
             ControlForm::Plastic => {
-                let (g, m, scale) = plastic_factor(fc);
+                let m = Matrix3::identity() + fc;
+                let g = m * scale;
                 let grad_g = f.transpose() * grad_fe;
                 // G = M d^(-1/3), d = det M: dG = d^(-1/3) (dM - M tr(M^-1 dM) / 3).
                 let m_inv_t = m

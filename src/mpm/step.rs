@@ -1,6 +1,7 @@
 //! The simulator: a scene's fixed data plus the step, its tape and its reverse pass.
 
 use super::advance::{advance, advance_reverse};
+use super::control::ControlForm;
 use super::effect::GridContext;
 use super::error::SimError;
 use super::grid::{Bins, SharedMut};
@@ -52,6 +53,7 @@ pub struct Workspace {
     fe: Vec<Matrix3<f64>>,
     affine: Vec<Matrix3<f64>>,
     kept: Vec<f64>,
+    scale: Vec<f64>,
     stencils: StencilCache,
     node_axes: AxisNodes<1>,
     grid_axes: AxisField,
@@ -84,6 +86,12 @@ type ReverseStep = fn(
     &mut ReverseWorkspace,
 ) -> (Vec<Matrix3<f64>>, Vec<Vector3<f64>>);
 
+/// Particle `p`'s kept control volume factor (1 where none is kept: the additive form).
+#[inline(always)]
+fn scale_of(scale: &[f64], p: usize) -> f64 {
+    scale.get(p).copied().unwrap_or(1.0)
+}
+
 /// Particles per batch of the stress stages (a multiple of the SVD's four lanes).
 const CHUNK: usize = 64;
 
@@ -98,6 +106,8 @@ pub struct StepTape {
     /// What the stress stage kept for the reverse pass, per particle (fixed-corotated: the
     /// eigen-decomposition behind its SVD; see `ConstitutiveModel::kept_per_particle`).
     kept: Vec<f64>,
+    /// The plastic control's volume factor per particle (empty for other forms).
+    scale: Vec<f64>,
     grid_mass: Vec<f64>,
     /// Grid velocity `p / m`, before grid effects.
     grid_v: Vec<Vector3<f64>>,
@@ -108,10 +118,11 @@ pub struct StepTape {
 
 impl StepTape {
     /// Bytes one step's tape holds for `particles` particles on a grid of `nodes` nodes, with
-    /// a material that keeps `kept` numbers a particle.
+    /// a material that keeps `kept` numbers a particle (and the plastic control's factor).
     pub fn bytes_for(particles: usize, nodes: usize, kept: usize) -> usize {
         State::bytes_for(particles)
-            + particles * (size_of::<u32>() + size_of::<Matrix3<f64>>() + kept * size_of::<f64>())
+            + particles
+                * (size_of::<u32>() + size_of::<Matrix3<f64>>() + (kept + 1) * size_of::<f64>())
             + nodes * (size_of::<f64>() + size_of::<Vector3<f64>>())
     }
 
@@ -122,6 +133,7 @@ impl StepTape {
             + self.bins.order.len() * size_of::<u32>()
             + self.affine.len() * size_of::<Matrix3<f64>>()
             + self.kept.len() * size_of::<f64>()
+            + self.scale.len() * size_of::<f64>()
             + self.grid_mass.len() * size_of::<f64>()
             + self.grid_v.len() * size_of::<Vector3<f64>>()
     }
@@ -285,13 +297,19 @@ impl Euler {
         };
         ws.kept.resize(n * keep, 0.0);
         let form = self.control_form;
+        // The plastic form's volume factors (kept on the tape: its reverse needs them twice).
+        ws.scale.clear();
+        if let (Some(fc), ControlForm::Plastic) = (fc, form) {
+            ws.scale.par_extend(fc.par_iter().map(|fc| form.scale(fc)));
+        }
+        let scale = &ws.scale;
         // One batch of CHUNK particles: elastic gradients, stresses, affine momenta.
         let batch =
             |k: usize, a: &mut [Matrix3<f64>], fe: &mut [Matrix3<f64>], kept: &mut [f64]| {
                 for (i, fe) in fe.iter_mut().enumerate() {
                     let p = k * CHUNK + i;
                     *fe = match fc {
-                        Some(fc) => form.apply(&state.f[p], &fc[p]),
+                        Some(fc) => form.apply_scaled(&state.f[p], &fc[p], scale_of(scale, p)),
                         None => state.f[p],
                     };
                 }
@@ -387,6 +405,7 @@ impl Euler {
                 bins: ws.bins.clone(),
                 affine: ws.affine.clone(),
                 kept: std::mem::take(&mut ws.kept),
+                scale: std::mem::take(&mut ws.scale),
                 grid_mass,
                 grid_v: grid_v_pre,
                 step,
@@ -566,7 +585,7 @@ impl Euler {
         rws.fe.resize(n, Matrix3::zeros());
         rws.fe.par_iter_mut().enumerate().for_each(|(p, fe)| {
             *fe = match fc {
-                Some(fc) => form.apply(&pre.f[p], &fc[p]),
+                Some(fc) => form.apply_scaled(&pre.f[p], &fc[p], scale_of(&tape.scale, p)),
                 None => pre.f[p],
             }
         });
@@ -764,7 +783,12 @@ impl Euler {
                     let total_fe = grad_fe[p] + g_fe;
                     match fc {
                         Some(fc) => {
-                            (gf[i], gfc[i]) = form.apply_reverse(&pre.f[p], &fc[p], &total_fe)
+                            (gf[i], gfc[i]) = form.apply_reverse_scaled(
+                                &pre.f[p],
+                                &fc[p],
+                                scale_of(&tape.scale, p),
+                                &total_fe,
+                            )
                         }
                         None => gf[i] = total_fe,
                     }
