@@ -19,7 +19,7 @@
 mod row;
 #[cfg(target_arch = "x86_64")]
 pub use row::Avx;
-pub use row::{Portable, RowKernel, Rows, dispatch_rows};
+pub use row::{Portable, RowKernel, Rows, dispatch_rows, floor};
 
 use serde::{Deserialize, Serialize};
 use std::ops::{Add, AddAssign, Div, DivAssign, Mul, MulAssign, Neg, Sub, SubAssign};

@@ -5,6 +5,7 @@
 //! differentiable in `x`, which the reverse pass needs because every transfer moves with the
 //! particle.
 
+use crate::lanes::{RowKernel, Rows, SimdLevel, dispatch_rows};
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
@@ -46,18 +47,7 @@ impl KernelKind {
     }
 }
 
-/// `v.floor()` without the library call: the default x86-64 target has no rounding
-/// instruction, and `floor` was 2% of a step. Equal to `v.floor()` for every finite `v` (and
-/// NaN for NaN), up to the sign of a zero, which no caller sees.
-#[inline(always)]
-pub fn floor(v: f64) -> f64 {
-    if v.abs() < 4.0e15 {
-        let t = v as i64 as f64;
-        if t > v { t - 1.0 } else { t }
-    } else {
-        v.floor()
-    }
-}
+pub use crate::lanes::floor;
 
 /// Per-particle stencils kept between the transfers of one step (built once, read again):
 /// the quadratic and the cubic kernel's, whichever the step uses.
@@ -181,6 +171,125 @@ impl<const N: usize> Stencil<N> {
     }
 }
 
+impl<const N: usize> Stencil<N> {
+    /// The stencils of many particles (`out[i]` for `xs[i]`), four at a time on vector lanes
+    /// ([`crate::lanes::Rows`]), each lane computed as [`Stencil::new`] computes it: the
+    /// same bits.
+    pub fn fill(
+        simd: SimdLevel,
+        xs: &[Vector3<f64>],
+        origin: &Vector3<f64>,
+        dx: f64,
+        out: &mut [Stencil<N>],
+    ) {
+        assert_eq!(xs.len(), out.len());
+        struct Kernel<'a, const N: usize> {
+            xs: &'a [Vector3<f64>],
+            origin: &'a Vector3<f64>,
+            dx: f64,
+            out: &'a mut [Stencil<N>],
+        }
+        impl<const N: usize> RowKernel for Kernel<'_, N> {
+            type Output = ();
+            #[inline(always)]
+            fn run<R: Rows>(self, r: R) {
+                let Kernel {
+                    xs,
+                    origin,
+                    dx,
+                    out,
+                } = self;
+                let inv_dx = 1.0 / dx;
+                let whole = xs.len() / 4 * 4;
+                for (x4, o4) in xs[..whole].chunks_exact(4).zip(out.chunks_exact_mut(4)) {
+                    for a in 0..3 {
+                        let x = r.array([x4[0][a], x4[1][a], x4[2][a], x4[3][a]]);
+                        let xg = r.mul(r.sub(x, r.splat(origin[a])), r.splat(inv_dx));
+                        let b = if N == 3 {
+                            r.floor(r.sub(xg, r.splat(0.5)))
+                        } else {
+                            r.sub(r.floor(xg), r.splat(1.0))
+                        };
+                        let fx = r.sub(xg, b);
+                        let (wk, dwk) = if N == 3 {
+                            quadratic_pieces_lanes(r, fx)
+                        } else {
+                            cubic_pieces_lanes(r, fx)
+                        };
+                        let b = r.to_array(b);
+                        for (o, b) in o4.iter_mut().zip(b) {
+                            o.base[a] = b as i64;
+                        }
+                        for k in 0..N {
+                            let w = r.to_array(wk[k]);
+                            let dw = r.to_array(r.mul(dwk[k], r.splat(inv_dx)));
+                            let dpos = r.to_array(r.mul(r.sub(r.splat(k as f64), fx), r.splat(dx)));
+                            for l in 0..4 {
+                                o4[l].w[a][k] = w[l];
+                                o4[l].dw[a][k] = dw[l];
+                                o4[l].dpos[a][k] = dpos[l];
+                            }
+                        }
+                    }
+                }
+                for (x, o) in xs[whole..].iter().zip(&mut out[whole..]) {
+                    *o = Stencil::new(x, origin, dx);
+                }
+            }
+        }
+        dispatch_rows(
+            simd,
+            Kernel {
+                xs,
+                origin,
+                dx,
+                out,
+            },
+        );
+    }
+}
+
+/// [`quadratic_pieces`] on four lanes (the same operations in the same order).
+#[inline(always)]
+fn quadratic_pieces_lanes<R: Rows>(r: R, fx: R::V) -> ([R::V; 4], [R::V; 4]) {
+    let (a, c) = (r.sub(r.splat(1.5), fx), r.sub(fx, r.splat(0.5)));
+    let d1 = r.sub(fx, r.splat(1.0));
+    let half = r.splat(0.5);
+    (
+        [
+            r.mul(r.mul(half, a), a),
+            r.sub(r.splat(0.75), r.mul(d1, d1)),
+            r.mul(r.mul(half, c), c),
+            r.zero(),
+        ],
+        [r.neg(a), r.mul(r.splat(-2.0), d1), c, r.zero()],
+    )
+}
+
+/// [`cubic_pieces`] on four lanes (the same operations in the same order).
+#[inline(always)]
+fn cubic_pieces_lanes<R: Rows>(r: R, fx: R::V) -> ([R::V; 4], [R::V; 4]) {
+    let one = r.splat(1.0);
+    let t = r.sub(fx, one);
+    let u = r.sub(one, t);
+    let (half, six, two_thirds) = (r.splat(0.5), r.splat(6.0), r.splat(2.0 / 3.0));
+    let (onehalf, two) = (r.splat(1.5), r.splat(2.0));
+    (
+        [
+            r.div(r.mul(r.mul(u, u), u), six),
+            r.add(r.mul(r.mul(r.sub(r.mul(half, t), one), t), t), two_thirds),
+            r.add(r.mul(r.mul(r.sub(r.mul(half, u), one), u), u), two_thirds),
+            r.div(r.mul(r.mul(t, t), t), six),
+        ],
+        [
+            r.mul(r.mul(r.splat(-0.5), u), u),
+            r.mul(r.sub(r.mul(onehalf, t), two), t),
+            r.mul(r.neg(r.sub(r.mul(onehalf, u), two)), u),
+            r.mul(r.mul(half, t), t),
+        ],
+    )
+}
+
 /// Quadratic weights and derivatives (d/dfx) of the 3 nodes for `fx` in [0.5, 1.5).
 #[inline(always)]
 fn quadratic_pieces(fx: f64) -> ([f64; 4], [f64; 4]) {
@@ -245,6 +354,42 @@ fn cubic(d: f64) -> (f64, f64) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    fn fill_matches_new<const N: usize>() {
+        let origin = Vector3::new(-3.0, -2.5, -3.25);
+        let dx = 0.37;
+        let xs: Vec<Vector3<f64>> = (0..43)
+            .map(|i| {
+                let t = i as f64;
+                Vector3::new(
+                    (t * 0.731).sin(),
+                    (t * 1.37).cos() * 1.5,
+                    (t * 0.19).sin() * 2.0,
+                )
+            })
+            .chain([
+                Vector3::new(-2.0, -1.0, 0.0),
+                Vector3::new(0.5 * dx - 3.0, 0.0, 1.0),
+            ])
+            .collect();
+        let expected: Vec<Stencil<N>> = xs.iter().map(|x| Stencil::new(x, &origin, dx)).collect();
+        for level in SimdLevel::available_levels() {
+            let mut out = vec![Stencil::<N>::ZERO; xs.len()];
+            Stencil::fill(level, &xs, &origin, dx, &mut out);
+            for (p, (a, b)) in out.iter().zip(&expected).enumerate() {
+                assert_eq!(a.base, b.base, "{level:?} particle {p}");
+                let bits =
+                    |s: &Stencil<N>| [s.w, s.dw, s.dpos].map(|m| m.map(|r| r.map(f64::to_bits)));
+                assert_eq!(bits(a), bits(b), "{level:?} particle {p}");
+            }
+        }
+    }
+
+    #[test]
+    fn stencils_filled_on_lanes_are_bitwise_those_made_one_by_one() {
+        fill_matches_new::<3>();
+        fill_matches_new::<4>();
+    }
 
     fn check<const N: usize>(kind: KernelKind) {
         let origin = Vector3::new(-3.0, -3.0, -3.0);

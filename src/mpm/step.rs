@@ -348,9 +348,9 @@ impl Euler {
             let (affine, mass) = (&ws.affine, &self.mass);
             let stencils = ws.stencils.sized::<N>(state.len());
             stencils
-                .par_iter_mut()
-                .zip(state.x.par_iter())
-                .for_each(|(s, x)| *s = Stencil::<N>::new(x, &origin, dx));
+                .par_chunks_mut(CHUNK)
+                .zip(state.x.par_chunks(CHUNK))
+                .for_each(|(s, x)| Stencil::fill(self.simd, x, &origin, dx, s));
             let stencils = &*stencils;
             ws.bins.for_each_coloured(|p| {
                 let s = &stencils[p];
@@ -643,9 +643,9 @@ impl Euler {
             let (av, ac, af) = (&*av, &*ac, &*af);
             let stencils = rws.stencils.sized::<N>(n);
             stencils
-                .par_iter_mut()
-                .zip(pre.x.par_iter())
-                .for_each(|(s, x)| *s = Stencil::<N>::new(x, &origin, dx));
+                .par_chunks_mut(CHUNK)
+                .zip(pre.x.par_chunks(CHUNK))
+                .for_each(|(s, x)| Stencil::fill(self.simd, x, &origin, dx, s));
             let stencils = &*stencils;
             tape.bins.for_each_coloured(|p| {
                 // SAFETY: each particle is visited exactly once.

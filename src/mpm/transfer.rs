@@ -289,6 +289,7 @@ pub fn scatter_reverse<const N: usize, const K: usize>(
     impl<const N: usize, const K: usize> RowKernel for Kernel<'_, N, K> {
         type Output = ScatterGrad<K>;
         #[inline(always)]
+        #[allow(clippy::needless_range_loop)] // index loops: the lane code's form
         fn run<R: Rows>(self, r: R) -> ScatterGrad<K> {
             let Kernel {
                 s,
@@ -516,6 +517,7 @@ pub fn gather_affine_reverse<const N: usize>(
     impl<const N: usize> RowKernel for Kernel<'_, N> {
         type Output = Vector3<f64>;
         #[inline(always)]
+        #[allow(clippy::needless_range_loop)] // index loops: the lane code's form
         fn run<R: Rows>(self, r: R) -> Vector3<f64> {
             let Kernel {
                 s,
