@@ -6,6 +6,7 @@
 
 use crate::mpm::{GridSpec, KernelKind, SimError, transfer};
 use nalgebra::{Matrix3, Vector3};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 /// How much more the body's total volume counts in [`volume_cost`] than one particle's: a
@@ -20,16 +21,23 @@ pub const GLOBAL_VOLUME: f64 = 1.0;
 /// as a particle nears inversion. `Err(p)` names the first particle with `J <= 0` (where it
 /// is undefined).
 pub fn volume_cost(f: &[Matrix3<f64>]) -> Result<(f64, Vec<Matrix3<f64>>), usize> {
+    // Each particle's J, ln J and F^-T in parallel; the sums in particle order (the same
+    // bits on any thread count).
+    let parts: Vec<Option<(f64, f64, Matrix3<f64>)>> = f
+        .par_iter()
+        .with_min_len(1024)
+        .map(|f| {
+            let j = f.determinant();
+            let inv_t = f.try_inverse().filter(|_| j > 0.0)?.transpose();
+            Some((j, j.ln(), inv_t))
+        })
+        .collect();
     let mut sum = CompensatedSum::default();
     let mut j_sum = CompensatedSum::default();
-    let mut parts = Vec::with_capacity(f.len());
-    for (p, f) in f.iter().enumerate() {
-        let j = f.determinant();
-        let inv_t = f.try_inverse().filter(|_| j > 0.0).ok_or(p)?.transpose();
-        let ln_j = j.ln();
+    for (p, part) in parts.iter().enumerate() {
+        let (j, ln_j, _) = part.ok_or(p)?;
         sum.add(0.5 * ln_j * ln_j);
         j_sum.add(j);
-        parts.push((j, ln_j, inv_t));
     }
     let n = f.len().max(1) as f64;
     let mean = j_sum.value() / n;
@@ -37,8 +45,12 @@ pub fn volume_cost(f: &[Matrix3<f64>]) -> Result<(f64, Vec<Matrix3<f64>>), usize
     let value = sum.value() + GLOBAL_VOLUME * n * 0.5 * ln_mean * ln_mean;
     let global = GLOBAL_VOLUME * ln_mean / mean;
     let grad = parts
-        .into_iter()
-        .map(|(j, ln_j, inv_t)| (ln_j + global * j) * inv_t)
+        .into_par_iter()
+        .with_min_len(1024)
+        .map(|part| {
+            let (j, ln_j, inv_t) = part.expect("checked above");
+            (ln_j + global * j) * inv_t
+        })
         .collect();
     Ok((value, grad))
 }
