@@ -1,6 +1,7 @@
 //! Per-particle state that evolves over steps, and the same layout for its adjoint.
 
 use nalgebra::{Matrix3, Vector3};
+use rayon::prelude::*;
 
 /// Particle state advanced by each step: position `x`, velocity `v`, APIC affine velocity `c`
 /// and deformation gradient `f`. Masses and rest volumes do not change and live in the
@@ -11,6 +12,13 @@ pub struct State {
     pub v: Vec<Vector3<f64>>,
     pub c: Vec<Matrix3<f64>>,
     pub f: Vec<Matrix3<f64>>,
+}
+
+/// A copy of `v` made by the worker threads, each writing its share in place.
+pub fn par_copy<T: Copy + Send + Sync>(v: &[T]) -> Vec<T> {
+    let mut out = Vec::with_capacity(v.len());
+    out.par_extend(v.par_iter().copied());
+    out
 }
 
 /// Gradient of a scalar loss with respect to every field of a [`State`].
@@ -25,6 +33,16 @@ impl State {
             v: vec![Vector3::zeros(); n],
             c: vec![Matrix3::zeros(); n],
             f: vec![Matrix3::identity(); n],
+        }
+    }
+
+    /// A copy made by the worker threads (the tape's copies did not speed up with threads).
+    pub fn par_clone(&self) -> State {
+        State {
+            x: par_copy(&self.x),
+            v: par_copy(&self.v),
+            c: par_copy(&self.c),
+            f: par_copy(&self.f),
         }
     }
 

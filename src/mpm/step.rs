@@ -9,7 +9,7 @@ use super::grid_update::{grid_velocity, grid_velocity_reverse};
 use super::kernel::{Cached, KernelKind, Stencil, StencilCache};
 use super::model::Model;
 use super::profile::{Laps, Stage, StageClock};
-use super::state::{State, StateGrad};
+use super::state::{State, StateGrad, par_copy};
 use super::stress::StressInputs;
 use super::transfer::{self, Affine, AxisField, AxisNodes, Node};
 use crate::mpm::ControlParams;
@@ -375,7 +375,7 @@ impl Euler {
             Vec::new()
         };
         let grid_v_pre = if tape.is_some() {
-            ws.grid_v.clone()
+            par_copy(&ws.grid_v)
         } else {
             Vec::new()
         };
@@ -401,9 +401,9 @@ impl Euler {
         laps.lap(Stage::Grid);
         if let Some(tape) = tape {
             tape.push(StepTape {
-                pre: state.clone(),
+                pre: state.par_clone(),
                 bins: ws.bins.clone(),
-                affine: ws.affine.clone(),
+                affine: par_copy(&ws.affine),
                 kept: std::mem::take(&mut ws.kept),
                 scale: std::mem::take(&mut ws.scale),
                 grid_mass,
