@@ -213,12 +213,7 @@ pub fn scatter<const N: usize, const K: usize>(
             let i0 = s.base_index(strides);
             let (wc, dc) = (r.load_first(&s.w[2], N), r.load_first(&s.dpos[2], N));
             let mass = r.splat(mass);
-            let mut slope_z = [[r.zero(); 3]; K];
-            for k in 0..K {
-                for j in 0..3 {
-                    slope_z[k][j] = r.splat(fields[k].slope[(j, 2)]);
-                }
-            }
+            let slope_z = slopes_along_rows(r, fields);
             // The fields are built up one axis at a time: q = value + s_x dx + s_y dy + s_z dz.
             for a in 0..N {
                 let qa: [Vector3<f64>; K] = std::array::from_fn(|k| {
@@ -253,6 +248,19 @@ pub fn scatter<const N: usize, const K: usize>(
             nodes,
         },
     );
+}
+
+/// Each field's slope along the rows (the third column, `d q / d z`), one value a lane.
+#[inline(always)]
+#[allow(clippy::needless_range_loop)]
+fn slopes_along_rows<R: Rows, const K: usize>(r: R, fields: &[Affine; K]) -> [[R::V; 3]; K] {
+    let mut out = [[r.zero(); 3]; K];
+    for k in 0..K {
+        for j in 0..3 {
+            out[k][j] = r.splat(fields[k].slope[(j, 2)]);
+        }
+    }
+    out
 }
 
 /// Adjoints of one particle's [`scatter`] inputs.
@@ -302,12 +310,7 @@ pub fn scatter_reverse<const N: usize, const K: usize>(
             let zero = r.zero();
             let zeros = [[zero; 3]; K];
             let dc = r.load_first(&s.dpos[2], N);
-            let mut slope_z = [[zero; 3]; K];
-            for k in 0..K {
-                for j in 0..3 {
-                    slope_z[k][j] = r.splat(fields[k].slope[(j, 2)]);
-                }
-            }
+            let slope_z = slopes_along_rows(r, fields);
             // Per lane, per field and component: sum_ab w_a w_b g, the same with d_a, with d_b.
             let (mut value, mut col0, mut col1) = (zeros, zeros, zeros);
             // Per lane: sum_a w_a' sum_b w_b e, sum_a w_a sum_b w_b' e, sum_a w_a sum_b w_b e.

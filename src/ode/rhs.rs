@@ -269,15 +269,17 @@ impl Rk4 {
                 }
             });
         {
-            let mut node_axes = AxisNodes::default();
-            node_axes.set_zero(buf.nodes.len());
+            let Buffers {
+                nodes, node_axes, ..
+            } = &mut buf;
+            node_axes.set_zero(nodes.len());
             let shared = node_axes.shared();
             visit_coloured(&bins, par, |p| {
                 let st = Stencil::<N>::new(&s.x[p], &origin, dx);
                 let fields = self.scatter_fields(s, values, &stress_force, &body, p);
                 transfer::scatter(self.simd, &st, &strides, self.mass[p], &fields, &shared);
             });
-            node_axes.write_nodes(&mut buf.nodes);
+            node_axes.write_nodes(nodes);
         }
         {
             let Buffers {
@@ -314,14 +316,15 @@ impl Rk4 {
             });
         }
         let inv_d = self.inv_d();
-        let grid_axes = AxisField::from_vectors(&buf.grid_v);
+        buf.grid_v_axes.set_from(&buf.grid_v);
+        let grid_axes = &buf.grid_v_axes;
         let gathered: Vec<Gathered> =
             s.x.par_iter()
                 .with_min_len(PARALLEL_MIN)
                 .map(|x| {
                     let st = Stencil::<N>::new(x, &origin, dx);
                     let (velocity, grad_v) =
-                        transfer::gather_affine(self.simd, &st, &strides, &grid_axes, inv_d);
+                        transfer::gather_affine(self.simd, &st, &strides, grid_axes, inv_d);
                     Gathered {
                         velocity,
                         acceleration: transfer::interpolate(&st, &strides, &buf.grid_a),
@@ -402,11 +405,11 @@ impl Rk4 {
                 grid_a,
                 grad_v,
                 grad_a,
+                grid_v_axes: grid_axes,
+                grad_v_axes: grad_axes,
                 active,
                 ..
             } = &mut fw.buf;
-            let grid_axes = AxisField::from_vectors(grid_v);
-            let mut grad_axes = AxisField::default();
             grad_axes.set_zero(grid_v.len());
             let ggv = grad_axes.shared();
             let gga = SharedMut::new(grad_a);
@@ -438,7 +441,7 @@ impl Rk4 {
                         self.simd,
                         &st,
                         &strides,
-                        &grid_axes,
+                        grid_axes,
                         inv_d,
                         &g.velocity,
                         &g.grad_v,
@@ -517,9 +520,8 @@ impl Rk4 {
 
         // P2G reverse (gather) and the stress reverse.
         let mut grad_body = vec![Vector3::zeros(); n];
-        let mut grad_nodes = AxisNodes::default();
-        grad_nodes.set_from(&fw.buf.grad_nodes);
-        let grad_nodes = &grad_nodes;
+        fw.buf.grad_node_axes.set_from(&fw.buf.grad_nodes);
+        let grad_nodes = &fw.buf.grad_node_axes;
         (
             grad.x.par_iter_mut(),
             grad.v.par_iter_mut(),
@@ -600,6 +602,12 @@ struct Buffers {
     grad_v: Vec<Vector3<f64>>,
     grad_a: Vec<Vector3<f64>>,
     grad_nodes: Vec<Node<2>>,
+    /// The same grids stored by axis, for the transfers on stencil rows (kept with the
+    /// buffers, so an evaluation does not allocate them again).
+    node_axes: AxisNodes<2>,
+    grid_v_axes: AxisField,
+    grad_v_axes: AxisField,
+    grad_node_axes: AxisNodes<2>,
     /// `mark[i] == generation` when node i is active in the current evaluation.
     mark: Vec<u32>,
     generation: u32,
@@ -616,6 +624,10 @@ impl Buffers {
             grad_v: vec![Vector3::zeros(); nodes],
             grad_a: vec![Vector3::zeros(); nodes],
             grad_nodes: vec![Node::ZERO; nodes],
+            node_axes: AxisNodes::default(),
+            grid_v_axes: AxisField::default(),
+            grad_v_axes: AxisField::default(),
+            grad_node_axes: AxisNodes::default(),
             mark: vec![0; nodes],
             generation: 0,
             active: Vec::new(),
