@@ -321,6 +321,7 @@ fn checkpoint_reader() {
         segments: Vec::new(),
         frames: 0,
         elapsed_s: 1.5,
+        ahead: 0,
     };
     checkpoint::save(&dir, &run_id, &progress, 0).unwrap();
     let folder = dir.join(checkpoint::FOLDER);

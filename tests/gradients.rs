@@ -461,12 +461,24 @@ fn check_segment<I: Integrator>(sim: &I, mut init: State) {
             ),
         })
         .collect();
-    for (arrival_weight, volume_weight, fine_loss, path_weight) in [
-        (0.0, 0.0, None, 0.0),
-        (0.05, 0.0, None, 0.0),
-        (0.0, 30.0, None, 0.0),
-        (0.0, 0.0, None, 0.8),
-        (0.05, 30.0, Some(&fine), 0.8),
+    // A look-ahead window's waypoint: an earlier segment's end inside this one, scored in
+    // full against its own target.
+    let waypoints = [PathPoint {
+        step: 5,
+        loss: shifted_target(
+            sim.model(),
+            &init,
+            Vector3::new(0.5, -0.3, 0.2),
+            MassLossKind::Log,
+        ),
+    }];
+    for (arrival_weight, volume_weight, fine_loss, path_weight, waypoint) in [
+        (0.0, 0.0, None, 0.0, false),
+        (0.05, 0.0, None, 0.0, false),
+        (0.0, 30.0, None, 0.0, false),
+        (0.0, 0.0, None, 0.8, false),
+        (0.0, 0.0, None, 0.0, true),
+        (0.05, 30.0, Some(&fine), 0.8, true),
     ] {
         let segment = Segment {
             sim,
@@ -480,6 +492,7 @@ fn check_segment<I: Integrator>(sim: &I, mut init: State) {
             volume_weight,
             path: if path_weight > 0.0 { &path } else { &[] },
             path_weight,
+            waypoints: if waypoint { &waypoints } else { &[] },
             resolution: Default::default(),
             tape_budget: usize::MAX,
         };
@@ -520,7 +533,7 @@ fn check_segment<I: Integrator>(sim: &I, mut init: State) {
             let err = rel_err(analytic, numeric);
             assert!(
                 err < TOL,
-                "arrival {arrival_weight}, volume {volume_weight}, path {path_weight}, fine {}, direction {trial}: {analytic} vs {numeric} ({err:e})",
+                "arrival {arrival_weight}, volume {volume_weight}, path {path_weight}, fine {}, waypoint {waypoint}, direction {trial}: {analytic} vs {numeric} ({err:e})",
                 fine_loss.is_some()
             );
         }

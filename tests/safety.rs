@@ -828,6 +828,36 @@ fn resume_with_a_shorter_last_segment_is_bitwise_identical() {
     assert_eq!(m["settings"]["segments"].as_u64(), Some(5));
 }
 
+/// A look-ahead (`--lookahead 1`): each checkpoint holds the controls the window left for
+/// the next segment, so a resumed run starts that segment where the uninterrupted one did
+/// and finishes bitwise like it (two passes, and a last segment shorter than the others,
+/// which no window reaches past).
+#[test]
+fn resume_with_lookahead_is_bitwise_identical() {
+    const SHOT: &[&str] = &[
+        "--preset",
+        "draft",
+        "--resolution",
+        "20",
+        "--frames",
+        "41",
+        "--frame-every",
+        "3",
+        "--steps",
+        "30",
+        "--passes",
+        "2",
+        "--iterations",
+        "4",
+        "--lookahead",
+        "1",
+        "--quiet",
+    ];
+    let m = interrupt_resume_and_compare("lookahead-resume", SHOT);
+    assert_eq!(m["settings"]["lookahead"].as_u64(), Some(1));
+    assert_eq!(m["frames"].as_array().unwrap().len(), 41);
+}
+
 /// Coarse-to-fine (`--levels 2`): interrupted after a checkpoint of the finest level, the
 /// resumed run solves the coarse level again and finishes bitwise like an uninterrupted run.
 #[test]

@@ -79,7 +79,7 @@ const PRESETS: [(Preset, &str); 3] = [
 ];
 
 /// A preset-dependent default, read from the library: "draft 6, default 12, final 40".
-fn by_preset(value: impl Fn(&MorphSettings) -> usize) -> String {
+fn by_preset<T: std::fmt::Display>(value: impl Fn(&MorphSettings) -> T) -> String {
     let parts: Vec<String> = PRESETS
         .iter()
         .map(|(p, name)| format!("{name} {}", value(&MorphSettings::preset(*p))))
@@ -170,8 +170,10 @@ pub struct MorphArgs {
     settle_drag: Option<f64>,
     #[arg(long, help = help("Weight of the volume cost (sum 1/2 (ln J)^2 per particle, and the whole body's) averaged over every step, >= 0 (keeps the body at its volume)", None, defaults().volume_weight))]
     volume_weight: Option<f64>,
-    #[arg(long, help = help("Weight of the scheduled path: the mass loss at every frame inside a segment against where the easing curve puts the body then, >= 0 (0: each segment's end alone)", None, defaults().path_weight))]
+    #[arg(long, help = help("Weight of the scheduled path: the mass loss at every frame inside a segment against where the easing curve puts the body then, >= 0 (0: each segment's end alone)", None, by_preset(|s| s.path_weight)))]
     path_weight: Option<f64>,
+    #[arg(long, help = help("Look-ahead: optimize each segment together with the next N, scored at each of their ends, and keep its own controls (the body answers its controls a segment late; docs/morph.md)", Some(limits::LOOKAHEAD), by_preset(|s| s.lookahead)))]
+    lookahead: Option<usize>,
     #[arg(long, help = help("Weight of the mass loss on a grid twice as fine as the simulation's, >= 0 (sees holes and clumps within a cell)", None, defaults().fine_weight))]
     fine_weight: Option<f64>,
     #[arg(long, value_parser = choice(&TargetFit::ALL), help = format!("How each target is placed (on-ground needs a scene's ground) [default {}]", name(&defaults().target_fit)))]
@@ -357,6 +359,9 @@ impl MorphArgs {
         }
         if let Some(w) = self.path_weight {
             s.path_weight = w;
+        }
+        if let Some(n) = self.lookahead {
+            s.lookahead = n;
         }
         if let Some(w) = self.fine_weight {
             s.fine_weight = w;

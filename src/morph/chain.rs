@@ -33,6 +33,9 @@ pub struct RunProgress {
     pub frames: usize,
     /// Wall seconds spent optimizing before this run (earlier, interrupted runs).
     pub elapsed_s: f64,
+    /// Segments after the last completed one whose controls its look-ahead window left
+    /// (where their optimization starts; 0 without a look-ahead).
+    pub ahead: usize,
 }
 
 /// A finer level's start: the controls the level below found for each segment, and the map
@@ -144,6 +147,7 @@ impl RunProgress {
             segments: Vec::new(),
             frames: 0,
             elapsed_s: 0.0,
+            ahead: 0,
         }
     }
 }
@@ -233,6 +237,7 @@ fn chain<I: Integrator>(
         }
         for k in from..s.segments {
             let seg_clock = Instant::now();
+            // Segment k alone: what is kept, replayed and written.
             let (loss, fine_loss) = prep.segment_losses(k)?;
             let path = prep.segment_path(k)?;
             let segment = Segment {
@@ -247,19 +252,44 @@ fn chain<I: Integrator>(
                 volume_weight: prep.volume_weight(),
                 path: &path,
                 path_weight: s.path_weight,
+                waypoints: &[],
                 resolution: s.control_resolution,
                 tape_budget: prep.tape_budget,
             };
-            let init = match (&progress.controls[k], warm) {
-                (l, None) if l.is_empty() => {
-                    vec![vec![Matrix3::zeros(); prep.initial.len()]; segment.num_layers()]
+            // What is optimized: segment k, or its look-ahead window k..=end, which ends at
+            // segment end's target and passes through each earlier segment's on its way.
+            let end = prep.window_end(k);
+            let (window_loss, window_fine, window_path, waypoints) = if end > k {
+                let (loss, fine) = prep.segment_losses(end)?;
+                let mut path = Vec::new();
+                for j in k..=end {
+                    path.extend(prep.segment_path(j)?);
                 }
-                (l, Some(w)) if l.is_empty() => w.prolongation.apply(&w.controls[k]),
+                (Some(loss), fine, path, prep.window_waypoints(k, end)?)
+            } else {
+                (None, None, Vec::new(), Vec::new())
+            };
+            let window = window_loss.as_deref().map(|loss| Segment {
+                loss,
+                fine_loss: window_fine.as_deref(),
+                steps: (k..=end).map(|j| prep.sim_segment_steps(j)).sum(),
+                arrival_weight: prep.segment_arrival_weight(end),
+                path: &window_path,
+                waypoints: &waypoints,
+                ..segment
+            });
+            let start_of = |j: usize, progress: &RunProgress| match (&progress.controls[j], warm) {
+                (l, None) if l.is_empty() => {
+                    vec![vec![Matrix3::zeros(); prep.initial.len()]; prep.segment_layers()[j]]
+                }
+                (l, Some(w)) if l.is_empty() => w.prolongation.apply(&w.controls[j]),
                 (l, _) => l.clone(),
             };
+            let init: Layers = (k..=end).flat_map(|j| start_of(j, &progress)).collect();
+            let optimized = window.as_ref().unwrap_or(&segment);
             let mut stop = observer.stop_requested();
             let iterations = &mut progress.iterations;
-            let result = segment.optimize(init, &optimizer, |iteration, loss| {
+            let result = optimized.optimize(init, &optimizer, |iteration, loss| {
                 let at = seconds(&clock);
                 iterations.push(IterationRecord {
                     pass,
@@ -306,22 +336,40 @@ fn chain<I: Integrator>(
                 seconds: record.seconds,
             });
             progress.segments.push(record);
-            if last_pass {
-                // The accepted controls once more, to write the frames (the optimization keeps
-                // no tape of every step: memory stays within its budget).
+            // A window keeps segment k's layers; the rest start the next window's
+            // optimization (and are in the checkpoint, so a resume continues bit for bit).
+            let mut layers = result.layers;
+            let mut rest = layers.split_off(segment.num_layers()).into_iter();
+            for j in k + 1..=end {
+                progress.controls[j] = rest.by_ref().take(prep.segment_layers()[j]).collect();
+            }
+            progress.ahead = end - k;
+            // The kept controls once more: to write the frames (the optimization keeps no tape
+            // of every step: memory stays within its budget), and to find where segment k
+            // ends when a window was optimized.
+            let last = if last_pass || window.is_some() {
                 let mut frame_err = Ok(());
-                let last = segment.replay(&result.layers, &mut |global, state| {
-                    if frame_err.is_ok() && (global + 1).is_multiple_of(prep.sim_frame_every()) {
+                let last = segment.replay(&layers, &mut |global, state| {
+                    if last_pass
+                        && frame_err.is_ok()
+                        && (global + 1).is_multiple_of(prep.sim_frame_every())
+                    {
                         frame_err =
                             observer.frame(&Frame::new(prep, progress.frames, global + 1, state));
                         progress.frames += 1;
                     }
                 })?;
                 frame_err?;
-                debug_assert!(last == result.last, "a replay reproduces the rollout");
-            }
-            progress.controls[k] = result.layers;
-            progress.state = result.last;
+                debug_assert!(
+                    window.is_some() || last == result.last,
+                    "a replay reproduces the rollout"
+                );
+                last
+            } else {
+                result.last
+            };
+            progress.controls[k] = layers;
+            progress.state = last;
             progress.segments_done = k + 1;
             progress.elapsed_s = seconds(&clock);
             observer.segment_done(&progress, k)?;

@@ -197,7 +197,7 @@ fn unflatten_state(data: &[f64], n: usize) -> State {
 }
 
 /// Writes the checkpoint after segment `changed` completed (only that segment's controls
-/// are new), then removes the files the previous checkpoint named and this one does not.
+/// are new, and those its look-ahead window left for the next `p.ahead`), then removes the files the previous checkpoint named and this one does not.
 pub fn save(dir: &Path, run_id: &str, p: &RunProgress, changed: usize) -> Result<(), MorphError> {
     let folder = dir.join(FOLDER);
     std::fs::create_dir_all(&folder).map_err(|e| io_err("create", &folder, e))?;
@@ -209,14 +209,17 @@ pub fn save(dir: &Path, run_id: &str, p: &RunProgress, changed: usize) -> Result
         .unwrap_or_else(|| vec![None; p.controls.len()]);
     controls.resize(p.controls.len(), None);
 
-    let name = format!("controls_{changed:04}_p{}.bin", p.pass);
-    let flat: Vec<f64> = p.controls[changed]
-        .iter()
-        .flat_map(|layer| layer.iter().flat_map(|m| m.iter().copied()))
-        .collect();
-    let path = folder.join(&name);
-    write_f64s(&path, run_id, &flat).map_err(|e| io_err("write", &path, e))?;
-    controls[changed] = Some(name);
+    // Its controls, and those its look-ahead window left for the segments after it.
+    for k in changed..=changed + p.ahead {
+        let name = format!("controls_{k:04}_p{}.bin", p.pass);
+        let flat: Vec<f64> = p.controls[k]
+            .iter()
+            .flat_map(|layer| layer.iter().flat_map(|m| m.iter().copied()))
+            .collect();
+        let path = folder.join(&name);
+        write_f64s(&path, run_id, &flat).map_err(|e| io_err("write", &path, e))?;
+        controls[k] = Some(name);
+    }
 
     let state = format!("state_p{}_s{}.bin", p.pass, p.segments_done);
     let path = folder.join(&state);
@@ -322,6 +325,7 @@ pub fn load(
         segments: file.segments,
         frames: file.frames,
         elapsed_s: file.elapsed_s,
+        ahead: 0,
     }))
 }
 

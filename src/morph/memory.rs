@@ -193,13 +193,16 @@ pub fn fixed_bytes(
     } else {
         0
     };
-    // A segment's path points: one target per frame inside it.
+    // A segment's path points (one target per frame inside it) and a look-ahead window's
+    // (its segments' frames, and a target at each segment end but the last, plus the
+    // window's own), over the longest window.
+    let window = settings.lookahead as u64 + 1;
     let path_points = if settings.path_weight > 0.0 {
         let longest = settings.shot().segment_steps.into_iter().max().unwrap_or(0);
-        (longest / settings.frame_every.max(1)) as u64
+        window * (longest / settings.frame_every.max(1)) as u64
     } else {
         0
-    };
+    } + 2 * (window - 1);
     BASELINE_BYTES
         + particles * SOURCE_PARTICLE_BYTES
         + targets * TARGET_PARTICLE_BYTES

@@ -364,9 +364,14 @@ impl Prepared {
         self.segment_steps[..k].iter().sum::<usize>() * self.substeps
     }
 
-    /// The longest segment's simulation steps.
+    /// The longest optimized rollout's simulation steps: a segment's, or its look-ahead
+    /// window's.
     pub fn max_sim_segment_steps(&self) -> usize {
-        self.segment_steps.iter().max().copied().unwrap_or(0) * self.substeps
+        (0..self.segment_steps.len())
+            .map(|k| (k..=self.window_end(k)).map(|j| self.segment_steps[j]).sum::<usize>())
+            .max()
+            .unwrap_or(0)
+            * self.substeps
     }
 
     /// Control layers of each segment.
@@ -563,6 +568,35 @@ impl Prepared {
                 Ok(PathPoint {
                     step: s * self.substeps - 1,
                     loss: MassLoss::new(self.loss.kind, self.scheduled_masses(s, false)?.0),
+                })
+            })
+            .collect()
+    }
+
+    /// The last segment of segment `k`'s look-ahead window: up to `lookahead` segments on,
+    /// within the chain, while the window's control layers line up with each segment's
+    /// (every segment but the window's last a whole number of layers); `k` itself when the
+    /// look-ahead is off.
+    pub fn window_end(&self, k: usize) -> usize {
+        let s = &self.settings;
+        let mut end = k;
+        while end < k + s.lookahead
+            && end + 1 < s.segments
+            && self.segment_steps[end].is_multiple_of(s.control_stride)
+        {
+            end += 1;
+        }
+        end
+    }
+
+    /// The ends of segments `k..end` inside a look-ahead window, each against that
+    /// segment's own target (see [`Prepared::segment_losses`]).
+    pub fn window_waypoints(&self, k: usize, end: usize) -> Result<Vec<PathPoint>, SimError> {
+        (k..end)
+            .map(|j| {
+                Ok(PathPoint {
+                    step: self.sim_segment_first(j) + self.sim_segment_steps(j) - 1,
+                    loss: self.segment_losses(j)?.0.into_owned(),
                 })
             })
             .collect()

@@ -112,6 +112,10 @@ pub struct Segment<'a, I: Integrator> {
     /// from frame to frame and not only at the segment's end (none: the end alone).
     pub path: &'a [PathPoint],
     pub path_weight: f64,
+    /// Ends of earlier segments inside this one, each scored in full like the end (weight
+    /// 1): a look-ahead window (segments k..k+n optimized as one, segment k's controls kept)
+    /// passes through segment k's target on its way (none: a single segment).
+    pub waypoints: &'a [PathPoint],
     /// Where Adam's free control values live (see [`ControlBasis`]); the line search always
     /// works per particle, as the reference does.
     pub resolution: ControlResolution,
@@ -128,6 +132,8 @@ struct AfterStep {
     volume: f64,
     /// The mass loss against the path point at this step (0 where there is none).
     path: f64,
+    /// The mass loss against the waypoint at this step (0 where there is none).
+    waypoint: f64,
     min_j: f64,
     max_j: f64,
 }
@@ -168,6 +174,11 @@ impl<I: Integrator> Segment<'_, I> {
     /// The path point on the state after global step `k`, if any.
     fn path_point(&self, k: usize) -> Option<&PathPoint> {
         self.path.iter().find(|p| p.step == k)
+    }
+
+    /// The waypoint on the state after global step `k`, if any.
+    fn waypoint(&self, k: usize) -> Option<&PathPoint> {
+        self.waypoints.iter().find(|p| p.step == k)
     }
 
     pub fn num_layers(&self) -> usize {
@@ -246,7 +257,9 @@ impl<I: Integrator> Segment<'_, I> {
                     }
                     None => 0.0,
                 };
-                let path = match self.path_point(k).map(|p| path_loss(model, p, state)) {
+                let mut scored = |point: Option<&PathPoint>| match point
+                    .map(|p| path_loss(model, p, state))
+                {
                     Some(Ok(value)) => value,
                     Some(Err(e)) => {
                         outside.get_or_insert(e);
@@ -254,9 +267,12 @@ impl<I: Integrator> Segment<'_, I> {
                     }
                     None => 0.0,
                 };
+                let path = scored(self.path_point(k));
+                let waypoint = scored(self.waypoint(k));
                 after.push(AfterStep {
                     volume,
                     path,
+                    waypoint,
                     min_j,
                     max_j,
                 });
@@ -281,6 +297,9 @@ impl<I: Integrator> Segment<'_, I> {
         if !self.path.is_empty() {
             let sum: f64 = all().map(|a| a.path).sum();
             loss += self.path_weight * sum / self.path.len() as f64;
+        }
+        if !self.waypoints.is_empty() {
+            loss += all().map(|a| a.waypoint).sum::<f64>();
         }
         Ok(Rollout { loss, run, after })
     }
@@ -324,18 +343,25 @@ impl<I: Integrator> Segment<'_, I> {
                     *a += volume_weight * g;
                 }
             }
-            if let Some(point) = self.path_point(k)
-                && let Ok(mass) = model.mass_grid(&state.x)
-            {
-                let (_, grad_m) = point.loss.value_and_grad(&mass);
-                let grad_x = model.mass_grid_reverse(&state.x, &grad_m);
-                for (a, g) in adj.x.iter_mut().zip(grad_x) {
-                    *a += path_weight * g;
+            let points = [
+                (self.path_point(k), path_weight),
+                (self.waypoint(k), 1.0),
+            ];
+            for (point, weight) in points {
+                if let Some(point) = point
+                    && let Ok(mass) = model.mass_grid(&state.x)
+                {
+                    let (_, grad_m) = point.loss.value_and_grad(&mass);
+                    let grad_x = model.mass_grid_reverse(&state.x, &grad_m);
+                    for (a, g) in adj.x.iter_mut().zip(grad_x) {
+                        *a += weight * g;
+                    }
                 }
             }
         };
         let seed_after: Option<&mut SeedAfter> = (self.volume_weight > 0.0
-            || (self.path_weight > 0.0 && !self.path.is_empty()))
+            || (self.path_weight > 0.0 && !self.path.is_empty())
+            || !self.waypoints.is_empty())
         .then_some(&mut costs_seed);
         // A layer's gradient is the sum of its steps' over `stride` (the reverse of
         // `schedule`), in step order. Chunks arrive last first and may cut a layer, so its

@@ -23,6 +23,7 @@ pub mod limits {
     pub const PASSES: RangeInclusive<usize> = 1..=100;
     /// `--levels`: coarse-to-fine levels, the finest included.
     pub const LEVELS: RangeInclusive<usize> = 1..=4;
+    pub const LOOKAHEAD: RangeInclusive<usize> = 0..=4;
     pub const ITERATIONS: RangeInclusive<usize> = 1..=100_000;
     pub const FRAME_EVERY: RangeInclusive<usize> = 1..=1_000_000;
     /// `--frames`: the rest shape and at least one more; at most an hour at 24 fps.
@@ -124,6 +125,12 @@ pub struct MorphSettings {
     /// body, of the states at the frames inside each segment (0: each segment's end alone).
     #[serde(default)]
     pub path_weight: f64,
+    /// Look-ahead: each segment is optimized together with the next `lookahead` ones, as
+    /// one window scored at every segment end inside it, and keeps its own controls; the
+    /// next window starts from the rest (receding horizon, docs/morph.md "Motion"). 0: each
+    /// segment alone.
+    #[serde(default)]
+    pub lookahead: usize,
     /// Weight of the mass loss on a grid twice as fine as the simulation's, which sees how
     /// particles are arranged within a cell (0: off).
     #[serde(default)]
@@ -360,6 +367,13 @@ impl MorphSettings {
             Preset::Default => (12, 1, 12),
             Preset::Final => (24, 1, 12),
         };
+        // The motion an animator keeps (docs/morph.md, "Look-ahead"): each segment optimized
+        // with the next and scored along the scheduled path. It doubles a segment's cost, so
+        // the quick look goes without.
+        let (lookahead, path_weight) = match preset {
+            Preset::Draft => (0, 0.0),
+            Preset::Default | Preset::Final => (1, 1.0),
+        };
         MorphSettings {
             preset,
             resolution: 32,
@@ -386,7 +400,8 @@ impl MorphSettings {
             loss: MassLossKind::Log,
             arrival_weight: 0.03,
             volume_weight: 400.0,
-            path_weight: 0.0,
+            path_weight,
+            lookahead,
             fine_weight: 1.0,
             kernel: KernelKind::Cubic,
             integrator: IntegratorKind::Euler,
@@ -469,6 +484,7 @@ impl MorphSettings {
         range("passes", self.passes, limits::PASSES)?;
         range("iterations", self.optimizer.iterations, limits::ITERATIONS)?;
         range("levels", self.levels, limits::LEVELS)?;
+        range("lookahead", self.lookahead, limits::LOOKAHEAD)?;
         if let Some(n) = self.refine_iterations {
             range("refine-iterations", n, limits::ITERATIONS)?;
         }
