@@ -239,7 +239,13 @@ fn chain<I: Integrator>(
             let seg_clock = Instant::now();
             // Segment k alone: what is kept, replayed and written.
             let (loss, fine_loss) = prep.segment_losses(k)?;
-            let path = prep.segment_path(k)?;
+            // The scheduled path of segment k, then of the rest of its look-ahead window.
+            let end = prep.window_end(k);
+            let mut path = prep.segment_path(k)?;
+            let own_path = path.len();
+            for j in k + 1..=end {
+                path.extend(prep.segment_path(j)?);
+            }
             let segment = Segment {
                 sim,
                 loss: &loss,
@@ -250,7 +256,7 @@ fn chain<I: Integrator>(
                 stride: prep.sim_control_stride(),
                 arrival_weight: prep.segment_arrival_weight(k),
                 volume_weight: prep.volume_weight(),
-                path: &path,
+                path: &path[..own_path],
                 path_weight: s.path_weight,
                 waypoints: &[],
                 resolution: s.control_resolution,
@@ -258,23 +264,18 @@ fn chain<I: Integrator>(
             };
             // What is optimized: segment k, or its look-ahead window k..=end, which ends at
             // segment end's target and passes through each earlier segment's on its way.
-            let end = prep.window_end(k);
-            let (window_loss, window_fine, window_path, waypoints) = if end > k {
+            let (window_loss, window_fine, waypoints) = if end > k {
                 let (loss, fine) = prep.segment_losses(end)?;
-                let mut path = Vec::new();
-                for j in k..=end {
-                    path.extend(prep.segment_path(j)?);
-                }
-                (Some(loss), fine, path, prep.window_waypoints(k, end)?)
+                (Some(loss), fine, prep.window_waypoints(k, end)?)
             } else {
-                (None, None, Vec::new(), Vec::new())
+                (None, None, Vec::new())
             };
             let window = window_loss.as_deref().map(|loss| Segment {
                 loss,
                 fine_loss: window_fine.as_deref(),
                 steps: (k..=end).map(|j| prep.sim_segment_steps(j)).sum(),
                 arrival_weight: prep.segment_arrival_weight(end),
-                path: &window_path,
+                path: &path,
                 waypoints: &waypoints,
                 ..segment
             });
