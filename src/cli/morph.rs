@@ -50,11 +50,12 @@ OUTPUT (folder -o, written in the locked OUT.partial and put in place when compl
   the same -o fails at once. Each completed segment is checkpointed in OUT.partial (sealed
   with the run id and SHA-256: a damaged checkpoint is refused by name).
 
-PRESETS (resolution, segments x steps, passes, iterations per segment; measured quality and
-time from docs/morph.md, 2 cores):
+PRESETS (resolution, segments x steps, passes, iterations per segment, look-ahead; measured
+quality and time from docs/morph.md, 2 cores):
 {presets}
   Any of --resolution --particles --segments --steps --passes --iterations --levels
-  --refine-iterations overrides its preset value (--resolution replaces a budget).
+  --refine-iterations --lookahead --path-weight overrides its preset value (--resolution
+  replaces a budget).
 
 EXIT CODES:
   0    success (every written file checked finite)
@@ -93,12 +94,13 @@ pub(super) fn after_long_help() -> String {
         .map(|(p, name)| {
             let s = MorphSettings::preset(*p);
             format!(
-                "  {name:<8}r{}, {:>2} x {}, {} pass(es), {:>2}; {}",
+                "  {name:<8}r{}, {:>2} x {}, {} pass(es), {:>2}, look-ahead {}; {}",
                 s.resolution,
                 s.segments,
                 s.steps_per_segment,
                 s.passes,
                 s.optimizer.iterations,
+                s.lookahead,
                 p.measured()
             )
         })
