@@ -410,7 +410,7 @@ fn gravity_parameter_gradient_matches_fd() {
 }
 
 /// The morph's segment objective (log mass loss + arrival term `w sum 1/2 m |v|^2` + the
-/// volume cost on every step's state) and the
+/// volume cost on every step's state + the path term + a look-ahead window's waypoint) and the
 /// gradient the optimizers use, against central differences along random directions of all
 /// control layers at once: 12 steps, 3 layers, a moving start state, drag on.
 #[test]
