@@ -301,7 +301,11 @@ fn command_line_errors() {
         (vec!["--volume-weight", "-1"], 2, "--volume-weight"),
         (vec!["--fine-weight", "nan"], 2, "--fine-weight"),
         (vec!["--path-weight", "-0.5"], 2, "--path-weight"),
-        (vec!["--lookahead", "5"], 2, "--lookahead must be between 0 and 4"),
+        (
+            vec!["--lookahead", "5"],
+            2,
+            "--lookahead must be between 0 and 4",
+        ),
         (vec!["--settle-drag", "-1"], 2, "--settle-drag"),
         (vec!["--settle-drag", "1000"], 2, "drag and settle drag"),
         (vec!["--inbetween", "morph"], 2, "--inbetween"),

@@ -368,7 +368,11 @@ impl Prepared {
     /// window's.
     pub fn max_sim_segment_steps(&self) -> usize {
         (0..self.segment_steps.len())
-            .map(|k| (k..=self.window_end(k)).map(|j| self.segment_steps[j]).sum::<usize>())
+            .map(|k| {
+                (k..=self.window_end(k))
+                    .map(|j| self.segment_steps[j])
+                    .sum::<usize>()
+            })
             .max()
             .unwrap_or(0)
             * self.substeps

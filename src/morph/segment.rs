@@ -257,16 +257,15 @@ impl<I: Integrator> Segment<'_, I> {
                     }
                     None => 0.0,
                 };
-                let mut scored = |point: Option<&PathPoint>| match point
-                    .map(|p| path_loss(model, p, state))
-                {
-                    Some(Ok(value)) => value,
-                    Some(Err(e)) => {
-                        outside.get_or_insert(e);
-                        0.0
-                    }
-                    None => 0.0,
-                };
+                let mut scored =
+                    |point: Option<&PathPoint>| match point.map(|p| path_loss(model, p, state)) {
+                        Some(Ok(value)) => value,
+                        Some(Err(e)) => {
+                            outside.get_or_insert(e);
+                            0.0
+                        }
+                        None => 0.0,
+                    };
                 let path = scored(self.path_point(k));
                 let waypoint = scored(self.waypoint(k));
                 after.push(AfterStep {
@@ -343,10 +342,7 @@ impl<I: Integrator> Segment<'_, I> {
                     *a += volume_weight * g;
                 }
             }
-            let points = [
-                (self.path_point(k), path_weight),
-                (self.waypoint(k), 1.0),
-            ];
+            let points = [(self.path_point(k), path_weight), (self.waypoint(k), 1.0)];
             for (point, weight) in points {
                 if let Some(point) = point
                     && let Ok(mass) = model.mass_grid(&state.x)
