@@ -265,8 +265,9 @@ fn chain<I: Integrator>(
             // What is optimized: segment k, or its look-ahead window k..=end, which ends at
             // segment end's target and passes through each earlier segment's on its way.
             let (window_loss, window_fine, waypoints) = if end > k {
-                let (loss, fine) = prep.segment_losses(end)?;
-                (Some(loss), fine, prep.window_waypoints(k, end)?)
+                let (end_loss, fine) = prep.segment_losses(end)?;
+                let waypoints = prep.window_waypoints(k, end, &loss)?;
+                (Some(end_loss), fine, waypoints)
             } else {
                 (None, None, Vec::new())
             };

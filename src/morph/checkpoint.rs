@@ -6,6 +6,8 @@
 //! OUT.partial/checkpoint/progress.json      pass, segments done, frames, records, file names
 //! OUT.partial/checkpoint/state_pP_sK.bin    full particle state (x, v, C, F) after segment K of pass P
 //! OUT.partial/checkpoint/controls_K_pP.bin  segment K's controls as pass P left them
+//! OUT.partial/checkpoint/controls_K_pP_sJ.bin  where segment K's optimization starts, as the
+//!                                           look-ahead window of pass P's segment J-1 left it
 //! OUT.partial/checkpoint/preview_NNNNNN.bin  world positions of a preview frame (written by
 //!                                           the folder writer, read back on resume)
 //! ```
@@ -197,7 +199,8 @@ fn unflatten_state(data: &[f64], n: usize) -> State {
 }
 
 /// Writes the checkpoint after segment `changed` completed (only that segment's controls
-/// are new, and those its look-ahead window left for the next `p.ahead`), then removes the files the previous checkpoint named and this one does not.
+/// are new, and those its look-ahead window left for the next `p.ahead`), then removes the
+/// files the previous checkpoint named and this one does not.
 pub fn save(dir: &Path, run_id: &str, p: &RunProgress, changed: usize) -> Result<(), MorphError> {
     let folder = dir.join(FOLDER);
     std::fs::create_dir_all(&folder).map_err(|e| io_err("create", &folder, e))?;
@@ -209,9 +212,15 @@ pub fn save(dir: &Path, run_id: &str, p: &RunProgress, changed: usize) -> Result
         .unwrap_or_else(|| vec![None; p.controls.len()]);
     controls.resize(p.controls.len(), None);
 
-    // Its controls, and those its look-ahead window left for the segments after it.
+    // Its controls, and those its look-ahead window left for the segments after it. The
+    // latter are named for this checkpoint: the previous one may name a file of the same
+    // segment, which must stay as it was until the new progress file replaces it.
     for k in changed..=changed + p.ahead {
-        let name = format!("controls_{k:04}_p{}.bin", p.pass);
+        let name = if k == changed {
+            format!("controls_{k:04}_p{}.bin", p.pass)
+        } else {
+            format!("controls_{k:04}_p{}_s{}.bin", p.pass, p.segments_done)
+        };
         let flat: Vec<f64> = p.controls[k]
             .iter()
             .flat_map(|layer| layer.iter().flat_map(|m| m.iter().copied()))

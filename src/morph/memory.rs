@@ -195,7 +195,7 @@ pub fn fixed_bytes(
     };
     // A segment's path points (one target per frame inside it) and a look-ahead window's
     // (its segments' frames, and a target at each segment end but the last, plus the
-    // window's own), over the longest window.
+    // window's own, with its fine target beside the segment's), over the longest window.
     let window = settings.lookahead as u64 + 1;
     let path_points = if settings.path_weight > 0.0 {
         let longest = settings.shot().segment_steps.into_iter().max().unwrap_or(0);
@@ -207,7 +207,7 @@ pub fn fixed_bytes(
         + particles * SOURCE_PARTICLE_BYTES
         + targets * TARGET_PARTICLE_BYTES
         + nodes * (NODE_BYTES + 8 * keyframes + 8 * path_points)
-        + fine_nodes * (FINE_NODE_BYTES + 8 * keyframes)
+        + fine_nodes * (FINE_NODE_BYTES + 8 * keyframes + 8 * (window - 1).min(1))
         + working_bytes(settings, particles as usize)
         + (WRITE_QUEUE as u64 + 2) * particles * FRAME_PARTICLE_BYTES
         + coarse_level_bytes(settings, particles, targets, nodes, keyframes)

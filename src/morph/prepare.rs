@@ -594,16 +594,26 @@ impl Prepared {
     }
 
     /// The ends of segments `k..end` inside a look-ahead window, each against that
-    /// segment's own target (see [`Prepared::segment_losses`]).
-    pub fn window_waypoints(&self, k: usize, end: usize) -> Result<Vec<PathPoint>, SimError> {
-        (k..end)
-            .map(|j| {
-                Ok(PathPoint {
-                    step: self.sim_segment_first(j) + self.sim_segment_steps(j) - 1,
-                    loss: self.segment_losses(j)?.0.into_owned(),
-                })
-            })
-            .collect()
+    /// segment's own target; segment `k`'s is `first` (the chain has it already, see
+    /// [`Prepared::segment_losses`]).
+    pub fn window_waypoints(
+        &self,
+        k: usize,
+        end: usize,
+        first: &MassLoss,
+    ) -> Result<Vec<PathPoint>, SimError> {
+        let end_step = |j: usize| self.sim_segment_first(j) + self.sim_segment_steps(j) - 1;
+        let mut points = vec![PathPoint {
+            step: end_step(k),
+            loss: first.clone(),
+        }];
+        for j in k + 1..end {
+            points.push(PathPoint {
+                step: end_step(j),
+                loss: self.segment_losses(j)?.0.into_owned(),
+            });
+        }
+        Ok(points)
     }
 
     /// Frames the chain exports: the initial state and every `frame_every`-th step.
