@@ -472,13 +472,16 @@ fn check_segment<I: Integrator>(sim: &I, mut init: State) {
             MassLossKind::Log,
         ),
     }];
-    for (arrival_weight, volume_weight, fine_loss, path_weight, waypoint) in [
-        (0.0, 0.0, None, 0.0, false),
-        (0.05, 0.0, None, 0.0, false),
-        (0.0, 30.0, None, 0.0, false),
-        (0.0, 0.0, None, 0.8, false),
-        (0.0, 0.0, None, 0.0, true),
-        (0.05, 30.0, Some(&fine), 0.8, true),
+    // The last control layer before the segment, which the continuity cost holds layer 0 to.
+    let anchor: Vec<Matrix3<f64>> = (0..n).map(|_| 0.03 * rng.mat3()).collect();
+    for (arrival_weight, volume_weight, fine_loss, path_weight, waypoint, smoothing) in [
+        (0.0, 0.0, None, 0.0, false, 0.0),
+        (0.05, 0.0, None, 0.0, false, 0.0),
+        (0.0, 30.0, None, 0.0, false, 0.0),
+        (0.0, 0.0, None, 0.8, false, 0.0),
+        (0.0, 0.0, None, 0.0, true, 0.0),
+        (0.0, 0.0, None, 0.0, false, 40.0),
+        (0.05, 30.0, Some(&fine), 0.8, true, 40.0),
     ] {
         let segment = Segment {
             sim,
@@ -493,6 +496,9 @@ fn check_segment<I: Integrator>(sim: &I, mut init: State) {
             path: if path_weight > 0.0 { &path } else { &[] },
             path_weight,
             waypoints: if waypoint { &waypoints } else { &[] },
+            waypoint_weight: 0.4,
+            smoothing,
+            anchor: (smoothing > 0.0).then_some(&anchor[..]),
             resolution: Default::default(),
             tape_budget: usize::MAX,
         };
@@ -533,7 +539,7 @@ fn check_segment<I: Integrator>(sim: &I, mut init: State) {
             let err = rel_err(analytic, numeric);
             assert!(
                 err < TOL,
-                "arrival {arrival_weight}, volume {volume_weight}, path {path_weight}, fine {}, waypoint {waypoint}, direction {trial}: {analytic} vs {numeric} ({err:e})",
+                "arrival {arrival_weight}, volume {volume_weight}, path {path_weight}, fine {}, waypoint {waypoint}, smoothing {smoothing}, direction {trial}: {analytic} vs {numeric} ({err:e})",
                 fine_loss.is_some()
             );
         }

@@ -54,8 +54,8 @@ PRESETS (resolution, segments x steps, passes, iterations per segment, look-ahea
 quality and time from docs/morph.md, 2 cores):
 {presets}
   Any of --resolution --particles --segments --steps --passes --iterations --levels
-  --refine-iterations --lookahead --path-weight overrides its preset value (--resolution
-  replaces a budget).
+  --refine-iterations --lookahead --path-weight --waypoint-weight --control-smoothing
+  overrides its preset value (--resolution replaces a budget).
 
 EXIT CODES:
   0    success (every written file checked finite)
@@ -176,6 +176,10 @@ pub struct MorphArgs {
     path_weight: Option<f64>,
     #[arg(long, help = help("Look-ahead: optimize each segment together with the next N, scored at each of their ends, and keep its own controls (the body answers its controls a segment late; docs/morph.md)", Some(limits::LOOKAHEAD), by_preset(|s| s.lookahead)))]
     lookahead: Option<usize>,
+    #[arg(long, help = help("Weight of the controls' continuity in time: each control layer against the one before it, across segment boundaries too, >= 0 (0: off)", None, by_preset(|s| s.control_smoothing)))]
+    control_smoothing: Option<f64>,
+    #[arg(long, help = help("Weight of each earlier segment end inside a look-ahead window, against that segment's target (the window's end weighs 1), >= 0", None, by_preset(|s| s.waypoint_weight)))]
+    waypoint_weight: Option<f64>,
     #[arg(long, help = help("Weight of the mass loss on a grid twice as fine as the simulation's, >= 0 (sees holes and clumps within a cell)", None, defaults().fine_weight))]
     fine_weight: Option<f64>,
     #[arg(long, value_parser = choice(&TargetFit::ALL), help = format!("How each target is placed (on-ground needs a scene's ground) [default {}]", name(&defaults().target_fit)))]
@@ -361,6 +365,12 @@ impl MorphArgs {
         }
         if let Some(w) = self.path_weight {
             s.path_weight = w;
+        }
+        if let Some(w) = self.control_smoothing {
+            s.control_smoothing = w;
+        }
+        if let Some(w) = self.waypoint_weight {
+            s.waypoint_weight = w;
         }
         if let Some(n) = self.lookahead {
             s.lookahead = n;

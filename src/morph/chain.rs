@@ -246,6 +246,11 @@ fn chain<I: Integrator>(
             for j in k + 1..=end {
                 path.extend(prep.segment_path(j)?);
             }
+            // The last control layer before segment k, which its first continues.
+            let anchor = k
+                .checked_sub(1)
+                .and_then(|j| progress.controls[j].last())
+                .map(|layer| layer.clone());
             let segment = Segment {
                 sim,
                 loss: &loss,
@@ -259,6 +264,9 @@ fn chain<I: Integrator>(
                 path: &path[..own_path],
                 path_weight: s.path_weight,
                 waypoints: &[],
+                waypoint_weight: s.waypoint_weight,
+                smoothing: s.control_smoothing,
+                anchor: anchor.as_deref(),
                 resolution: s.control_resolution,
                 tape_budget: prep.tape_budget,
             };
@@ -375,8 +383,9 @@ fn chain<I: Integrator>(
             progress.segments_done = k + 1;
             progress.elapsed_s = seconds(&clock);
             observer.segment_done(&progress, k)?;
-            if last_pass && !keep_controls {
-                progress.controls[k] = Vec::new();
+            // Segment k's last layer anchors segment k+1's first; the one before is done with.
+            if last_pass && !keep_controls && k > 0 {
+                progress.controls[k - 1] = Vec::new();
             }
         }
     }

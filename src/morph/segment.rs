@@ -112,10 +112,17 @@ pub struct Segment<'a, I: Integrator> {
     /// from frame to frame and not only at the segment's end (none: the end alone).
     pub path: &'a [PathPoint],
     pub path_weight: f64,
-    /// Ends of earlier segments inside this one, each scored in full like the end (weight
-    /// 1): a look-ahead window (segments k..k+n optimized as one, segment k's controls kept)
-    /// passes through segment k's target on its way (none: a single segment).
+    /// Ends of earlier segments inside this one, each scored by its mass loss times
+    /// `waypoint_weight`: a look-ahead window (segments k..k+n optimized as one, segment k's
+    /// controls kept) passes through segment k's target on its way (none: a single segment).
     pub waypoints: &'a [PathPoint],
+    pub waypoint_weight: f64,
+    /// Weight of the controls' continuity in time, `w` times the mean over particles of
+    /// `sum_l 1/2 |Fc_l - Fc_(l-1)|^2`, layer 0 against `anchor` (the last layer before the
+    /// segment; zero at the start of the shot): a jump in the flow the controls ask for is
+    /// what makes the elastic body surge and ease at every layer and segment boundary.
+    pub smoothing: f64,
+    pub anchor: Option<&'a [Matrix3<f64>]>,
     /// Where Adam's free control values live (see [`ControlBasis`]); the line search always
     /// works per particle, as the reference does.
     pub resolution: ControlResolution,
@@ -179,6 +186,68 @@ impl<I: Integrator> Segment<'_, I> {
     /// The waypoint on the state after global step `k`, if any.
     fn waypoint(&self, k: usize) -> Option<&PathPoint> {
         self.waypoints.iter().find(|p| p.step == k)
+    }
+
+    /// The layer before layer `l` (layer 0's: the anchor, or none for zero).
+    fn previous<'b>(
+        &'b self,
+        layers: &'b [Vec<Matrix3<f64>>],
+        l: usize,
+    ) -> Option<&'b [Matrix3<f64>]> {
+        if l == 0 {
+            self.anchor
+        } else {
+            Some(&layers[l - 1])
+        }
+    }
+
+    /// The continuity cost of `layers` (see [`Segment::smoothing`]).
+    fn smoothness(&self, layers: &[Vec<Matrix3<f64>>]) -> f64 {
+        if self.smoothing == 0.0 {
+            return 0.0;
+        }
+        let n = layers.first().map_or(1, |l| l.len().max(1)) as f64;
+        let mut sum = 0.0;
+        for (l, layer) in layers.iter().enumerate() {
+            sum += match self.previous(layers, l) {
+                Some(prev) => layer
+                    .iter()
+                    .zip(prev)
+                    .map(|(a, b)| (a - b).norm_squared())
+                    .sum(),
+                None => layer.iter().map(|a| a.norm_squared()).sum::<f64>(),
+            };
+        }
+        0.5 * self.smoothing * sum / n
+    }
+
+    /// Adds the continuity cost's gradient to `grads`, which hold layers `from..`.
+    fn smoothness_reverse(&self, layers: &[Vec<Matrix3<f64>>], from: usize, grads: &mut Layers) {
+        if self.smoothing == 0.0 {
+            return;
+        }
+        let w = self.smoothing / layers.first().map_or(1, |l| l.len().max(1)) as f64;
+        for l in from..layers.len() {
+            let grad = &mut grads[l - from];
+            // Its own difference to the layer before, and the next layer's difference to it.
+            match self.previous(layers, l) {
+                Some(prev) => {
+                    for ((g, a), b) in grad.iter_mut().zip(&layers[l]).zip(prev) {
+                        *g += w * (a - b);
+                    }
+                }
+                None => {
+                    for (g, a) in grad.iter_mut().zip(&layers[l]) {
+                        *g += w * a;
+                    }
+                }
+            }
+            if let Some(next) = layers.get(l + 1) {
+                for ((g, a), b) in grad.iter_mut().zip(&layers[l]).zip(next) {
+                    *g += w * (a - b);
+                }
+            }
+        }
     }
 
     pub fn num_layers(&self) -> usize {
@@ -298,8 +367,9 @@ impl<I: Integrator> Segment<'_, I> {
             loss += self.path_weight * sum / self.path.len() as f64;
         }
         if !self.waypoints.is_empty() {
-            loss += all().map(|a| a.waypoint).sum::<f64>();
+            loss += self.waypoint_weight * all().map(|a| a.waypoint).sum::<f64>();
         }
+        loss += self.smoothness(layers);
         Ok(Rollout { loss, run, after })
     }
 
@@ -342,7 +412,10 @@ impl<I: Integrator> Segment<'_, I> {
                     *a += volume_weight * g;
                 }
             }
-            let points = [(self.path_point(k), path_weight), (self.waypoint(k), 1.0)];
+            let points = [
+                (self.path_point(k), path_weight),
+                (self.waypoint(k), self.waypoint_weight),
+            ];
             for (point, weight) in points {
                 if let Some(point) = point
                     && let Ok(mass) = model.mass_grid(&state.x)
@@ -396,6 +469,7 @@ impl<I: Integrator> Segment<'_, I> {
             seed_after,
             &mut on_control,
         )?;
+        self.smoothness_reverse(layers, from, &mut layer_grads);
         Ok(layer_grads)
     }
 

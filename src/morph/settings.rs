@@ -131,6 +131,15 @@ pub struct MorphSettings {
     /// segment alone.
     #[serde(default)]
     pub lookahead: usize,
+    /// Weight of each earlier segment end inside a look-ahead window: its mass loss against
+    /// that segment's target, times this (the window's end weighs 1).
+    #[serde(default = "unit_weight")]
+    pub waypoint_weight: f64,
+    /// Weight of the controls' continuity in time: the mean over particles of
+    /// `1/2 |Fc_l - Fc_(l-1)|^2` summed over a segment's layers, its first against the last
+    /// layer kept before it (0: off).
+    #[serde(default)]
+    pub control_smoothing: f64,
     /// Weight of the mass loss on a grid twice as fine as the simulation's, which sees how
     /// particles are arranged within a cell (0: off).
     #[serde(default)]
@@ -370,9 +379,11 @@ impl MorphSettings {
         // The motion an animator keeps (docs/morph.md, "Look-ahead"): each segment optimized
         // with the next and scored along the scheduled path. It doubles a segment's cost, so
         // the quick look goes without.
-        let (lookahead, path_weight) = match preset {
-            Preset::Draft => (0, 0.0),
-            Preset::Default | Preset::Final => (1, 1.0),
+        // The controls' continuity in time and light waypoints take out the pulse a window
+        // leaves at the segments' period (docs/morph.md, "Continuous controls").
+        let (lookahead, path_weight, control_smoothing, waypoint_weight) = match preset {
+            Preset::Draft => (0, 0.0, 0.0, 1.0),
+            Preset::Default | Preset::Final => (1, 1.0, 3.0e4, 0.1),
         };
         MorphSettings {
             preset,
@@ -402,6 +413,8 @@ impl MorphSettings {
             volume_weight: 400.0,
             path_weight,
             lookahead,
+            waypoint_weight,
+            control_smoothing,
             fine_weight: 1.0,
             kernel: KernelKind::Cubic,
             integrator: IntegratorKind::Euler,
@@ -522,6 +535,18 @@ impl MorphSettings {
             return Err(format!(
                 "--path-weight must be >= 0, got {}",
                 self.path_weight
+            ));
+        }
+        if !(self.waypoint_weight.is_finite() && self.waypoint_weight >= 0.0) {
+            return Err(format!(
+                "--waypoint-weight must be >= 0, got {}",
+                self.waypoint_weight
+            ));
+        }
+        if !(self.control_smoothing.is_finite() && self.control_smoothing >= 0.0) {
+            return Err(format!(
+                "--control-smoothing must be >= 0, got {}",
+                self.control_smoothing
             ));
         }
         if !(self.fine_weight.is_finite() && self.fine_weight >= 0.0) {
@@ -721,4 +746,9 @@ impl Shot {
     pub fn frame_count(&self) -> usize {
         self.segment_steps.iter().sum::<usize>() / self.frame_every.max(1) + 1
     }
+}
+
+/// A weight of 1: what a setting missing from an older file means.
+fn unit_weight() -> f64 {
+    1.0
 }
