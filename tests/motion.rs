@@ -135,7 +135,7 @@ struct Goals {
 }
 
 /// What the small morph is held to: bounds 0.6.0 meets with the look-ahead and continuous
-/// controls (pulse 0.011, dip -0.01, wobble 0.052, settle 0.008, ease error 0.134, 2 frozen
+/// controls (pulse 0.011, dip -0.01, wobble 0.052, settle 0.007, ease error 0.134, 2 frozen
 /// frames), where the look-ahead alone (0.5.0) measured 0.125 / -0.10 / 0.169 / 0.007 / 0.190,
 /// 1, each segment alone 0.153 / -0.03 / 0.309 / 0.035 / 0.129, 2, and 0.2.0's method failed
 /// by far (pulse 0.39, dip 0.39, wobble 0.46, settle 0.21). Pulse, dip, wobble and settle are

@@ -265,7 +265,7 @@ fn chain<I: Integrator>(
                 path_weight: s.path_weight,
                 waypoints: &[],
                 waypoint_weight: s.waypoint_weight,
-                smoothing: s.control_smoothing,
+                smoothing: prep.segment_smoothing(k),
                 anchor: anchor.as_deref(),
                 resolution: s.control_resolution,
                 tape_budget: prep.tape_budget,

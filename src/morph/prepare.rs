@@ -418,17 +418,33 @@ impl Prepared {
         }
     }
 
-    /// The weight of the kinetic energy left at segment `k`'s end: the settings' for a segment
-    /// that starts at or after the final target's arrival (the held shape comes to rest), none
-    /// before (braking at every segment's end made the body pulse at the segments' period,
-    /// and braking the segment that still has to finish the shape cost fill).
-    pub fn segment_arrival_weight(&self, k: usize) -> f64 {
+    /// Whether segment `k` starts at or after the final target's arrival: the shape is held.
+    fn segment_holds(&self, k: usize) -> bool {
         let start: usize = self.segment_steps[..k].iter().sum();
-        let arrival = self.schedule.steps.last().copied().unwrap_or(0);
-        if start >= arrival {
+        start >= self.schedule.steps.last().copied().unwrap_or(0)
+    }
+
+    /// The weight of the kinetic energy left at segment `k`'s end: the settings' for a held
+    /// segment (the held shape comes to rest), none before (braking at every segment's end
+    /// made the body pulse at the segments' period, and braking the segment that still has
+    /// to finish the shape cost fill).
+    pub fn segment_arrival_weight(&self, k: usize) -> f64 {
+        if self.segment_holds(k) {
             self.settings.arrival_weight * self.weight_scale().arrival
         } else {
             0.0
+        }
+    }
+
+    /// The weight of segment `k`'s controls' continuity in time: the settings' before the
+    /// final target's arrival, none for the held segments, which stop the flow rather than
+    /// continue it (on a held-out horned figure the body still moved at 25% of its peak
+    /// speed on the last frame with it, 16% without).
+    pub fn segment_smoothing(&self, k: usize) -> f64 {
+        if self.segment_holds(k) {
+            0.0
+        } else {
+            self.settings.control_smoothing
         }
     }
 
