@@ -831,7 +831,8 @@ fn resume_with_a_shorter_last_segment_is_bitwise_identical() {
 /// A look-ahead (`--lookahead 1`): each checkpoint holds the controls the window left for
 /// the next segment, so a resumed run starts that segment where the uninterrupted one did
 /// and finishes bitwise like it (two passes, and a last segment shorter than the others,
-/// which no window reaches past).
+/// which no window reaches past). The controls' continuity is on too: a resumed segment's
+/// first layer is held to the last layer kept before it, which the checkpoint must give back.
 #[test]
 fn resume_with_lookahead_is_bitwise_identical() {
     const SHOT: &[&str] = &[
@@ -851,11 +852,23 @@ fn resume_with_lookahead_is_bitwise_identical() {
         "4",
         "--lookahead",
         "1",
+        "--control-smoothing",
+        "30000",
+        "--waypoint-weight",
+        "0.1",
         "--quiet",
     ];
     let m = interrupt_resume_and_compare("lookahead-resume", SHOT);
     assert_eq!(m["settings"]["lookahead"].as_u64(), Some(1));
     assert_eq!(m["frames"].as_array().unwrap().len(), 41);
+    // One pass: interrupted in the last pass, where a finished segment's controls are kept
+    // only as long as the next segment's continuity needs them.
+    let one_pass: Vec<&str> = SHOT
+        .iter()
+        .map(|a| if *a == "2" { "1" } else { *a })
+        .collect();
+    let m = interrupt_resume_and_compare("lookahead-resume-one-pass", &one_pass);
+    assert_eq!(m["settings"]["passes"].as_u64(), Some(1));
 }
 
 /// Coarse-to-fine (`--levels 2`): interrupted after a checkpoint of the finest level, the
