@@ -301,6 +301,13 @@ fn command_line_errors() {
         (vec!["--volume-weight", "-1"], 2, "--volume-weight"),
         (vec!["--fine-weight", "nan"], 2, "--fine-weight"),
         (vec!["--path-weight", "-0.5"], 2, "--path-weight"),
+        (vec!["--waypoint-weight", "-1"], 2, "--waypoint-weight"),
+        (vec!["--control-smoothing", "inf"], 2, "--control-smoothing"),
+        (
+            vec!["--carry-controls", "2"],
+            2,
+            "--carry-controls must be in 0..=1",
+        ),
         (
             vec!["--lookahead", "5"],
             2,

@@ -832,7 +832,8 @@ fn resume_with_a_shorter_last_segment_is_bitwise_identical() {
 /// the next segment, so a resumed run starts that segment where the uninterrupted one did
 /// and finishes bitwise like it (two passes, and a last segment shorter than the others,
 /// which no window reaches past). The controls' continuity is on too: a resumed segment's
-/// first layer is held to the last layer kept before it, which the checkpoint must give back.
+/// first layer is held to the last layer kept before it, which the checkpoint must give back,
+/// and a window's new segment starts from half that layer (`--carry-controls`).
 #[test]
 fn resume_with_lookahead_is_bitwise_identical() {
     const SHOT: &[&str] = &[
@@ -856,6 +857,8 @@ fn resume_with_lookahead_is_bitwise_identical() {
         "30000",
         "--waypoint-weight",
         "0.1",
+        "--carry-controls",
+        "0.5",
         "--quiet",
     ];
     let m = interrupt_resume_and_compare("lookahead-resume", SHOT);

@@ -55,7 +55,7 @@ quality and time from docs/morph.md, 2 cores):
 {presets}
   Any of --resolution --particles --segments --steps --passes --iterations --levels
   --refine-iterations --lookahead --path-weight --waypoint-weight --control-smoothing
-  overrides its preset value (--resolution replaces a budget).
+  --carry-controls overrides its preset value (--resolution replaces a budget).
 
 EXIT CODES:
   0    success (every written file checked finite)
@@ -180,6 +180,8 @@ pub struct MorphArgs {
     control_smoothing: Option<f64>,
     #[arg(long, help = help("Weight of each earlier segment end inside a look-ahead window, against that segment's target (the window's end weighs 1), >= 0", None, by_preset(|s| s.waypoint_weight)))]
     waypoint_weight: Option<f64>,
+    #[arg(long, help = help("Where a look-ahead window's new segment starts: this share of the last control layer before it, 0..=1 (0: zeros; with --control-smoothing only)", None, by_preset(|s| s.carry_controls)))]
+    carry_controls: Option<f64>,
     #[arg(long, help = help("Weight of the mass loss on a grid twice as fine as the simulation's, >= 0 (sees holes and clumps within a cell)", None, defaults().fine_weight))]
     fine_weight: Option<f64>,
     #[arg(long, value_parser = choice(&TargetFit::ALL), help = format!("How each target is placed (on-ground needs a scene's ground) [default {}]", name(&defaults().target_fit)))]
@@ -371,6 +373,9 @@ impl MorphArgs {
         }
         if let Some(w) = self.waypoint_weight {
             s.waypoint_weight = w;
+        }
+        if let Some(c) = self.carry_controls {
+            s.carry_controls = c;
         }
         if let Some(n) = self.lookahead {
             s.lookahead = n;

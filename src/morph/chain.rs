@@ -295,7 +295,22 @@ fn chain<I: Integrator>(
                 (l, Some(w)) if l.is_empty() => w.prolongation.apply(&w.controls[j]),
                 (l, _) => l.clone(),
             };
-            let init: Layers = (k..=end).flat_map(|j| start_of(j, &progress)).collect();
+            // A window's segments after k that were never optimized start from zero, or from
+            // `carry_controls` times the last layer before them (continuing the flow).
+            let mut init: Layers = Vec::new();
+            for j in k..=end {
+                let fresh = progress.controls[j].is_empty() && warm.is_none();
+                let mut layers = start_of(j, &progress);
+                let carried = init
+                    .last()
+                    .filter(|_| fresh && s.carry_controls > 0.0 && prep.segment_smoothing(j) > 0.0);
+                if let Some(last) = carried {
+                    let layer: Vec<Matrix3<f64>> =
+                        last.iter().map(|c| c * s.carry_controls).collect();
+                    layers.iter_mut().for_each(|l| l.clone_from(&layer));
+                }
+                init.extend(layers);
+            }
             let optimized = window.as_ref().unwrap_or(&segment);
             let mut stop = observer.stop_requested();
             let iterations = &mut progress.iterations;

@@ -140,6 +140,11 @@ pub struct MorphSettings {
     /// layer kept before it (0: off).
     #[serde(default)]
     pub control_smoothing: f64,
+    /// Where a look-ahead window's new segment starts: this share of the last control layer
+    /// before it on every layer (0: zeros). Only with the continuity on, and never on a held
+    /// segment.
+    #[serde(default)]
+    pub carry_controls: f64,
     /// Weight of the mass loss on a grid twice as fine as the simulation's, which sees how
     /// particles are arranged within a cell (0: off).
     #[serde(default)]
@@ -415,6 +420,7 @@ impl MorphSettings {
             lookahead,
             waypoint_weight,
             control_smoothing,
+            carry_controls: 0.0,
             fine_weight: 1.0,
             kernel: KernelKind::Cubic,
             integrator: IntegratorKind::Euler,
@@ -541,6 +547,12 @@ impl MorphSettings {
             return Err(format!(
                 "--waypoint-weight must be >= 0, got {}",
                 self.waypoint_weight
+            ));
+        }
+        if !(self.carry_controls.is_finite() && (0.0..=1.0).contains(&self.carry_controls)) {
+            return Err(format!(
+                "--carry-controls must be in 0..=1, got {}",
+                self.carry_controls
             ));
         }
         if !(self.control_smoothing.is_finite() && self.control_smoothing >= 0.0) {
