@@ -180,7 +180,7 @@ pub struct MorphArgs {
     control_smoothing: Option<f64>,
     #[arg(long, help = help("Weight of each earlier segment end inside a look-ahead window, against that segment's target (the window's end weighs 1), >= 0", None, by_preset(|s| s.waypoint_weight)))]
     waypoint_weight: Option<f64>,
-    #[arg(long, help = help("Where a look-ahead window's new segment starts: this share of the last control layer before it, 0..=1 (0: zeros; with --control-smoothing only)", None, by_preset(|s| s.carry_controls)))]
+    #[arg(long, help = help("Where a look-ahead window's new segment starts: this share of the last control layer before it, 0..=1 (0: zeros; with --control-smoothing only)", None, defaults().carry_controls))]
     carry_controls: Option<f64>,
     #[arg(long, help = help("Weight of the mass loss on a grid twice as fine as the simulation's, >= 0 (sees holes and clumps within a cell)", None, defaults().fine_weight))]
     fine_weight: Option<f64>,
