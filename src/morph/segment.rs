@@ -206,7 +206,6 @@ impl<I: Integrator> Segment<'_, I> {
         if self.smoothing == 0.0 {
             return 0.0;
         }
-        let n = layers.first().map_or(1, |l| l.len().max(1)) as f64;
         let mut sum = 0.0;
         for (l, layer) in layers.iter().enumerate() {
             sum += match self.previous(layers, l) {
@@ -218,7 +217,7 @@ impl<I: Integrator> Segment<'_, I> {
                 None => layer.iter().map(|a| a.norm_squared()).sum::<f64>(),
             };
         }
-        0.5 * self.smoothing * sum / n
+        0.5 * self.smoothing * sum / particles_of(layers)
     }
 
     /// Adds the continuity cost's gradient to `grads`, which hold layers `from..`.
@@ -226,7 +225,7 @@ impl<I: Integrator> Segment<'_, I> {
         if self.smoothing == 0.0 {
             return;
         }
-        let w = self.smoothing / layers.first().map_or(1, |l| l.len().max(1)) as f64;
+        let w = self.smoothing / particles_of(layers);
         for l in from..layers.len() {
             let grad = &mut grads[l - from];
             // Its own difference to the layer before, and the next layer's difference to it.
@@ -791,6 +790,11 @@ fn unflatten(flat: &[f64], layers: &mut [Vec<Matrix3<f64>>]) {
             *x = *values.next().expect("as many values as entries");
         }
     }
+}
+
+/// The particle count of `layers`, which the continuity cost is a mean over.
+fn particles_of(layers: &[Vec<Matrix3<f64>>]) -> f64 {
+    layers.first().map_or(1, |l| l.len().max(1)) as f64
 }
 
 /// Errors a too-large control step causes (the trial is rejected, not the morph).

@@ -141,8 +141,8 @@ pub struct MorphSettings {
     #[serde(default)]
     pub control_smoothing: f64,
     /// Where a look-ahead window's new segment starts: this share of the last control layer
-    /// before it on every layer (0: zeros). Only with the continuity on, and never on a held
-    /// segment.
+    /// before it on every layer (0: zeros). Only with the continuity on, never on a held
+    /// segment, and not on a finer level of `levels`, which starts from the coarser one's.
     #[serde(default)]
     pub carry_controls: f64,
     /// Weight of the mass loss on a grid twice as fine as the simulation's, which sees how
@@ -516,64 +516,29 @@ impl MorphSettings {
                 Err(format!("--{name} must be a positive number, got {v}"))
             }
         };
+        let non_negative = |name: &str, v: f64| {
+            if v.is_finite() && v >= 0.0 {
+                Ok(())
+            } else {
+                Err(format!("--{name} must be >= 0, got {v}"))
+            }
+        };
         positive("learning-rate", self.optimizer.learning_rate)?;
         positive("density", self.material.density)?;
         positive("mu", self.material.mu)?;
-        if !(self.material.lambda.is_finite() && self.material.lambda >= 0.0) {
-            return Err(format!(
-                "--lambda must be >= 0, got {}",
-                self.material.lambda
-            ));
-        }
-        if !(self.arrival_weight.is_finite() && self.arrival_weight >= 0.0) {
-            return Err(format!(
-                "--arrival-weight must be >= 0, got {}",
-                self.arrival_weight
-            ));
-        }
-        if !(self.volume_weight.is_finite() && self.volume_weight >= 0.0) {
-            return Err(format!(
-                "--volume-weight must be >= 0, got {}",
-                self.volume_weight
-            ));
-        }
-        if !(self.path_weight.is_finite() && self.path_weight >= 0.0) {
-            return Err(format!(
-                "--path-weight must be >= 0, got {}",
-                self.path_weight
-            ));
-        }
-        if !(self.waypoint_weight.is_finite() && self.waypoint_weight >= 0.0) {
-            return Err(format!(
-                "--waypoint-weight must be >= 0, got {}",
-                self.waypoint_weight
-            ));
-        }
+        non_negative("lambda", self.material.lambda)?;
+        non_negative("arrival-weight", self.arrival_weight)?;
+        non_negative("volume-weight", self.volume_weight)?;
+        non_negative("path-weight", self.path_weight)?;
+        non_negative("waypoint-weight", self.waypoint_weight)?;
+        non_negative("control-smoothing", self.control_smoothing)?;
+        non_negative("fine-weight", self.fine_weight)?;
+        non_negative("drag", self.drag)?;
+        non_negative("settle-drag", self.settle_drag)?;
         if !(self.carry_controls.is_finite() && (0.0..=1.0).contains(&self.carry_controls)) {
             return Err(format!(
                 "--carry-controls must be in 0..=1, got {}",
                 self.carry_controls
-            ));
-        }
-        if !(self.control_smoothing.is_finite() && self.control_smoothing >= 0.0) {
-            return Err(format!(
-                "--control-smoothing must be >= 0, got {}",
-                self.control_smoothing
-            ));
-        }
-        if !(self.fine_weight.is_finite() && self.fine_weight >= 0.0) {
-            return Err(format!(
-                "--fine-weight must be >= 0, got {}",
-                self.fine_weight
-            ));
-        }
-        if !(self.drag.is_finite() && self.drag >= 0.0) {
-            return Err(format!("--drag must be >= 0, got {}", self.drag));
-        }
-        if !(self.settle_drag.is_finite() && self.settle_drag >= 0.0) {
-            return Err(format!(
-                "--settle-drag must be >= 0, got {}",
-                self.settle_drag
             ));
         }
         if !(self.jitter.is_finite() && (0.0..=1.0).contains(&self.jitter)) {
