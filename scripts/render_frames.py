@@ -2,9 +2,10 @@
 """Renders chosen frames of morph outputs' carried surface with Blender (bpy, Cycles on the
 CPU) into one contact sheet: a row per output, a column per frame.
 
-    python scripts/render_frames.py OUT.png 5,15,30,45,60,73 LABEL=DIR[:SUB] [LABEL=DIR[:SUB] ...]
+    python scripts/render_frames.py [--size WxH] OUT.png 5,15,30,45,60,73 LABEL=DIR[:SUB] [...]
 
 SUB is the surface's folder in the output: `carried` (the default) or `meshes` (rebuilt).
+--size sets each tile's pixels (200x160 by default; larger to see fine ripples).
 
 Needs the `bpy` module (Blender 4.5 as a Python module, e.g. the client check's venv).
 """
@@ -15,7 +16,10 @@ import tempfile
 import bpy
 
 
-def render(obj_path, png, size=(200, 160)):
+SIZE = (200, 160)
+
+
+def render(obj_path, png, size=SIZE):
     bpy.ops.wm.read_factory_settings(use_empty=True)
     bpy.ops.wm.obj_import(filepath=obj_path)
     ob = bpy.context.selected_objects[0]
@@ -47,7 +51,12 @@ def render(obj_path, png, size=(200, 160)):
 
 
 def main():
-    out, frames, runs = sys.argv[1], [int(f) for f in sys.argv[2].split(",")], sys.argv[3:]
+    global SIZE
+    args = sys.argv[1:]
+    if args[0] == "--size":
+        SIZE = tuple(int(n) for n in args[1].split("x"))
+        args = args[2:]
+    out, frames, runs = args[0], [int(f) for f in args[1].split(",")], args[2:]
     tmp = tempfile.mkdtemp()
     tiles = []
     for r, run in enumerate(runs):
@@ -56,11 +65,11 @@ def main():
         row = []
         for f in frames:
             png = os.path.join(tmp, f"{r}_{f}.png")
-            render(os.path.join(folder, sub, f"frame_{f:04d}.obj"), png)
+            render(os.path.join(folder, sub, f"frame_{f:04d}.obj"), png, SIZE)
             row.append(png)
         tiles.append((label, row))
     # Paste the tiles into one image with bpy's image API.
-    w, h = 200, 160
+    w, h = SIZE
     sheet = bpy.data.images.new("sheet", width=w * len(frames), height=h * len(tiles))
     pixels = [0.0] * (w * len(frames) * h * len(tiles) * 4)
     for r, (_, row) in enumerate(reversed(tiles)):

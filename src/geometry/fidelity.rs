@@ -56,6 +56,11 @@ impl Reference {
         Some(Reference { mesh, normals })
     }
 
+    /// The distance from `p` to the reference surface.
+    pub fn distance(&self, p: &Vector3<f64>) -> f64 {
+        (self.closest(p).0 - p).norm()
+    }
+
     /// The closest point of the reference to `p`, and the normal there.
     fn closest(&self, p: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
         let (proj, (face, _)) = self

@@ -28,6 +28,9 @@ use std::path::Path;
 pub struct MorphGeometry {
     pub placement: Placement,
     pub source: Particles,
+    /// How much each source particle's kernel weighs in the rebuilt surface's field
+    /// ([`surface::edge_weights`]): where the source's surface passes between particles.
+    pub source_edge_weights: Vec<f64>,
     pub target: Particles,
     pub source_solid: Solid,
     pub target_solid: Solid,
@@ -180,6 +183,11 @@ impl MorphGeometry {
         let target_sim = placement.target_to_sim().apply_mesh(&tgt.mesh);
         let source = particles_in(&source_sim, &placement.grid, per_cell, jitter);
         let target = particles_in(&target_sim, &placement.grid, per_cell, None);
+        let source_edge_weights = surface::edge_weights(
+            &source_sim,
+            &source.positions,
+            placement.grid.dx / per_cell as f64,
+        );
         for (p, path) in [(&source, source_path), (&target, target_path)] {
             if p.positions.is_empty() {
                 return Err(MeshError::NoInside {
@@ -216,6 +224,7 @@ impl MorphGeometry {
         Ok(MorphGeometry {
             placement,
             source,
+            source_edge_weights,
             target,
             source_solid,
             target_solid,

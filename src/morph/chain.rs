@@ -250,7 +250,7 @@ fn chain<I: Integrator>(
             let anchor = k
                 .checked_sub(1)
                 .and_then(|j| progress.controls[j].last())
-                .map(|layer| layer.clone());
+                .cloned();
             let segment = Segment {
                 sim,
                 loss: &loss,

@@ -215,6 +215,7 @@ pub fn save(dir: &Path, run_id: &str, p: &RunProgress, changed: usize) -> Result
     // Its controls, and those its look-ahead window left for the segments after it. The
     // latter are named for this checkpoint: the previous one may name a file of the same
     // segment, which must stay as it was until the new progress file replaces it.
+    #[allow(clippy::needless_range_loop)] // k names the file as well as indexing two lists
     for k in changed..=changed + p.ahead {
         let name = if k == changed {
             format!("controls_{k:04}_p{}.bin", p.pass)

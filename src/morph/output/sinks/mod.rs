@@ -124,6 +124,7 @@ pub fn for_folder(
     let to_world = prep.geometry.placement.sim_to_world();
     let spacing = prep.model().grid.dx / settings.particles_per_cell as f64;
     let count = prep.frame_count();
+    let edge_weights: Arc<[f64]> = prep.geometry.source_edge_weights.as_slice().into();
     let fps = 1.0 / (prep.sim_frame_every() as f64 * prep.model().dt);
     // The source as read, for the carried surface and as the first frame's reference.
     let loaded = match settings.surfaces {
@@ -169,6 +170,7 @@ pub fn for_folder(
             method: settings.rebuilt_method,
             spacing,
             rest_volume: prep.geometry.source.volume,
+            edge_weights: edge_weights.clone(),
             body_volume: prep.geometry.source_solid.volume / to_world.scale.powi(3),
             to_world,
             references,
@@ -180,6 +182,7 @@ pub fn for_folder(
             method: settings.rebuilt_method,
             spacing,
             rest_volume: prep.geometry.source.volume,
+            edge_weights: edge_weights.clone(),
             to_world,
         }));
     }

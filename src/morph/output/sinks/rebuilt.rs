@@ -38,6 +38,7 @@ pub(super) fn fill_field_of(
     method: RebuiltMethod,
     frame: &SinkFrame,
     rest_volume: f64,
+    edge_weights: &[f64],
     spacing: f64,
 ) -> Result<FillField, SurfaceError> {
     let state = frame.state;
@@ -52,7 +53,7 @@ pub(super) fn fill_field_of(
             fill_field(&state.x, &volumes, spacing)
         }
         RebuiltMethod::Deformed | RebuiltMethod::Splashsurf => {
-            deformed_fill_field(&state.x, &state.f, rest_volume, spacing)
+            deformed_fill_field(&state.x, &state.f, rest_volume, Some(edge_weights), spacing)
         }
     }
 }
@@ -64,6 +65,8 @@ pub struct RebuiltObj {
     /// Particle spacing (simulation units) and rest volume.
     pub spacing: f64,
     pub rest_volume: f64,
+    /// Each particle's weight in the deformed kernels' field (`MorphGeometry::source_edge_weights`).
+    pub edge_weights: Arc<[f64]>,
     /// The source mesh's volume, simulation units.
     pub body_volume: f64,
     pub to_world: Similarity,
@@ -82,8 +85,14 @@ impl FrameSink for RebuiltObj {
         let j = &frame.world.j;
         let raw = match self.method {
             RebuiltMethod::Splashsurf => extract_splashsurf_surface(&frame.state.x, self.spacing),
-            method => fill_field_of(method, frame, self.rest_volume, self.spacing)
-                .map(|field| field.march()),
+            method => fill_field_of(
+                method,
+                frame,
+                self.rest_volume,
+                &self.edge_weights,
+                self.spacing,
+            )
+            .map(|field| field.march()),
         }
         .map_err(|e| MorphError::Output(e.to_string()))?;
         let (mut surface, cleanup) = clean(&raw, self.spacing);

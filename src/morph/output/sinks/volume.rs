@@ -8,6 +8,7 @@ use crate::geometry::Similarity;
 use crate::morph::MorphError;
 use crate::morph::settings::RebuiltMethod;
 use std::path::PathBuf;
+use std::sync::Arc;
 
 /// The grid's name in each file: what renderers read as a volume's density.
 pub const GRID: &str = "density";
@@ -19,6 +20,8 @@ pub struct VolumeVdb {
     /// Particle spacing (simulation units) and rest volume.
     pub spacing: f64,
     pub rest_volume: f64,
+    /// Each particle's weight in the deformed kernels' field (`MorphGeometry::source_edge_weights`).
+    pub edge_weights: Arc<[f64]>,
     pub to_world: Similarity,
 }
 
@@ -28,8 +31,14 @@ impl FrameSink for VolumeVdb {
     }
 
     fn frame(&mut self, frame: &SinkFrame, _: &mut FrameRecord) -> Result<(), MorphError> {
-        let field = fill_field_of(self.method, frame, self.rest_volume, self.spacing)
-            .map_err(|e| MorphError::Output(e.to_string()))?;
+        let field = fill_field_of(
+            self.method,
+            frame,
+            self.rest_volume,
+            &self.edge_weights,
+            self.spacing,
+        )
+        .map_err(|e| MorphError::Output(e.to_string()))?;
         let path = self.dir.join(format!("{}.vdb", frame.name()));
         // A similarity keeps the lattice axis-aligned: its origin and spacing map over.
         let origin = self.to_world.apply(&field.origin);
