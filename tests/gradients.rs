@@ -474,19 +474,41 @@ fn check_segment<I: Integrator>(sim: &I, mut init: State) {
     }];
     // The last control layer before the segment, which the continuity cost holds layer 0 to.
     let anchor: Vec<Matrix3<f64>> = (0..n).map(|_| 0.03 * rng.mat3()).collect();
-    for (arrival_weight, volume_weight, fine_loss, path_weight, waypoint, smoothing) in [
-        (0.0, 0.0, None, 0.0, false, 0.0),
-        (0.05, 0.0, None, 0.0, false, 0.0),
-        (0.0, 30.0, None, 0.0, false, 0.0),
-        (0.0, 0.0, None, 0.8, false, 0.0),
-        (0.0, 0.0, None, 0.0, true, 0.0),
-        (0.0, 0.0, None, 0.0, false, 40.0),
-        (0.05, 30.0, Some(&fine), 0.8, true, 40.0),
+    // A reach target: the body's box, grown by three spacings toward +x and one toward -y,
+    // so those faces pull the particles nearest them.
+    let spacing = sim.model().grid.dx / 2.0;
+    let (lo, hi) = init.x.iter().fold(
+        (
+            Vector3::repeat(f64::INFINITY),
+            Vector3::repeat(f64::NEG_INFINITY),
+        ),
+        |(lo, hi), x| (lo.inf(x), hi.sup(x)),
+    );
+    let (lo, hi) = (
+        lo - Vector3::new(0.0, spacing, 0.0),
+        hi + Vector3::new(3.0 * spacing, 0.0, 0.0),
+    );
+    let mut box_mesh = morph::geometry::assets::cube(2.0, 3);
+    for v in &mut box_mesh.vertices {
+        *v = lo + (hi - lo).component_mul(&(*v + Vector3::repeat(1.0))) / 2.0;
+    }
+    let reach = morph::morph::reach::ReachLoss::new(&box_mesh, spacing, 0.02);
+    assert!(reach.value(&init.x) > 0.0, "the grown faces pull");
+    for (arrival_weight, volume_weight, fine_loss, path_weight, waypoint, smoothing, reach) in [
+        (0.0, 0.0, None, 0.0, false, 0.0, None),
+        (0.05, 0.0, None, 0.0, false, 0.0, None),
+        (0.0, 30.0, None, 0.0, false, 0.0, None),
+        (0.0, 0.0, None, 0.8, false, 0.0, None),
+        (0.0, 0.0, None, 0.0, true, 0.0, None),
+        (0.0, 0.0, None, 0.0, false, 40.0, None),
+        (0.0, 0.0, None, 0.0, false, 0.0, Some(&reach)),
+        (0.05, 30.0, Some(&fine), 0.8, true, 40.0, Some(&reach)),
     ] {
         let segment = Segment {
             sim,
             loss: &loss,
             fine_loss,
+            reach,
             start: &init,
             first_step: 0,
             steps: STEPS,
@@ -528,19 +550,27 @@ fn check_segment<I: Integrator>(sim: &I, mut init: State) {
                 .zip(dir.iter().flatten())
                 .map(|(g, d)| g.dot(d))
                 .sum();
-            let numeric = fd(|h| {
-                let moved: Vec<Vec<Matrix3<f64>>> = layers
-                    .iter()
-                    .zip(&dir)
-                    .map(|(l, d)| l.iter().zip(d).map(|(a, b)| a + h * b).collect())
-                    .collect();
-                segment.objective(&moved).unwrap()
-            });
+            // The reach cost's nearest particle can change within the usual step (a kink of
+            // the minimum distance, O(h) in the difference): a smaller step keeps such
+            // switches out of it.
+            let step = if reach.is_some() { 1e-6 } else { H };
+            let numeric = fd_step(
+                |h| {
+                    let moved: Vec<Vec<Matrix3<f64>>> = layers
+                        .iter()
+                        .zip(&dir)
+                        .map(|(l, d)| l.iter().zip(d).map(|(a, b)| a + h * b).collect())
+                        .collect();
+                    segment.objective(&moved).unwrap()
+                },
+                step,
+            );
             let err = rel_err(analytic, numeric);
             assert!(
                 err < TOL,
-                "arrival {arrival_weight}, volume {volume_weight}, path {path_weight}, fine {}, waypoint {waypoint}, smoothing {smoothing}, direction {trial}: {analytic} vs {numeric} ({err:e})",
-                fine_loss.is_some()
+                "arrival {arrival_weight}, volume {volume_weight}, path {path_weight}, fine {}, waypoint {waypoint}, smoothing {smoothing}, reach {}, direction {trial}: {analytic} vs {numeric} ({err:e})",
+                fine_loss.is_some(),
+                reach.is_some()
             );
         }
     }

@@ -303,6 +303,7 @@ fn command_line_errors() {
         (vec!["--path-weight", "-0.5"], 2, "--path-weight"),
         (vec!["--waypoint-weight", "-1"], 2, "--waypoint-weight"),
         (vec!["--control-smoothing", "inf"], 2, "--control-smoothing"),
+        (vec!["--reach-weight", "-2"], 2, "--reach-weight"),
         (
             vec!["--carry-controls", "2"],
             2,

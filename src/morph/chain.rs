@@ -255,6 +255,7 @@ fn chain<I: Integrator>(
                 sim,
                 loss: &loss,
                 fine_loss: fine_loss.as_deref(),
+                reach: prep.segment_reach(k),
                 start: &progress.state,
                 first_step: prep.sim_segment_first(k),
                 steps: prep.sim_segment_steps(k),
@@ -282,6 +283,7 @@ fn chain<I: Integrator>(
             let window = window_loss.as_deref().map(|loss| Segment {
                 loss,
                 fine_loss: window_fine.as_deref(),
+                reach: prep.segment_reach(end),
                 steps: (k..=end).map(|j| prep.sim_segment_steps(j)).sum(),
                 arrival_weight: prep.segment_arrival_weight(end),
                 path: &path,

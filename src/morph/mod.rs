@@ -20,6 +20,7 @@ pub mod output;
 mod prepare;
 pub mod progress;
 pub mod quality;
+pub mod reach;
 pub mod scene_file;
 pub mod segment;
 pub mod settings;

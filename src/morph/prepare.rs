@@ -5,6 +5,7 @@
 
 use super::{MorphError, MorphSettings, WorldFrame, inbetween, motion, quality, segment, settings};
 
+use super::reach::ReachLoss;
 use crate::engine::Engine;
 use crate::geometry::{Jitter, LoadedMesh, MorphGeometry};
 use crate::integrator::Integrator;
@@ -24,6 +25,8 @@ pub struct Prepared {
     pub loss: MassLoss,
     /// The mass loss on the finer grid, when its weight is positive.
     pub fine_loss: Option<FineMassLoss>,
+    /// The reach cost of the final target, when its weight is positive.
+    pub reach: Option<ReachLoss>,
     pub initial: State,
     /// Simulation steps per morph step (see [`MorphSettings::dt`]).
     pub substeps: usize,
@@ -245,6 +248,10 @@ impl Prepared {
         } else {
             None
         };
+        let reach = (settings.reach_weight > 0.0).then(|| {
+            let spacing = geometry.placement.grid.dx / settings.particles_per_cell as f64;
+            ReachLoss::new(&geometry.target_sim, spacing, settings.reach_weight)
+        });
         let mut initial = State::at_rest(geometry.source.positions.clone());
         let v0 = geometry.placement.world_to_sim.scale * Vector3::from(settings.initial_velocity);
         initial.v.iter_mut().for_each(|v| *v = v0);
@@ -324,6 +331,7 @@ impl Prepared {
             engine,
             loss,
             fine_loss,
+            reach,
             initial,
             substeps,
             segment_steps: shot.segment_steps,
@@ -537,6 +545,17 @@ impl Prepared {
         let mean = mass.iter().sum::<f64>() / mass.len().max(1) as f64;
         let spacing = self.model().grid.dx / self.settings.particles_per_cell as f64;
         mean * (dx / spacing).powi(3)
+    }
+
+    /// The reach cost segment `k` adds at its end: the final target's, where the segment ends
+    /// at the final target itself (from its arrival on), none before. (Ramped in before the
+    /// arrival, as the fourth power of the schedule's weight, the body ran ahead of its easing
+    /// curve: sphere -> stanford-bunny's ease error 0.52, fill 0.885; docs/morph.md.)
+    pub fn segment_reach(&self, k: usize) -> Option<&ReachLoss> {
+        let (from, to, _) = self.segment_blend(k);
+        (from == to && to == self.schedule.steps.len())
+            .then_some(self.reach.as_ref())
+            .flatten()
     }
 
     /// The losses segment `k` optimizes at its end: against the nodal masses of

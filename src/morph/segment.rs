@@ -14,6 +14,7 @@
 //!   rollout in place (the reference left the rejected trial's states).
 
 use super::basis::{ControlBasis, ControlResolution};
+use super::reach::ReachLoss;
 use crate::integrator::recompute::{self, Checkpointed, ChunkPlan};
 use crate::integrator::{Integrator, RunTape, SeedAfter, StepControl};
 use crate::loss::{FineMassLoss, MassLoss, volume_cost};
@@ -95,6 +96,8 @@ pub struct Segment<'a, I: Integrator> {
     pub loss: &'a MassLoss,
     /// The mass loss on a finer grid, added when given.
     pub fine_loss: Option<&'a FineMassLoss>,
+    /// The reach cost on the segment's last state, added when given.
+    pub reach: Option<&'a ReachLoss>,
     pub start: &'a State,
     /// Global index of the segment's first step (for error messages).
     pub first_step: usize,
@@ -356,6 +359,9 @@ impl<I: Integrator> Segment<'_, I> {
         if let Some(fine) = self.fine_loss {
             loss += fine.value(&state.x, &model.mass)?;
         }
+        if let Some(reach) = self.reach {
+            loss += reach.value(&state.x);
+        }
         let all = || before.iter().chain(&after);
         if with_volume {
             let sum: f64 = all().map(|a| a.volume).sum();
@@ -392,6 +398,11 @@ impl<I: Integrator> Segment<'_, I> {
                 .zip(fine.value_and_grad(&last.x, &model.mass)?.1)
             {
                 *g += f;
+            }
+        }
+        if let Some(reach) = self.reach {
+            for (g, r) in seed.x.iter_mut().zip(reach.value_and_grad(&last.x).1) {
+                *g += r;
             }
         }
         for (p, g) in seed.v.iter_mut().enumerate() {

@@ -149,6 +149,11 @@ pub struct MorphSettings {
     /// particles are arranged within a cell (0: off).
     #[serde(default)]
     pub fine_weight: f64,
+    /// Weight of the reach cost at the segment ends where the body should have taken the
+    /// final target's shape (`morph::reach`): the target's surface pulls its nearest particle
+    /// where that is farther than the tolerance (0: off).
+    #[serde(default)]
+    pub reach_weight: f64,
     pub kernel: KernelKind,
     /// The time integrator (Euler, or RK4 at four evaluations a step).
     #[serde(default)]
@@ -422,6 +427,9 @@ impl MorphSettings {
             control_smoothing,
             carry_controls: 0.0,
             fine_weight: 1.0,
+            // An option for now (docs/morph.md, "Reach": it wins on six of seven morphs
+            // measured and loses on a small one).
+            reach_weight: 0.0,
             kernel: KernelKind::Cubic,
             integrator: IntegratorKind::Euler,
             material: MaterialConfig {
@@ -533,6 +541,7 @@ impl MorphSettings {
         non_negative("waypoint-weight", self.waypoint_weight)?;
         non_negative("control-smoothing", self.control_smoothing)?;
         non_negative("fine-weight", self.fine_weight)?;
+        non_negative("reach-weight", self.reach_weight)?;
         non_negative("drag", self.drag)?;
         non_negative("settle-drag", self.settle_drag)?;
         if !(self.carry_controls.is_finite() && (0.0..=1.0).contains(&self.carry_controls)) {
