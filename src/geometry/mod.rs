@@ -9,6 +9,7 @@ pub mod error;
 pub mod fidelity;
 pub mod mesh;
 pub mod placement;
+pub mod point_grid;
 pub mod splashsurf;
 pub mod surface;
 pub mod voxelize;

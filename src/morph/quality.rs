@@ -16,10 +16,10 @@
 //! initial lattice, 41% for uniformly random points at the same density; a body whose
 //! particles clump leaves gaps elsewhere that a renderer sees.
 
+use crate::geometry::point_grid::PointGrid;
 use crate::geometry::{Lattice, TriMesh, voxelize};
 use nalgebra::Vector3;
 use rayon::prelude::*;
-use rustc_hash::FxHashMap;
 use serde::{Deserialize, Serialize};
 
 /// Judge points along the longest side of the target's box.
@@ -74,83 +74,6 @@ pub struct Quality {
     pub inverted: f64,
     /// Judge lattice points.
     pub judge_points: usize,
-}
-
-/// Particles bucketed in cubes of side `cell`, for radius and nearest-point queries.
-struct PointGrid<'a> {
-    points: &'a [Vector3<f64>],
-    cell: f64,
-    buckets: FxHashMap<[i64; 3], Vec<u32>>,
-}
-
-impl<'a> PointGrid<'a> {
-    fn new(points: &'a [Vector3<f64>], cell: f64) -> Self {
-        let mut buckets: FxHashMap<[i64; 3], Vec<u32>> = FxHashMap::default();
-        for (i, p) in points.iter().enumerate() {
-            buckets
-                .entry(Self::key(p, cell))
-                .or_default()
-                .push(i as u32);
-        }
-        PointGrid {
-            points,
-            cell,
-            buckets,
-        }
-    }
-
-    fn key(p: &Vector3<f64>, cell: f64) -> [i64; 3] {
-        [0, 1, 2].map(|a| (p[a] / cell).floor() as i64)
-    }
-
-    /// Distance from `q` to the nearest point, if one lies within `rings` cells.
-    fn nearest(&self, q: &Vector3<f64>, rings: i64) -> Option<f64> {
-        let c = Self::key(q, self.cell);
-        let mut best = f64::INFINITY;
-        for r in 0..=rings {
-            // Everything beyond ring r is at least (r - 1) cells away.
-            if best <= (r as f64 - 1.0).max(0.0) * self.cell {
-                break;
-            }
-            for dx in -r..=r {
-                for dy in -r..=r {
-                    for dz in -r..=r {
-                        if dx.abs().max(dy.abs()).max(dz.abs()) != r {
-                            continue;
-                        }
-                        let key = [c[0] + dx, c[1] + dy, c[2] + dz];
-                        for &i in self.buckets.get(&key).into_iter().flatten() {
-                            best = best.min((self.points[i as usize] - q).norm());
-                        }
-                    }
-                }
-            }
-        }
-        best.is_finite().then_some(best)
-    }
-
-    /// Whether some point lies within `radius` (at most one cell) of `q`.
-    fn any_within(&self, q: &Vector3<f64>, radius: f64) -> bool {
-        self.any_within_except(q, radius, usize::MAX)
-    }
-
-    /// [`PointGrid::any_within`], not counting point `skip`.
-    fn any_within_except(&self, q: &Vector3<f64>, radius: f64, skip: usize) -> bool {
-        let c = Self::key(q, self.cell);
-        for dx in -1..=1 {
-            for dy in -1..=1 {
-                for dz in -1..=1 {
-                    let key = [c[0] + dx, c[1] + dy, c[2] + dz];
-                    for &i in self.buckets.get(&key).into_iter().flatten() {
-                        if i as usize != skip && (self.points[i as usize] - q).norm() <= radius {
-                            return true;
-                        }
-                    }
-                }
-            }
-        }
-        false
-    }
 }
 
 /// `|a and b| / |a or b|`.

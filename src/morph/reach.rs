@@ -18,9 +18,9 @@
 //! made an objective.
 
 use crate::geometry::mesh::TriMesh;
+use crate::geometry::point_grid::PointGrid;
 use nalgebra::Vector3;
 use rayon::prelude::*;
-use rustc_hash::FxHashMap;
 
 /// Distance (spacings) within which a sample counts as reached and costs nothing: a
 /// particle's centre half a spacing inside a filled surface is that far from the inset
@@ -76,11 +76,11 @@ impl ReachLoss {
     /// For each sample beyond the tolerance: its nearest particle and the sample's excess
     /// distance in spacings, in sample order.
     fn charged(&self, x: &[Vector3<f64>]) -> Vec<Option<(usize, f64, f64)>> {
-        let grid = Buckets::new(x, self.spacing);
+        let grid = PointGrid::new(x, self.spacing);
         self.samples
             .par_iter()
             .map(|(y, area)| {
-                let (p, d) = grid.nearest(x, y, SEARCH_SPACINGS)?;
+                let (p, d) = grid.nearest_point(y, SEARCH_SPACINGS)?;
                 let excess = d / self.spacing - REACH_TOLERANCE;
                 (excess > 0.0).then_some((p, excess, *area))
             })
@@ -113,66 +113,6 @@ impl ReachLoss {
             grad[p] += (self.weight * area * excess / (self.spacing * d)) * (x[p] - y);
         }
         (self.weight * sum, grad)
-    }
-}
-
-/// Particles bucketed in cubes of one spacing, for nearest-particle queries.
-struct Buckets {
-    cell: f64,
-    buckets: FxHashMap<[i64; 3], Vec<u32>>,
-}
-
-impl Buckets {
-    fn new(points: &[Vector3<f64>], cell: f64) -> Buckets {
-        let mut buckets: FxHashMap<[i64; 3], Vec<u32>> = FxHashMap::default();
-        for (i, p) in points.iter().enumerate() {
-            buckets
-                .entry(Self::key(p, cell))
-                .or_default()
-                .push(i as u32);
-        }
-        Buckets { cell, buckets }
-    }
-
-    fn key(p: &Vector3<f64>, cell: f64) -> [i64; 3] {
-        [0, 1, 2].map(|a| (p[a] / cell).floor() as i64)
-    }
-
-    /// The nearest point to `q` within `rings` cells and its distance (the lowest index
-    /// among equals).
-    fn nearest(
-        &self,
-        points: &[Vector3<f64>],
-        q: &Vector3<f64>,
-        rings: i64,
-    ) -> Option<(usize, f64)> {
-        let c = Self::key(q, self.cell);
-        let mut best: Option<(usize, f64)> = None;
-        for r in 0..=rings {
-            // Everything beyond ring r is at least (r - 1) cells away... and r cells
-            // beyond ring r - 1: stop once the best is nearer than that.
-            if best.is_some_and(|(_, d)| d <= (r as f64 - 1.0).max(0.0) * self.cell) {
-                break;
-            }
-            for dx in -r..=r {
-                for dy in -r..=r {
-                    for dz in -r..=r {
-                        if dx.abs().max(dy.abs()).max(dz.abs()) != r {
-                            continue;
-                        }
-                        let key = [c[0] + dx, c[1] + dy, c[2] + dz];
-                        for &i in self.buckets.get(&key).into_iter().flatten() {
-                            let d = (points[i as usize] - q).norm();
-                            let i = i as usize;
-                            if best.is_none_or(|(j, e)| d < e || (d == e && i < j)) {
-                                best = Some((i, d));
-                            }
-                        }
-                    }
-                }
-            }
-        }
-        best
     }
 }
 
