@@ -95,6 +95,16 @@ impl Topology {
     }
 }
 
+/// A point of [`TriMesh::area_samples`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AreaSample {
+    pub point: Vector3<f64>,
+    /// The area it stands for.
+    pub area: f64,
+    /// Its triangle's unit normal.
+    pub normal: Vector3<f64>,
+}
+
 impl TriMesh {
     pub fn bounds(&self) -> Aabb {
         Aabb::of_points(&self.vertices)
@@ -124,6 +134,42 @@ impl TriMesh {
                 0.5 * (b - a).cross(&(c - a)).norm()
             })
             .sum()
+    }
+
+    /// Points spread evenly over the surface, each with the area it stands for and its
+    /// triangle's unit normal (zero for a triangle of no area): each triangle is cut into
+    /// `n^2` equal sub-triangles (`n` from its longest edge over `gap`, at most 64) and
+    /// sampled at their centroids.
+    pub fn area_samples(&self, gap: f64) -> Vec<AreaSample> {
+        let mut samples = Vec::new();
+        for t in &self.triangles {
+            let [a, b, c] = self.corners(t);
+            let (u, v) = (b - a, c - a);
+            let longest = u.norm().max(v.norm()).max((c - b).norm());
+            let n = ((longest / gap).ceil() as usize).clamp(1, 64);
+            let area = 0.5 * u.cross(&v).norm() / (n * n) as f64;
+            let normal = u
+                .cross(&v)
+                .try_normalize(0.0)
+                .unwrap_or_else(Vector3::zeros);
+            let at = |i: f64, j: f64| a + u * (i / n as f64) + v * (j / n as f64);
+            let mut push = |point| {
+                samples.push(AreaSample {
+                    point,
+                    area,
+                    normal,
+                })
+            };
+            for i in 0..n {
+                for j in 0..n - i {
+                    push(at(i as f64 + 1.0 / 3.0, j as f64 + 1.0 / 3.0));
+                    if i + j + 1 < n {
+                        push(at(i as f64 + 2.0 / 3.0, j as f64 + 2.0 / 3.0));
+                    }
+                }
+            }
+        }
+        samples
     }
 
     /// Counts boundary, non-manifold and misoriented edges.

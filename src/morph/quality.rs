@@ -152,30 +152,6 @@ pub struct Judge {
 /// horn a particle spacing wide on a mesh of large triangles).
 const SAMPLE_SPACINGS: f64 = 0.5;
 
-/// Points spread evenly over `mesh`'s surface, each with the area it stands for: each
-/// triangle is cut into `n^2` equal sub-triangles (`n` from its longest edge over `gap`, at
-/// most 64) and sampled at their centroids.
-fn area_samples(mesh: &TriMesh, gap: f64) -> Vec<(Vector3<f64>, f64)> {
-    let mut samples = Vec::new();
-    for t in &mesh.triangles {
-        let [a, b, c] = t.map(|i| mesh.vertices[i as usize]);
-        let (u, v) = (b - a, c - a);
-        let longest = u.norm().max(v.norm()).max((c - b).norm());
-        let n = ((longest / gap).ceil() as usize).clamp(1, 64);
-        let share = 0.5 * u.cross(&v).norm() / (n * n) as f64;
-        let at = |i: f64, j: f64| a + u * (i / n as f64) + v * (j / n as f64);
-        for i in 0..n {
-            for j in 0..n - i {
-                samples.push((at(i as f64 + 1.0 / 3.0, j as f64 + 1.0 / 3.0), share));
-                if i + j + 1 < n {
-                    samples.push((at(i as f64 + 2.0 / 3.0, j as f64 + 2.0 / 3.0), share));
-                }
-            }
-        }
-    }
-    samples
-}
-
 /// The area-weighted 99th percentile and the largest of distances `(distance, area)`.
 fn reach(mut gaps: Vec<(f64, f64)>) -> (f64, f64) {
     gaps.sort_by(|p, q| p.0.total_cmp(&q.0));
@@ -198,7 +174,11 @@ impl Judge {
     pub fn new(target: &TriMesh, spacing: f64, target_lattice: &[Vector3<f64>]) -> Judge {
         let lattice = Lattice::covering(&target.bounds(), JUDGE_ACROSS);
         let inside = voxelize(target, &lattice).inside;
-        let surface = area_samples(target, SAMPLE_SPACINGS * spacing);
+        let surface = target
+            .area_samples(SAMPLE_SPACINGS * spacing)
+            .into_iter()
+            .map(|s| (s.point, s.area))
+            .collect();
         let mut judge = Judge {
             lattice,
             inside,

@@ -12,7 +12,8 @@
 //! ```
 //!
 //! with `a_s` the sample's area in square spacings, `d_s` the distance to its nearest
-//! particle and `h` the particle spacing (so `w` means the same at any resolution). Its
+//! particle and `h` the particle spacing (so on a finer grid the same `w` weighs more
+//! against the mass loss, which stays about the same: docs/morph.md, "Reach"). Its
 //! gradient moves each charged sample's nearest particle straight toward it. It is the
 //! quality judge's reach (`quality::Judge`, the target's surface to the nearest particle)
 //! made an objective.
@@ -44,28 +45,17 @@ pub struct ReachLoss {
 impl ReachLoss {
     /// The reach cost of `target`'s surface for particles `spacing` apart.
     pub fn new(target: &TriMesh, spacing: f64, weight: f64) -> ReachLoss {
-        let gap = SAMPLE_GAP * spacing;
-        let mut samples = Vec::new();
-        for t in &target.triangles {
-            let [a, b, c] = t.map(|i| target.vertices[i as usize]);
-            let (u, v) = (b - a, c - a);
-            let Some(normal) = u.cross(&v).try_normalize(0.0) else {
-                continue;
-            };
-            let longest = u.norm().max(v.norm()).max((c - b).norm());
-            let n = ((longest / gap).ceil() as usize).clamp(1, 64);
-            let share = 0.5 * u.cross(&v).norm() / (n * n) as f64 / (spacing * spacing);
-            let inset = -0.5 * spacing * normal;
-            let at = |i: f64, j: f64| a + u * (i / n as f64) + v * (j / n as f64) + inset;
-            for i in 0..n {
-                for j in 0..n - i {
-                    samples.push((at(i as f64 + 1.0 / 3.0, j as f64 + 1.0 / 3.0), share));
-                    if i + j + 1 < n {
-                        samples.push((at(i as f64 + 2.0 / 3.0, j as f64 + 2.0 / 3.0), share));
-                    }
-                }
-            }
-        }
+        // Set half a spacing inside; areas in square spacings.
+        let samples = target
+            .area_samples(SAMPLE_GAP * spacing)
+            .into_iter()
+            .map(|s| {
+                (
+                    s.point - 0.5 * spacing * s.normal,
+                    s.area / (spacing * spacing),
+                )
+            })
+            .collect();
         ReachLoss {
             samples,
             spacing,
