@@ -49,11 +49,14 @@ fn a_tiny_study_writes_its_files_and_continues() {
     let rows: Vec<Vec<&str>> = lines.map(|l| l.split(',').collect()).collect();
     assert_eq!(rows.len(), 2, "one row per configuration");
     let text_columns = ["id", "preset", "kernel", "integrator", "pareto", "error"];
+    // Empty where they do not apply: no budget was asked for; a run whose shape barely
+    // changes has no ease error.
+    let may_be_empty = ["particle_budget", "ease_error"];
     for row in &rows {
         assert_eq!(row.len(), header.len());
         assert_eq!(row[header.len() - 1], "", "no configuration failed");
         for (col, value) in header.iter().zip(row) {
-            if text_columns.contains(col) {
+            if text_columns.contains(col) || (may_be_empty.contains(col) && value.is_empty()) {
                 continue;
             }
             // CPU seconds and peak memory are measured on Linux, where the tests run.
@@ -88,6 +91,39 @@ fn a_tiny_study_writes_its_files_and_continues() {
     assert!(more.status.success());
     let csv = std::fs::read_to_string(out.join("study.csv")).unwrap();
     assert_eq!(csv.lines().count(), 1 + 3);
+    // A particle budget and a reach weight are axes too: a budget picks the resolution (the
+    // row says which), a weight is a configuration of its own, and the motion is measured.
+    let axes = study(&out, &["--particles", "600", "--reach-weights", "0,10"]);
+    assert!(
+        axes.status.success(),
+        "{}",
+        String::from_utf8_lossy(&axes.stderr)
+    );
+    let json: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("study.json")).unwrap()).unwrap();
+    let rows = json["rows"].as_array().unwrap();
+    let ids: Vec<&str> = rows.iter().map(|r| r["id"].as_str().unwrap()).collect();
+    assert_eq!(rows.len(), 3 + 4, "{ids:?}");
+    for id in [
+        "draft-r10-ppc2-quadratic-euler-it1-p1-s1-rw10",
+        "draft-r12-ppc2-quadratic-euler-it1-p1-s1-rw10",
+        "draft-n600-ppc2-quadratic-euler-it1-p1-s1",
+        "draft-n600-ppc2-quadratic-euler-it1-p1-s1-rw10",
+    ] {
+        assert!(ids.contains(&id), "{id} in {ids:?}");
+    }
+    let budget = rows
+        .iter()
+        .find(|r| r["id"] == "draft-n600-ppc2-quadratic-euler-it1-p1-s1")
+        .unwrap();
+    let particles = budget["particles"].as_f64().unwrap();
+    assert!((300.0..=1200.0).contains(&particles), "{budget}");
+    assert!(budget["resolution"].as_u64().unwrap() > 0, "{budget}");
+    for r in rows {
+        let pulse = r["motion"]["pulse"].as_f64();
+        assert!(pulse.is_some_and(f64::is_finite), "motion measured: {r}");
+    }
+    let csv = std::fs::read_to_string(out.join("study.csv")).unwrap();
 
     // The same folder for other meshes: refused, its rows do not apply (they were kept as
     // "measured earlier" and the study exited 0).

@@ -20,16 +20,21 @@ pub struct StudyArgs {
     #[arg(short, long, default_value = "study")]
     output: PathBuf,
     /// A small grid for a first look (about a minute): resolutions 16,24,32, both kernels,
-    /// 3 and 6 iterations, a 4-segment draft chain. Without it: resolutions 24,32,40, both
-    /// kernels, 6 and 12 iterations, 1 and 2 passes, the default 12-segment chain (24 runs).
+    /// 3 and 6 iterations, a 4-segment draft chain. Without it: particle budgets
+    /// 5000,15000,50000,150000, both kernels, 6 and 12 iterations, reach weights 0 and 10, the
+    /// default 12-segment chain (32 runs; a night on 2 cores).
     #[arg(long)]
     quick: bool,
     /// Preset the other settings start from (default: draft with --quick, else default).
     #[arg(long, value_parser = choice(&Preset::ALL))]
     preset: Option<Preset>,
-    /// Resolutions to run, comma separated.
+    /// Resolutions to run, comma separated (with --particles: both are run).
     #[arg(long, value_delimiter = ',')]
     resolutions: Option<Vec<usize>>,
+    /// Particle budgets to run, comma separated: each picks the resolution that gives the
+    /// source about that many particles (as `morph --particles`).
+    #[arg(long, value_delimiter = ',')]
+    particles: Option<Vec<usize>>,
     /// Particles per cell axis to run, comma separated.
     #[arg(long, value_delimiter = ',')]
     particles_per_cell: Option<Vec<usize>>,
@@ -48,6 +53,9 @@ pub struct StudyArgs {
     /// Segments, comma separated.
     #[arg(long, value_delimiter = ',')]
     segments: Option<Vec<usize>>,
+    /// Weights of the reach cost to run, comma separated (as `morph --reach-weight`).
+    #[arg(long, value_delimiter = ',')]
+    reach_weights: Option<Vec<f64>>,
     /// Print one JSON object per configuration instead of a line of text.
     #[arg(long)]
     json: bool,
@@ -68,7 +76,11 @@ impl StudyArgs {
                 *dst = v.clone();
             }
         };
-        set(&mut g.resolutions, &self.resolutions);
+        // The detail axis is what was asked for, resolutions and budgets together.
+        if self.resolutions.is_some() || self.particles.is_some() {
+            g.resolutions = self.resolutions.clone().unwrap_or_default();
+            g.particles = self.particles.clone().unwrap_or_default();
+        }
         set(&mut g.particles_per_cell, &self.particles_per_cell);
         set(&mut g.iterations, &self.iterations);
         set(&mut g.passes, &self.passes);
@@ -78,6 +90,9 @@ impl StudyArgs {
         }
         if let Some(i) = &self.integrators {
             g.integrators = i.clone();
+        }
+        if let Some(w) = &self.reach_weights {
+            g.reach_weights = w.clone();
         }
         g
     }
@@ -118,8 +133,16 @@ pub fn run(args: &StudyArgs) -> ExitCode {
             ),
             StudyEvent::Measured { index, of, row } => {
                 if let Some(q) = &row.quality {
+                    let motion = row.motion.map_or(String::new(), |m| {
+                        format!(
+                            ", pulse {:.2}, settle {:.2}, ease error {}",
+                            m.pulse,
+                            m.settle,
+                            m.ease_error.map_or("-".into(), |e| format!("{e:.2}"))
+                        )
+                    });
                     println!(
-                        "[{}/{of}] {}: IoU {:.3}, fill {:.3}, surface gap {:.2}, reach {:.2}/{:.2}, {} particles, {:.1} s wall, {} evaluations",
+                        "[{}/{of}] {}: IoU {:.3}, fill {:.3}, surface gap {:.2}, reach {:.2}/{:.2}{motion}, {} particles, {:.1} s wall, {} evaluations",
                         index + 1,
                         row.id,
                         q.iou,

@@ -249,6 +249,14 @@ pub struct WorldFrame {
     pub j: Vec<f64>,
 }
 
+impl WorldFrame {
+    /// The particles' rms speed (world units per second): the motion measures' `s(f)`.
+    pub fn rms_speed(&self) -> f64 {
+        let n = self.v.len().max(1) as f64;
+        (self.v.iter().map(|v| v.norm_squared()).sum::<f64>() / n).sqrt()
+    }
+}
+
 /// What watches a chain run: progress events, exported frames, completed segments (to
 /// checkpoint them) and whether to stop.
 pub trait Observer {

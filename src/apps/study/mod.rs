@@ -11,8 +11,9 @@
 //! seconds, log axis, with the front).
 
 use crate::integrator::IntegratorKind;
-use crate::morph::quality::Quality;
-use crate::morph::{Job, MeshSource, MorphSettings, Observer, Preset};
+use crate::morph::motion::MotionMeasures;
+use crate::morph::quality::{Progress, Quality};
+use crate::morph::{Frame, Job, MeshSource, MorphError, MorphSettings, Observer, Preset};
 use crate::mpm::KernelKind;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -25,28 +26,39 @@ pub mod usage;
 pub struct StudyGrid {
     /// The preset the other settings start from.
     pub preset: Preset,
+    /// Grid resolutions (cells along the longest side of the domain)...
     pub resolutions: Vec<usize>,
+    /// ...and particle budgets (`--particles`: the resolution that gives the source about
+    /// this many particles): together the detail axis.
+    #[serde(default)]
+    pub particles: Vec<usize>,
     pub particles_per_cell: Vec<usize>,
     pub kernels: Vec<KernelKind>,
     pub integrators: Vec<IntegratorKind>,
     pub iterations: Vec<usize>,
     pub passes: Vec<usize>,
     pub segments: Vec<usize>,
+    /// Weights of the reach cost (`--reach-weight`).
+    #[serde(default)]
+    pub reach_weights: Vec<f64>,
 }
 
 impl StudyGrid {
-    /// The full grid: 3 resolutions x 2 kernels x 2 iteration counts x 2 pass counts = 24
-    /// configurations of the default chain (12 segments).
+    /// The full grid: 4 particle budgets (5,000 to 150,000) x 2 kernels x 2 iteration counts
+    /// x the reach cost off and on = 32 configurations of the default chain (12 segments).
+    /// On 2 cores it takes a night: the 150,000-particle runs are most of it.
     pub fn full() -> StudyGrid {
         StudyGrid {
             preset: Preset::Default,
-            resolutions: vec![24, 32, 40],
+            resolutions: Vec::new(),
+            particles: vec![5_000, 15_000, 50_000, 150_000],
             particles_per_cell: vec![2],
             kernels: vec![KernelKind::Quadratic, KernelKind::Cubic],
             integrators: vec![IntegratorKind::Euler],
             iterations: vec![6, 12],
-            passes: vec![1, 2],
+            passes: vec![1],
             segments: vec![12],
+            reach_weights: vec![0.0, 10.0],
         }
     }
 
@@ -56,35 +68,43 @@ impl StudyGrid {
         StudyGrid {
             preset: Preset::Draft,
             resolutions: vec![16, 24, 32],
+            particles: Vec::new(),
             particles_per_cell: vec![2],
             kernels: vec![KernelKind::Quadratic, KernelKind::Cubic],
             integrators: vec![IntegratorKind::Euler],
             iterations: vec![3, 6],
             passes: vec![1],
             segments: vec![4],
+            reach_weights: vec![0.0],
         }
     }
 
     /// Every configuration, with its settings.
     pub fn configs(&self) -> Vec<StudyConfig> {
         let mut out = Vec::new();
-        for &resolution in &self.resolutions {
+        let details = (self.resolutions.iter().map(|&r| (r, None)))
+            .chain(self.particles.iter().map(|&n| (0, Some(n))));
+        for (resolution, particles) in details {
             for &ppc in &self.particles_per_cell {
                 for &kernel in &self.kernels {
                     for &integrator in &self.integrators {
                         for &iterations in &self.iterations {
                             for &passes in &self.passes {
                                 for &segments in &self.segments {
-                                    out.push(StudyConfig {
-                                        preset: self.preset,
-                                        resolution,
-                                        particles_per_cell: ppc,
-                                        kernel,
-                                        integrator,
-                                        iterations,
-                                        passes,
-                                        segments,
-                                    });
+                                    for &reach_weight in &self.reach_weights {
+                                        out.push(StudyConfig {
+                                            preset: self.preset,
+                                            resolution,
+                                            particles,
+                                            particles_per_cell: ppc,
+                                            kernel,
+                                            integrator,
+                                            iterations,
+                                            passes,
+                                            segments,
+                                            reach_weight,
+                                        });
+                                    }
                                 }
                             }
                         }
@@ -98,13 +118,17 @@ impl StudyGrid {
     /// Every axis has at least one value.
     pub fn validate(&self) -> Result<(), String> {
         let lens = [
-            ("resolutions", self.resolutions.len()),
+            (
+                "resolutions or --particles",
+                self.resolutions.len() + self.particles.len(),
+            ),
             ("particles-per-cell", self.particles_per_cell.len()),
             ("kernels", self.kernels.len()),
             ("integrators", self.integrators.len()),
             ("iterations", self.iterations.len()),
             ("passes", self.passes.len()),
             ("segments", self.segments.len()),
+            ("reach-weights", self.reach_weights.len()),
         ];
         match lens.iter().find(|(_, n)| *n == 0) {
             Some((axis, _)) => Err(format!("--{axis} needs at least one value")),
@@ -117,24 +141,38 @@ impl StudyGrid {
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct StudyConfig {
     pub preset: Preset,
+    /// The grid resolution, unless a particle budget picks it (then 0).
     pub resolution: usize,
+    /// The particle budget that picks the resolution, if any.
+    #[serde(default)]
+    pub particles: Option<usize>,
     pub particles_per_cell: usize,
     pub kernel: KernelKind,
     pub integrator: IntegratorKind,
     pub iterations: usize,
     pub passes: usize,
     pub segments: usize,
+    #[serde(default)]
+    pub reach_weight: f64,
 }
 
 impl StudyConfig {
     /// A name that identifies the configuration (rows are matched by it when a study
-    /// continues).
+    /// continues; a study made before the budget and reach axes keeps its names).
     pub fn id(&self) -> String {
         let name = |v: &dyn erased::Named| v.name();
+        let detail = match self.particles {
+            Some(n) => format!("n{n}"),
+            None => format!("r{}", self.resolution),
+        };
+        let reach = if self.reach_weight != 0.0 {
+            format!("-rw{}", self.reach_weight)
+        } else {
+            String::new()
+        };
         format!(
-            "{}-r{}-ppc{}-{}-{}-it{}-p{}-s{}",
+            "{}-{detail}-ppc{}-{}-{}-it{}-p{}-s{}{reach}",
             name(&self.preset),
-            self.resolution,
             self.particles_per_cell,
             name(&self.kernel),
             name(&self.integrator),
@@ -147,8 +185,12 @@ impl StudyConfig {
     /// The morph settings this configuration runs (no surfaces: the study judges particles).
     pub fn settings(&self) -> MorphSettings {
         let mut s = MorphSettings::preset(self.preset);
-        s.resolution = self.resolution;
+        match self.particles {
+            Some(n) => s.particles = Some(n),
+            None => s.resolution = self.resolution,
+        }
         s.particles_per_cell = self.particles_per_cell;
+        s.reach_weight = self.reach_weight;
         s.kernel = self.kernel;
         s.integrator = self.integrator;
         s.optimizer.iterations = self.iterations;
@@ -191,6 +233,14 @@ pub struct StudyRow {
     pub final_loss: Option<f64>,
     /// Absent when the run failed.
     pub quality: Option<Quality>,
+    /// The grid resolution the run used (a particle budget picks it).
+    #[serde(default)]
+    pub resolution: usize,
+    /// The motion measures of its frames against the target (pulse, dip, wobble, settle,
+    /// ease error; docs/morph.md, "Motion"), as a run's manifest reports them; absent when
+    /// the run failed.
+    #[serde(default)]
+    pub motion: Option<MotionMeasures>,
     /// Why the run failed (the study records it and goes on).
     #[serde(default)]
     pub error: Option<String>,
@@ -199,16 +249,18 @@ pub struct StudyRow {
 }
 
 /// The CSV columns, in order.
-pub const CSV_COLUMNS: [&str; 25] = [
+pub const CSV_COLUMNS: [&str; 32] = [
     "id",
     "preset",
     "resolution",
+    "particle_budget",
     "particles_per_cell",
     "kernel",
     "integrator",
     "iterations",
     "passes",
     "segments",
+    "reach_weight",
     "particles",
     "wall_s",
     "cpu_s",
@@ -223,6 +275,11 @@ pub const CSV_COLUMNS: [&str; 25] = [
     "reach_max",
     "min_j",
     "max_j",
+    "pulse",
+    "dip",
+    "wobble",
+    "settle",
+    "ease_error",
     "pareto",
     "error",
 ];
@@ -233,17 +290,20 @@ impl StudyRow {
         let q = self.quality.as_ref();
         let opt = |v: Option<f64>| v.map_or(String::new(), |v| format!("{v}"));
         let quality = |f: fn(&Quality) -> f64| opt(q.map(f));
+        let motion = |f: fn(&MotionMeasures) -> Option<f64>| opt(self.motion.as_ref().and_then(f));
         let name = |v: &dyn erased::Named| v.name();
         [
             self.id.clone(),
             name(&c.preset),
-            c.resolution.to_string(),
+            self.resolution.max(c.resolution).to_string(),
+            c.particles.map_or(String::new(), |n| n.to_string()),
             c.particles_per_cell.to_string(),
             name(&c.kernel),
             name(&c.integrator),
             c.iterations.to_string(),
             c.passes.to_string(),
             c.segments.to_string(),
+            format!("{}", c.reach_weight),
             self.particles.to_string(),
             format!("{}", self.wall_s),
             opt(self.cpu_s),
@@ -258,6 +318,11 @@ impl StudyRow {
             quality(|q| q.reach_max),
             quality(|q| q.min_j),
             quality(|q| q.max_j),
+            motion(|m| Some(m.pulse)),
+            motion(|m| Some(m.dip)),
+            motion(|m| Some(m.wobble)),
+            motion(|m| Some(m.settle)),
+            motion(|m| m.ease_error),
             self.pareto.to_string(),
             // One line a row: commas and line breaks in a message would split it.
             self.error
@@ -459,9 +524,28 @@ fn write_files(dir: &Path, inputs: &[StudyInput], rows: &[StudyRow]) -> Result<(
     Ok(())
 }
 
-/// An observer that passes nothing on (a study only needs the result).
-struct Quiet;
-impl Observer for Quiet {}
+/// What a study keeps of each frame: the rms speed and the progress toward the target, from
+/// which the motion measures are computed as a run's manifest computes them (the study
+/// writes no files of a run).
+#[derive(Default)]
+struct MotionRecorder {
+    progress: Option<Progress>,
+    /// Per frame index: rms speed (world units) and IoU with the target's inside.
+    frames: Vec<(f64, f64)>,
+}
+
+impl Observer for MotionRecorder {
+    fn frame(&mut self, frame: &Frame) -> Result<(), MorphError> {
+        let progress = self.progress.get_or_insert_with(|| {
+            (frame.prep.progress_judges().pop()).expect("a morph has a final target")
+        });
+        let iou = progress.iou(&frame.state.x);
+        // A later pass writes its frames again: the last one counts.
+        self.frames.truncate(frame.index);
+        self.frames.push((frame.world.rms_speed(), iou));
+        Ok(())
+    }
+}
 
 /// Runs the study of `source` -> `target` over `grid` in folder `dir`, continuing an earlier
 /// study there. Returns every row, the Pareto front marked.
@@ -506,7 +590,8 @@ pub fn measure(source: &Path, target: &Path, config: &StudyConfig) -> StudyRow {
     usage::reset_peak();
     let cpu0 = usage::cpu_seconds();
     let clock = Instant::now();
-    let outcome = job.run(&mut Quiet);
+    let mut recorder = MotionRecorder::default();
+    let outcome = job.run(&mut recorder);
     let wall_s = clock.elapsed().as_secs_f64();
     let cpu_s = cpu0.zip(usage::cpu_seconds()).map(|(a, b)| b - a);
     let peak_mb = usage::peak_mb();
@@ -520,6 +605,8 @@ pub fn measure(source: &Path, target: &Path, config: &StudyConfig) -> StudyRow {
         evaluations: 0,
         final_loss: None,
         quality: None,
+        resolution: 0,
+        motion: None,
         error: None,
         pareto: false,
     };
@@ -529,6 +616,13 @@ pub fn measure(source: &Path, target: &Path, config: &StudyConfig) -> StudyRow {
             row.evaluations = result.segments.iter().map(|s| s.evaluations).sum();
             row.final_loss = Some(result.final_loss);
             row.quality = Some(prep.quality(&result.final_state));
+            row.resolution = prep.settings.resolution;
+            let n = prep.frame_count();
+            if recorder.frames.len() == n {
+                let (speeds, ious): (Vec<f64>, Vec<f64>) = recorder.frames.into_iter().unzip();
+                let arrive = *prep.settings.at.last().expect("a morph has a final target");
+                row.motion = Some(prep.motion_of(&speeds, &ious, 1, n, arrive));
+            }
         }
         Err(e) => row.error = Some(e.to_string()),
     }

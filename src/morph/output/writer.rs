@@ -158,7 +158,7 @@ fn frame_stats(frame: &Frame) -> FrameStats {
         inverted: j.iter().filter(|j| **j <= 0.0).count(),
         // Measured on the writer thread with the surfaces (see `FrameWork`).
         close_share: 0.0,
-        rms_speed: (frame.world.v.iter().map(|v| v.norm_squared()).sum::<f64>() / n).sqrt(),
+        rms_speed: frame.world.rms_speed(),
         progress_iou: Vec::new(),
         surface_volume: None,
         surface_volume_error: None,
