@@ -50,8 +50,8 @@ OUTPUT (folder -o, written in the locked OUT.partial and put in place when compl
   the same -o fails at once. Each completed segment is checkpointed in OUT.partial (sealed
   with the run id and SHA-256: a damaged checkpoint is refused by name).
 
-PRESETS (resolution, segments x steps, passes, iterations per segment, look-ahead; measured
-quality and time from docs/morph.md, 2 cores):
+PRESETS (resolution or particle budget, segments x steps, passes, iterations per segment,
+look-ahead; measured quality and time from docs/morph.md, 2 cores):
 {presets}
   Any of --resolution --particles --segments --steps --passes --iterations --levels
   --refine-iterations --lookahead --path-weight --waypoint-weight --control-smoothing
@@ -93,9 +93,11 @@ pub(super) fn after_long_help() -> String {
         .iter()
         .map(|(p, name)| {
             let s = MorphSettings::preset(*p);
+            let detail = s
+                .particles
+                .map_or(format!("r{}", s.resolution), |n| format!("{}k particles", n / 1000));
             format!(
-                "  {name:<8}r{}, {:>2} x {}, {} pass(es), {:>2}, look-ahead {}; {}",
-                s.resolution,
+                "  {name:<8}{detail}, {:>2} x {}, {} pass(es), {:>2}, look-ahead {}; {}",
                 s.segments,
                 s.steps_per_segment,
                 s.passes,
@@ -141,9 +143,9 @@ pub struct MorphArgs {
     resume: bool,
     #[arg(long, value_parser = choice(&Preset::ALL), help = format!("Effort preset; the options below override its values [default {}]", name(&Preset::default())))]
     preset: Option<Preset>,
-    #[arg(long, help = help("Grid cells across the domain's longest side", Some(limits::RESOLUTION), by_preset(|s| s.resolution)))]
+    #[arg(long, help = help("Grid cells across the domain's longest side", Some(limits::RESOLUTION), by_preset(|s| s.particles.map_or(s.resolution.to_string(), |_| "from the budget".into()))))]
     resolution: Option<usize>,
-    #[arg(long, conflicts_with = "resolution", help = help("Particle budget: picks the resolution so the source gets about this many particles, whatever the shapes' proportions", Some(limits::PARTICLES), "off (use --resolution)"))]
+    #[arg(long, conflicts_with = "resolution", help = help("Particle budget: picks the resolution so the source gets about this many particles, whatever the shapes' proportions", Some(limits::PARTICLES), by_preset(|s| s.particles.map_or("off".to_string(), |n| n.to_string()))))]
     particles: Option<usize>,
     #[arg(long, help = help("Segments in the chain", Some(limits::SEGMENTS), by_preset(|s| s.segments)))]
     segments: Option<usize>,

@@ -119,6 +119,11 @@ impl SceneFile {
         table.remove("preset");
         let mut merged = toml::Table::try_from(MorphSettings::preset(preset))
             .expect("settings serialize to TOML");
+        // A resolution the file gives replaces its preset's particle budget (as on the command
+        // line); a budget it gives wins over any resolution.
+        if table.contains_key("resolution") && !table.contains_key("particles") {
+            merged.remove("particles");
+        }
         merge(&mut merged, table);
         let mut settings: MorphSettings = toml::Value::Table(merged)
             .try_into()
@@ -366,6 +371,22 @@ mod tests {
         want.material.density = 80.0;
         want.optimizer.iterations = 3;
         assert_eq!(s, want);
+    }
+
+    #[test]
+    fn a_resolution_replaces_the_presets_particle_budget() {
+        let parse = |text: &str| {
+            SceneFile::parse(text, Path::new("shot.toml"), None)
+                .unwrap()
+                .settings
+        };
+        assert!(MorphSettings::preset(Preset::Final).particles.is_some());
+        let s = parse("preset = \"final\"\nresolution = 40\n");
+        assert_eq!((s.resolution, s.particles), (40, None));
+        let s = parse("preset = \"final\"\nresolution = 40\nparticles = 9000\n");
+        assert_eq!(s.particles, Some(9000));
+        let s = parse("preset = \"final\"\n");
+        assert_eq!(s.particles, MorphSettings::preset(Preset::Final).particles);
     }
 
     #[test]
