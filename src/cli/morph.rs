@@ -93,9 +93,9 @@ pub(super) fn after_long_help() -> String {
         .iter()
         .map(|(p, name)| {
             let s = MorphSettings::preset(*p);
-            let detail = s
-                .particles
-                .map_or(format!("r{}", s.resolution), |n| format!("{}k particles", n / 1000));
+            let detail = s.particles.map_or(format!("r{}", s.resolution), |n| {
+                format!("{}k particles", n / 1000)
+            });
             format!(
                 "  {name:<8}{detail}, {:>2} x {}, {} pass(es), {:>2}, look-ahead {}; {}",
                 s.segments,
