@@ -181,3 +181,24 @@ fn a_study_refuses_a_folder_it_did_not_make() {
     assert_eq!(bad.status.code(), Some(2));
     let _ = std::fs::remove_dir_all(&out);
 }
+
+/// The new axes' bad values are refused with one line and exit 2, before anything is written.
+#[test]
+fn bad_budgets_and_reach_weights_are_refused() {
+    for (name, extra) in [
+        ("neg-reach", ["--reach-weights", "-1"]),
+        ("nan-reach", ["--reach-weights", "nan"]),
+        ("zero-budget", ["--particles", "0"]),
+    ] {
+        let out = scratch(name);
+        let _ = std::fs::remove_dir_all(&out);
+        let r = study(&out, &extra);
+        let err = String::from_utf8_lossy(&r.stderr);
+        assert_eq!(r.status.code(), Some(2), "{name}: {err}");
+        assert!(
+            err.starts_with("morph: error: ") && err.trim_end().lines().count() == 1,
+            "{name}: {err}"
+        );
+        assert!(!out.join("study.json").exists(), "{name}: nothing written");
+    }
+}

@@ -185,10 +185,12 @@ impl StudyConfig {
     /// The morph settings this configuration runs (no surfaces: the study judges particles).
     pub fn settings(&self) -> MorphSettings {
         let mut s = MorphSettings::preset(self.preset);
-        match self.particles {
-            Some(n) => s.particles = Some(n),
-            None => s.resolution = self.resolution,
-        }
+        // A resolution replaces the preset's particle budget (`final` has one), as it does on
+        // the command line.
+        (s.resolution, s.particles) = match self.particles {
+            Some(n) => (s.resolution, Some(n)),
+            None => (self.resolution, None),
+        };
         s.particles_per_cell = self.particles_per_cell;
         s.reach_weight = self.reach_weight;
         s.kernel = self.kernel;
@@ -627,4 +629,28 @@ pub fn measure(source: &Path, target: &Path, config: &StudyConfig) -> StudyRow {
         Err(e) => row.error = Some(e.to_string()),
     }
     row
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_resolution_row_runs_that_resolution_on_any_preset() {
+        for preset in Preset::ALL {
+            let grid = StudyGrid {
+                preset,
+                resolutions: vec![20],
+                particles: vec![3000],
+                ..StudyGrid::quick()
+            };
+            for c in grid.configs() {
+                let s = c.settings();
+                match c.particles {
+                    None => assert_eq!((s.resolution, s.particles), (20, None), "{preset:?}"),
+                    Some(n) => assert_eq!(s.particles, Some(n), "{preset:?}"),
+                }
+            }
+        }
+    }
 }
