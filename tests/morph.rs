@@ -831,6 +831,49 @@ fn bench_stages_times_every_stage() {
     );
 }
 
+/// `--ball-radius` sizes the benchmark's ball (the particles grow with its cube), and a radius
+/// outside 2-100 cells is refused with one line.
+#[test]
+fn bench_ball_radius_sizes_the_workload() {
+    let particles = |radius: &str| {
+        let r = morph(&[
+            "bench",
+            "--kernels",
+            "quadratic",
+            "--steps",
+            "1",
+            "--repeats",
+            "1",
+            "--thread-counts",
+            "1",
+            "--ball-radius",
+            radius,
+        ]);
+        assert_eq!(
+            r.status.code(),
+            Some(0),
+            "{}",
+            String::from_utf8_lossy(&r.stderr)
+        );
+        let forward: serde_json::Value = String::from_utf8_lossy(&r.stdout)
+            .lines()
+            .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap())
+            .find(|l| l["bench"] == "forward")
+            .expect("a forward line");
+        forward["particles"].as_u64().unwrap() as f64
+    };
+    let (reference, small) = (particles("8"), particles("4"));
+    // Eight times smaller by volume, within the lattice's rounding.
+    assert!((reference / small - 8.0).abs() < 1.0, "{reference} {small}");
+    for bad in ["1", "101", "NaN"] {
+        let r = morph(&["bench", "--ball-radius", bad]);
+        assert_eq!(r.status.code(), Some(2), "{bad}");
+        let err = String::from_utf8_lossy(&r.stderr);
+        assert_eq!(err.lines().count(), 1, "{err}");
+        assert!(err.contains("--ball-radius must be 2 to 100"), "{err}");
+    }
+}
+
 /// `--fps 24 --frames 48`: exactly 48 frames 1/24 s apart, the rest shape first; the chain is
 /// cut into segments of --steps steps with a shorter last one; 25 fps takes steps of 1/125 s,
 /// and `--seconds` gives the frames that fill it.

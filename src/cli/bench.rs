@@ -51,11 +51,25 @@ pub struct EngineRuns {
     /// Thread counts to measure, comma separated.
     #[arg(long, value_delimiter = ',', default_values_t = [1usize, 2])]
     thread_counts: Vec<usize>,
+    /// The ball's radius in cells: 8 is the reference workload (about 17,000 particles), 21
+    /// about 310,000 (the grid grows with it) [range 2-100].
+    #[arg(long, default_value_t = morph::apps::bench::REFERENCE_RADIUS)]
+    ball_radius: f64,
 }
 
 impl EngineRuns {
     /// The one-line refusal of a zero count.
     fn invalid(&self) -> Option<ExitCode> {
+        if !(2.0..=100.0).contains(&self.ball_radius) {
+            return Some(fail(
+                false,
+                2,
+                &format!(
+                    "--ball-radius must be 2 to 100 cells, got {}",
+                    self.ball_radius
+                ),
+            ));
+        }
         (self.steps == 0 || self.repeats == 0 || self.thread_counts.contains(&0)).then(|| {
             fail(
                 false,
@@ -103,6 +117,7 @@ pub fn run(a: &BenchArgs) -> ExitCode {
             return code;
         }
         return super::report(morph::apps::bench::roofline::run(
+            r.ball_radius,
             r.steps,
             r.repeats,
             &r.thread_counts,
@@ -113,6 +128,7 @@ pub fn run(a: &BenchArgs) -> ExitCode {
         return code;
     }
     super::report(morph::apps::bench::run(
+        r.ball_radius,
         r.steps,
         r.repeats,
         &r.thread_counts,

@@ -29,14 +29,35 @@ pub struct Workload {
     pub loss: MassLoss,
 }
 
+/// The reference ball's radius, in cells.
+pub const REFERENCE_RADIUS: f64 = 8.0;
+
 /// Builds the reference workload for `steps` steps with the given kernel.
 pub fn reference_workload(
     kernel: KernelKind,
     integrator: IntegratorKind,
     steps: usize,
 ) -> Result<Workload, SimError> {
+    ball_workload(REFERENCE_RADIUS, kernel, integrator, steps)
+}
+
+/// The reference workload on a ball of `radius` cells (8 is the reference, about 17,000
+/// particles; 21 is about 310,000, a detailed morph's size). The grid grows with the ball:
+/// 32 cells, or the ball's diameter and 8 cells of margin when that is more.
+pub fn ball_workload(
+    radius: f64,
+    kernel: KernelKind,
+    integrator: IntegratorKind,
+    steps: usize,
+) -> Result<Workload, SimError> {
     let scene = SceneConfig::reference();
-    workload(kernel, integrator, steps, scene.effects, true)
+    workload_on(radius, kernel, integrator, steps, scene.effects, true)
+}
+
+/// The grid a ball of `radius` cells is simulated on (see [`ball_workload`]).
+pub fn ball_grid(radius: f64) -> crate::mpm::grid::GridSpec {
+    let cells = ((2.0 * radius).ceil() as usize + 8).max(32);
+    crate::mpm::grid::GridSpec::centred_cube(cells, 1.0)
 }
 
 /// The reference ball with the given effects, with or without control `Fc`.
@@ -47,10 +68,30 @@ pub fn workload(
     effects: Vec<EffectConfig>,
     with_controls: bool,
 ) -> Result<Workload, SimError> {
+    workload_on(
+        REFERENCE_RADIUS,
+        kernel,
+        integrator,
+        steps,
+        effects,
+        with_controls,
+    )
+}
+
+/// [`workload`] on a ball of `radius` cells.
+fn workload_on(
+    radius: f64,
+    kernel: KernelKind,
+    integrator: IntegratorKind,
+    steps: usize,
+    effects: Vec<EffectConfig>,
+    with_controls: bool,
+) -> Result<Workload, SimError> {
     let mut scene = SceneConfig::reference();
+    scene.grid = ball_grid(radius);
     scene.kernel = kernel;
     scene.effects = effects;
-    let (x, vol) = ball_particles(&scene.grid, Vector3::zeros(), 8.0, 2);
+    let (x, vol) = ball_particles(&scene.grid, Vector3::zeros(), radius, 2);
     let engine = Engine::new(scene.model(vol)?, integrator)?;
     let mut initial = State::at_rest(x);
     for p in 0..initial.len() {
@@ -115,8 +156,10 @@ impl Workload {
     }
 }
 
-/// Runs the benchmark and prints one JSON line per configuration.
+/// Runs the benchmark on a ball of `radius` cells ([`REFERENCE_RADIUS`] is the reference) and
+/// prints one JSON line per configuration.
 pub fn run(
+    radius: f64,
     steps: usize,
     repeats: usize,
     threads: &[usize],
@@ -173,7 +216,7 @@ pub fn run(
         .iter()
         .flat_map(|k| integrators.iter().map(move |i| (k, i)))
     {
-        let w = reference_workload(kernel, integrator, steps)?;
+        let w = ball_workload(radius, kernel, integrator, steps)?;
         for &t in threads {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build()?;
             let (fwd, fwdrev) = pool.install(|| -> Result<(f64, f64), SimError> {

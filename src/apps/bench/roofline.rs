@@ -6,7 +6,7 @@
 //! `max(bytes / bandwidth, flops / peak)` from the bytes and flops one particle-step of it
 //! needs ([`stage_costs`]).
 
-use super::reference_workload;
+use super::ball_workload;
 use crate::engine::Engine;
 use crate::integrator::IntegratorKind;
 use crate::mpm::profile::{Stage, StageClock};
@@ -169,8 +169,12 @@ struct Measured {
 
 /// Seconds per step of each stage over `repeats` forward + reverse runs of `steps` steps on
 /// the current thread pool (after one untimed run).
-fn stage_seconds(steps: usize, repeats: usize) -> Result<(usize, usize, StageTimes), SimError> {
-    let mut w = reference_workload(KernelKind::Cubic, IntegratorKind::Euler, steps)?;
+fn stage_seconds(
+    radius: f64,
+    steps: usize,
+    repeats: usize,
+) -> Result<(usize, usize, StageTimes), SimError> {
+    let mut w = ball_workload(radius, KernelKind::Cubic, IntegratorKind::Euler, steps)?;
     let clock = Arc::new(StageClock::default());
     let Engine::Euler(sim) = &mut w.engine else {
         unreachable!("the Euler workload")
@@ -215,16 +219,17 @@ pub fn scatter_efficiency(bins: &crate::mpm::grid::Bins, threads: usize) -> f64 
     }
 }
 
-/// Runs the stage timings and roofline at each thread count: JSON lines on stdout, a
-/// markdown table on stderr.
-pub fn run(steps: usize, repeats: usize, threads: &[usize]) -> anyhow::Result<()> {
+/// Runs the stage timings and roofline at each thread count on a ball of `radius` cells
+/// ([`super::REFERENCE_RADIUS`] is the reference): JSON lines on stdout, a markdown table on
+/// stderr.
+pub fn run(radius: f64, steps: usize, repeats: usize, threads: &[usize]) -> anyhow::Result<()> {
     // The parallelism the coloured scatters offer: non-empty 4^3-cell blocks per colour, and
     // how well they can share out among more threads than this machine has (the model's
     // input for a larger machine, docs/engine.md): the reference ball and a ball of about
     // 300,000 particles.
-    for (radius, cells) in [(8.0, 32), (21.0, 48)] {
-        let grid = crate::mpm::grid::GridSpec::centred_cube(cells, 1.0);
-        let (x, _) = crate::scene::ball_particles(&grid, Vector3::zeros(), radius, 2);
+    for ball in [super::REFERENCE_RADIUS, 21.0] {
+        let grid = super::ball_grid(ball);
+        let (x, _) = crate::scene::ball_particles(&grid, Vector3::zeros(), ball, 2);
         let bins = crate::mpm::grid::Bins::build(&grid, &x, 4, 0)?;
         let blocks: Vec<usize> = bins.colours.iter().map(|c| c.len()).collect();
         let efficiency: serde_json::Map<String, serde_json::Value> = [1, 2, 4, 8, 16, 32]
@@ -247,7 +252,7 @@ pub fn run(steps: usize, repeats: usize, threads: &[usize]) -> anyhow::Result<()
             json!({"bench": "machine", "threads": t, "stream_triad_gb_s": bandwidth * 1e-9,
                    "peak_gflops": peak * 1e-9})
         );
-        let (particles, nodes, secs) = pool.install(|| stage_seconds(steps, repeats))?;
+        let (particles, nodes, secs) = pool.install(|| stage_seconds(radius, steps, repeats))?;
         sizes = (particles, nodes);
         let costs = stage_costs(nodes as f64 / particles as f64);
         for ((stage, s), cost) in secs.iter().zip(&costs) {
