@@ -309,7 +309,11 @@ fn binding_radii(
         .iter()
         .zip(&count)
         .map(|(&l, &n)| {
-            let edge = if n == 0 { 0.0 } else { to_sim.scale * l / n as f64 };
+            let edge = if n == 0 {
+                0.0
+            } else {
+                to_sim.scale * l / n as f64
+            };
             (BIND_EDGES * edge).clamp(BIND_SPACINGS * spacing, BIND_MAX_SPACINGS * spacing)
         })
         .collect()
@@ -573,7 +577,12 @@ mod tests {
     fn the_binding_radius_follows_coarse_edges() {
         // A right triangle with legs `l` and a lone vertex; spacing 1, world = sim.
         let radii = |l: f64| {
-            let rest = [Vector3::zeros(), Vector3::x() * l, Vector3::y() * l, Vector3::z()];
+            let rest = [
+                Vector3::zeros(),
+                Vector3::x() * l,
+                Vector3::y() * l,
+                Vector3::z(),
+            ];
             binding_radii(
                 &rest,
                 &[[0, 1, 2]],
@@ -590,7 +599,10 @@ mod tests {
         assert!((coarse[1] - BIND_EDGES * mean).abs() < 1e-12, "{coarse:?}");
         assert_eq!(coarse[3], BIND_SPACINGS);
         let huge = radii(100.0);
-        assert!(huge[..3].iter().all(|&r| r == BIND_MAX_SPACINGS), "{huge:?}");
+        assert!(
+            huge[..3].iter().all(|&r| r == BIND_MAX_SPACINGS),
+            "{huge:?}"
+        );
     }
 
     /// An affine motion of the particles carries every vertex exactly by the same map, and a
