@@ -52,7 +52,8 @@ pub struct EngineRuns {
     #[arg(long, value_delimiter = ',', default_values_t = [1usize, 2])]
     thread_counts: Vec<usize>,
     /// The ball's radius in cells: 8 is the reference workload (about 17,000 particles), 21
-    /// about 310,000 (the grid grows with it) [range 2-100].
+    /// about 310,000 (the grid grows with it; the effects' costs stay on the reference ball)
+    /// [range 2-100].
     #[arg(long, default_value_t = morph::apps::bench::REFERENCE_RADIUS)]
     ball_radius: f64,
 }
