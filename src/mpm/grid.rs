@@ -200,6 +200,22 @@ impl Bins {
             });
         }
     }
+
+    /// [`Bins::for_each_coloured`] when `parallel`, else every particle on this thread in the
+    /// very same order (so both give identical sums in every node).
+    pub fn visit_coloured(&self, parallel: bool, f: impl Fn(usize) + Sync) {
+        if parallel {
+            self.for_each_coloured(f);
+        } else {
+            for blocks in &self.colours {
+                for r in blocks {
+                    for &p in &self.order[r.start as usize..r.end as usize] {
+                        f(p as usize);
+                    }
+                }
+            }
+        }
+    }
 }
 
 /// A mutable slice shared across the threads of a coloured scatter.

@@ -9,6 +9,7 @@ use super::grid_update::{grid_velocity, grid_velocity_reverse};
 use super::kernel::{Cached, KernelKind, Stencil, StencilCache};
 use super::model::Model;
 use super::profile::{Laps, Stage, StageClock};
+use super::stages::{self, CHUNK};
 use super::state::{State, StateGrad, par_copy};
 use super::stress::StressInputs;
 use super::transfer::{self, Affine, AxisField, AxisNodes, Node};
@@ -91,9 +92,6 @@ type ReverseStep = fn(
 fn scale_of(scale: &[f64], p: usize) -> f64 {
     scale.get(p).copied().unwrap_or(1.0)
 }
-
-/// Particles per batch of the stress stages (a multiple of the SVD's four lanes).
-const CHUNK: usize = 64;
 
 /// What the reverse pass needs from one forward step.
 #[derive(Clone, Debug)]
@@ -303,65 +301,46 @@ impl Euler {
             ws.scale.par_extend(fc.par_iter().map(|fc| form.scale(fc)));
         }
         let scale = &ws.scale;
-        // One batch of CHUNK particles: elastic gradients, stresses, affine momenta.
-        let batch =
-            |k: usize, a: &mut [Matrix3<f64>], fe: &mut [Matrix3<f64>], kept: &mut [f64]| {
-                for (i, fe) in fe.iter_mut().enumerate() {
-                    let p = k * CHUNK + i;
-                    *fe = match fc {
-                        Some(fc) => form.apply_scaled(&state.f[p], &fc[p], scale_of(scale, p)),
-                        None => state.f[p],
-                    };
-                }
-                if keep > 0 {
-                    self.material.stress_batch_keeping(self.simd, fe, a, kept);
-                } else {
-                    self.material.stress_batch(self.simd, fe, a);
-                }
-                for (i, (a, fe)) in a.iter_mut().zip(fe.iter()).enumerate() {
-                    let p = k * CHUNK + i;
-                    *a = self.stress_inputs(p).affine_from_stress(&state.c[p], fe, a);
-                }
-            };
-        let batches = ws
-            .affine
-            .par_chunks_mut(CHUNK)
-            .zip(ws.fe.par_chunks_mut(CHUNK));
-        if keep > 0 {
-            batches
-                .zip(ws.kept.par_chunks_mut(CHUNK * keep))
-                .enumerate()
-                .for_each(|(k, ((a, fe), kept))| batch(k, a, fe, kept));
-        } else {
-            batches
-                .enumerate()
-                .for_each(|(k, (a, fe))| batch(k, a, fe, &mut []));
-        }
+        ws.fe.par_iter_mut().enumerate().for_each(|(p, fe)| {
+            *fe = match fc {
+                Some(fc) => form.apply_scaled(&state.f[p], &fc[p], scale_of(scale, p)),
+                None => state.f[p],
+            }
+        });
+        stages::stress(
+            self.material.as_ref(),
+            self.simd,
+            &ws.fe,
+            Some(&state.c),
+            |p| self.stress_inputs(p),
+            1,
+            &mut ws.affine,
+            &mut ws.kept,
+        );
         laps.lap(Stage::Stress);
 
         // P2G (coloured scatter).
-        ws.node_axes.set_zero(self.grid.node_count());
         let retention = self.momentum_retention(step);
         let body = values.map(|v| self.body_accelerations(v));
-        {
-            let nodes = ws.node_axes.shared();
-            let (affine, mass) = (&ws.affine, &self.mass);
-            let stencils = ws.stencils.sized::<N>(state.len());
-            stencils
-                .par_chunks_mut(CHUNK)
-                .zip(state.x.par_chunks(CHUNK))
-                .for_each(|(s, x)| Stencil::fill(self.simd, x, &origin, dx, s));
-            let stencils = &*stencils;
-            ws.bins.for_each_coloured(|p| {
-                let s = &stencils[p];
-                let momentum = Affine {
+        let stencils = stages::stencils::<N>(self.simd, &state.x, &origin, dx, 1, &mut ws.stencils);
+        let affine = &ws.affine;
+        stages::p2g(
+            self.simd,
+            &ws.bins,
+            stencils,
+            &strides,
+            &self.mass,
+            true,
+            |p| {
+                [Affine {
                     value: self.particle_momentum(state, values, body.as_deref(), retention, p),
                     slope: affine[p],
-                };
-                transfer::scatter(self.simd, s, &strides, mass[p], &[momentum], &nodes);
-            });
-        }
-        ws.node_axes.write_nodes(&mut ws.nodes);
+                }]
+            },
+            &mut ws.node_axes,
+            &mut ws.nodes,
+            self.grid.node_count(),
+        );
         laps.lap(Stage::P2g);
 
         // G: grid velocity, then effects.
@@ -641,12 +620,8 @@ impl Euler {
             let gfe = SharedMut::new(&mut rws.grad_fe);
             let gu = SharedMut::new(&mut grad_u);
             let (av, ac, af) = (&*av, &*ac, &*af);
-            let stencils = rws.stencils.sized::<N>(n);
-            stencils
-                .par_chunks_mut(CHUNK)
-                .zip(pre.x.par_chunks(CHUNK))
-                .for_each(|(s, x)| Stencil::fill(self.simd, x, &origin, dx, s));
-            let stencils = &*stencils;
+            let stencils =
+                stages::stencils::<N>(self.simd, &pre.x, &origin, dx, 1, &mut rws.stencils);
             tape.bins.for_each_coloured(|p| {
                 // SAFETY: each particle is visited exactly once.
                 let (x_adj, fe_adj) = unsafe { (gx.get(p), gfe.get(p)) };
@@ -721,7 +696,6 @@ impl Euler {
                 let p0 = k * CHUNK;
                 let len = gx.len();
                 let mut grad_a = [Matrix3::zeros(); CHUNK];
-                let mut grad_p = [Matrix3::zeros(); CHUNK];
                 for i in 0..len {
                     let p = p0 + i;
                     let s = &stencils[p];
@@ -749,50 +723,38 @@ impl Euler {
                         unsafe { *gm.get(p) = g.value[0] };
                     }
                     grad_a[i] = g.slope[0];
-                    grad_p[i] = self.stress_inputs(p).stress_adjoint(&fe[p], &grad_a[i]);
                 }
-                let mut stress = [Matrix3::zeros(); CHUNK];
-                let mut d_stress = [Matrix3::zeros(); CHUNK];
                 let keep = self.material.kept_per_particle();
-                if tape.kept.is_empty() {
-                    self.material.stress_and_differential_batch(
-                        self.simd,
-                        &fe[p0..p0 + len],
-                        &grad_p[..len],
-                        &mut stress[..len],
-                        &mut d_stress[..len],
-                    );
+                let kept = if tape.kept.is_empty() {
+                    &[][..]
                 } else {
-                    self.material.stress_and_differential_batch_kept(
-                        self.simd,
-                        &fe[p0..p0 + len],
-                        &tape.kept[p0 * keep..(p0 + len) * keep],
-                        &grad_p[..len],
-                        &mut stress[..len],
-                        &mut d_stress[..len],
-                    );
-                }
-                for i in 0..len {
-                    let p = p0 + i;
-                    let (g_c, g_fe) = self.stress_inputs(p).affine_momentum_reverse_with(
-                        &grad_a[i],
-                        &stress[i],
-                        &d_stress[i],
-                    );
-                    gc[i] = g_c;
-                    let total_fe = grad_fe[p] + g_fe;
-                    match fc {
-                        Some(fc) => {
-                            (gf[i], gfc[i]) = form.apply_reverse_scaled(
-                                &pre.f[p],
-                                &fc[p],
-                                scale_of(&tape.scale, p),
-                                &total_fe,
-                            )
+                    &tape.kept[p0 * keep..(p0 + len) * keep]
+                };
+                stages::stress_reverse(
+                    self.material.as_ref(),
+                    self.simd,
+                    p0,
+                    &fe[p0..p0 + len],
+                    kept,
+                    |p| self.stress_inputs(p),
+                    &grad_a[..len],
+                    |i, g_c, g_fe| {
+                        let p = p0 + i;
+                        gc[i] = g_c;
+                        let total_fe = grad_fe[p] + g_fe;
+                        match fc {
+                            Some(fc) => {
+                                (gf[i], gfc[i]) = form.apply_reverse_scaled(
+                                    &pre.f[p],
+                                    &fc[p],
+                                    scale_of(&tape.scale, p),
+                                    &total_fe,
+                                )
+                            }
+                            None => gf[i] = total_fe,
                         }
-                        None => gf[i] = total_fe,
-                    }
-                }
+                    },
+                );
             });
         laps.lap(Stage::RevP2gStress);
         let grad_values = match values {

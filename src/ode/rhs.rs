@@ -15,8 +15,9 @@ use super::state::OdeState;
 use crate::effects::GridContext;
 use crate::mpm::SimError;
 use crate::mpm::grid::{Bins, SharedMut};
-use crate::mpm::kernel::{KernelKind, Stencil};
+use crate::mpm::kernel::{Cached, KernelKind, Stencil, StencilCache};
 use crate::mpm::model::Model;
+use crate::mpm::stages::{self, CHUNK};
 use crate::mpm::stress::StressInputs;
 use crate::mpm::transfer::{self, Affine, AxisField, AxisNodes, Node};
 use nalgebra::{Matrix3, Vector3};
@@ -240,46 +241,50 @@ impl Rk4 {
     /// Forward pieces shared by the evaluation and its reverse. Only the grid nodes inside
     /// some particle's stencil (the active nodes) are touched, in dense buffers borrowed from
     /// the pool, so the cost follows the particles and not the domain's size.
-    fn forward_grid<const N: usize>(&self, s: &OdeState, at: &At) -> Result<Forward, SimError> {
+    fn forward_grid<const N: usize>(&self, s: &OdeState, at: &At) -> Result<Forward, SimError>
+    where
+        Stencil<N>: Cached,
+    {
         let (values, step) = (at.values, at.step);
         let n = s.len();
         let (strides, origin, dx) = (self.grid.strides(), self.grid.origin_vec(), self.grid.dx);
         let bins = Bins::build(&self.grid, &s.x, N, step)?;
         let mut buf = self.pool.take(self.grid.node_count());
-        buf.mark_active::<N>(&s.x, &origin, dx, &strides);
         let par = n >= PARALLEL_MIN;
+        // Every particle's stencil, built once for this evaluation's transfers (and, kept
+        // with the buffers, for its reverse).
+        let mut cache = std::mem::take(&mut buf.stencils);
+        stages::stencils::<N>(self.simd, &s.x, &origin, dx, PARALLEL_MIN, &mut cache);
+        let stencils = &*cache.sized::<N>(n);
+        buf.mark_active(stencils, &strides);
         let body = self.body_accelerations(values);
-        // Stresses in chunks, so a material can batch them (fixed-corotated runs its SVDs in
-        // vector lanes); the same bits as one at a time.
-        const CHUNK: usize = 64;
         let mut stress_force = vec![Matrix3::zeros(); n];
-        stress_force
-            .par_chunks_mut(CHUNK)
-            .zip(s.f.par_chunks(CHUNK))
-            .with_min_len(PARALLEL_MIN / CHUNK)
-            .enumerate()
-            .for_each(|(k, (out, f))| {
-                self.material.stress_batch(self.simd, f, out);
-                for (i, (o, f)) in out.iter_mut().zip(f).enumerate() {
-                    *o = self.stress_inputs(k * CHUNK + i).affine_from_stress(
-                        &Matrix3::zeros(),
-                        f,
-                        o,
-                    );
-                }
-            });
+        stages::stress(
+            self.material.as_ref(),
+            self.simd,
+            &s.f,
+            None,
+            |p| self.stress_inputs(p),
+            PARALLEL_MIN,
+            &mut stress_force,
+            &mut [],
+        );
         {
             let Buffers {
                 nodes, node_axes, ..
             } = &mut buf;
-            node_axes.set_zero(nodes.len());
-            let shared = node_axes.shared();
-            visit_coloured(&bins, par, |p| {
-                let st = Stencil::<N>::new(&s.x[p], &origin, dx);
-                let fields = self.scatter_fields(s, values, &stress_force, &body, p);
-                transfer::scatter(self.simd, &st, &strides, self.mass[p], &fields, &shared);
-            });
-            node_axes.write_nodes(nodes);
+            stages::p2g(
+                self.simd,
+                &bins,
+                stencils,
+                &strides,
+                &self.mass,
+                par,
+                |p| self.scatter_fields(s, values, &stress_force, &body, p),
+                node_axes,
+                nodes,
+                self.grid.node_count(),
+            );
         }
         {
             let Buffers {
@@ -318,20 +323,20 @@ impl Rk4 {
         let inv_d = self.inv_d();
         buf.grid_v_axes.set_from(&buf.grid_v);
         let grid_axes = &buf.grid_v_axes;
-        let gathered: Vec<Gathered> =
-            s.x.par_iter()
-                .with_min_len(PARALLEL_MIN)
-                .map(|x| {
-                    let st = Stencil::<N>::new(x, &origin, dx);
-                    let (velocity, grad_v) =
-                        transfer::gather_affine(self.simd, &st, &strides, grid_axes, inv_d);
-                    Gathered {
-                        velocity,
-                        acceleration: transfer::interpolate(&st, &strides, &buf.grid_a),
-                        grad_v,
-                    }
-                })
-                .collect();
+        let gathered: Vec<Gathered> = stencils
+            .par_iter()
+            .with_min_len(PARALLEL_MIN)
+            .map(|st| {
+                let (velocity, grad_v) =
+                    transfer::gather_affine(self.simd, st, &strides, grid_axes, inv_d);
+                Gathered {
+                    velocity,
+                    acceleration: transfer::interpolate(st, &strides, &buf.grid_a),
+                    grad_v,
+                }
+            })
+            .collect();
+        buf.stencils = cache;
         Ok(Forward {
             bins,
             body,
@@ -346,7 +351,10 @@ impl Rk4 {
         s: &OdeState,
         at: &At,
         out: &mut OdeState,
-    ) -> Result<(), SimError> {
+    ) -> Result<(), SimError>
+    where
+        Stencil<N>: Cached,
+    {
         let values = at.values;
         let fw = self.forward_grid::<N>(s, at)?;
         let n = s.len();
@@ -384,16 +392,22 @@ impl Rk4 {
         s: &OdeState,
         at: &At,
         grad_out: &OdeState,
-    ) -> RhsGrad {
+    ) -> RhsGrad
+    where
+        Stencil<N>: Cached,
+    {
         let values = at.values;
         let mut fw = self
             .forward_grid::<N>(s, at)
             .expect("reverse pass replays a forward evaluation that succeeded");
         let n = s.len();
         let par = n >= PARALLEL_MIN;
-        let (strides, origin, dx) = (self.grid.strides(), self.grid.origin_vec(), self.grid.dx);
+        let strides = self.grid.strides();
         let inv_d = self.inv_d();
         let mut grad = OdeState::zeros(n);
+        // The forward evaluation's stencils (put back with the buffers at the end).
+        let mut cache = std::mem::take(&mut fw.buf.stencils);
+        let stencils = &*cache.sized::<N>(n);
         // dL/d(clamp velocity) per particle, summed per control afterwards (in particle order,
         // so the result does not depend on the thread count).
         let mut grad_u = vec![Vector3::zeros(); n];
@@ -421,7 +435,7 @@ impl Rk4 {
             let gf = SharedMut::new(&mut grad.f);
             let gu = SharedMut::new(&mut grad_u);
             let gathered = &fw.gathered;
-            visit_coloured(&fw.bins, par, |p| {
+            fw.bins.visit_coloured(par, |p| {
                 let g_out = &gathered[p];
                 let g_df = grad_out.f[p];
                 let mut g = Gathered {
@@ -435,11 +449,11 @@ impl Rk4 {
                     g.velocity = Vector3::zeros();
                     g.acceleration = Vector3::zeros();
                 }
-                let st = Stencil::<N>::new(&s.x[p], &origin, dx);
+                let st = &stencils[p];
                 let d =
                     transfer::gather_affine_reverse(
                         self.simd,
-                        &st,
+                        st,
                         &strides,
                         grid_axes,
                         inv_d,
@@ -447,7 +461,7 @@ impl Rk4 {
                         &g.grad_v,
                         &g_out.velocity,
                         &ggv,
-                    ) + transfer::interpolate_reverse(&st, &strides, grid_a, &g.acceleration, &gga);
+                    ) + transfer::interpolate_reverse(st, &strides, grid_a, &g.acceleration, &gga);
                 // SAFETY: each particle is visited exactly once.
                 unsafe {
                     *gx.get(p) += d;
@@ -523,32 +537,53 @@ impl Rk4 {
         fw.buf.grad_node_axes.set_from(&fw.buf.grad_nodes);
         let grad_nodes = &fw.buf.grad_node_axes;
         (
-            grad.x.par_iter_mut(),
-            grad.v.par_iter_mut(),
-            grad.f.par_iter_mut(),
-            grad_u.par_iter_mut(),
-            grad_body.par_iter_mut(),
+            grad.x.par_chunks_mut(CHUNK),
+            grad.v.par_chunks_mut(CHUNK),
+            grad.f.par_chunks_mut(CHUNK),
+            grad_u.par_chunks_mut(CHUNK),
+            grad_body.par_chunks_mut(CHUNK),
         )
             .into_par_iter()
-            .with_min_len(PARALLEL_MIN)
+            .with_min_len(PARALLEL_MIN / CHUNK)
             .enumerate()
-            .for_each(|(p, (gx, gv, gf, gu, gb))| {
-                let st = Stencil::<N>::new(&s.x[p], &origin, dx);
-                let fields = self.scatter_fields(s, values, &fw.stress_force, &fw.body, p);
-                let m = self.mass[p];
-                let g = transfer::scatter_reverse(self.simd, &st, &strides, m, &fields, grad_nodes);
-                *gx += g.x;
-                // Momentum field m v~, force field m b + K (x_i - x_p).
-                match self.is_clamped(p) {
-                    false => *gv += m * g.value[0],
-                    true => *gu += m * g.value[0],
+            .for_each(|(k, (gx, gv, gf, gu, gb))| {
+                let p0 = k * CHUNK;
+                let len = gx.len();
+                // dL/d(the force field's slope K_p), for the stress stage's reverse.
+                let mut grad_k = [Matrix3::zeros(); CHUNK];
+                for i in 0..len {
+                    let p = p0 + i;
+                    let fields = self.scatter_fields(s, values, &fw.stress_force, &fw.body, p);
+                    let m = self.mass[p];
+                    let g = transfer::scatter_reverse(
+                        self.simd,
+                        &stencils[p],
+                        &strides,
+                        m,
+                        &fields,
+                        grad_nodes,
+                    );
+                    gx[i] += g.x;
+                    // Momentum field m v~, force field m b + K (x_i - x_p).
+                    match self.is_clamped(p) {
+                        false => gv[i] += m * g.value[0],
+                        true => gu[i] += m * g.value[0],
+                    }
+                    gb[i] = m * g.value[1];
+                    grad_k[i] = g.slope[1];
                 }
-                *gb = m * g.value[1];
-                let (_, g_f) = self
-                    .stress_inputs(p)
-                    .affine_momentum_reverse(&s.f[p], &g.slope[1]);
-                *gf += g_f;
+                stages::stress_reverse(
+                    self.material.as_ref(),
+                    self.simd,
+                    p0,
+                    &s.f[p0..p0 + len],
+                    &[],
+                    |p| self.stress_inputs(p),
+                    &grad_k[..len],
+                    |i, _, g_f| gf[i] += g_f,
+                );
             });
+        fw.buf.stencils = cache;
         self.pool.put(fw.buf);
 
         let controls = self.control_value_grads(&grad_u, &grad_body);
@@ -576,22 +611,6 @@ impl Rk4 {
 /// bitwise the same either way.
 const PARALLEL_MIN: usize = 2048;
 
-/// Runs `f(p)` for every particle in the colouring's order: in parallel, or sequentially in
-/// the very same order (so both give identical sums in every node).
-fn visit_coloured(bins: &Bins, parallel: bool, f: impl Fn(usize) + Sync) {
-    if parallel {
-        bins.for_each_coloured(f);
-    } else {
-        for blocks in &bins.colours {
-            for r in blocks {
-                for &p in &bins.order[r.start as usize..r.end as usize] {
-                    f(p as usize);
-                }
-            }
-        }
-    }
-}
-
 /// Dense grid buffers of one evaluation; only active nodes hold meaningful values.
 #[derive(Default)]
 struct Buffers {
@@ -608,6 +627,8 @@ struct Buffers {
     grid_v_axes: AxisField,
     grad_v_axes: AxisField,
     grad_node_axes: AxisNodes<2>,
+    /// Every particle's stencil, built once an evaluation.
+    stencils: StencilCache,
     /// `mark[i] == generation` when node i is active in the current evaluation.
     mark: Vec<u32>,
     generation: u32,
@@ -628,6 +649,7 @@ impl Buffers {
             grid_v_axes: AxisField::default(),
             grad_v_axes: AxisField::default(),
             grad_node_axes: AxisNodes::default(),
+            stencils: StencilCache::default(),
             mark: vec![0; nodes],
             generation: 0,
             active: Vec::new(),
@@ -635,21 +657,14 @@ impl Buffers {
     }
 
     /// Lists the nodes inside any particle's stencil (positions already checked by Bins).
-    fn mark_active<const N: usize>(
-        &mut self,
-        x: &[Vector3<f64>],
-        origin: &Vector3<f64>,
-        dx: f64,
-        strides: &[usize; 3],
-    ) {
+    fn mark_active<const N: usize>(&mut self, stencils: &[Stencil<N>], strides: &[usize; 3]) {
         self.generation = self.generation.wrapping_add(1);
         if self.generation == 0 {
             self.mark.iter_mut().for_each(|m| *m = 0);
             self.generation = 1;
         }
         self.active.clear();
-        for xp in x {
-            let st = Stencil::<N>::new(xp, origin, dx);
+        for st in stencils {
             let i0 = st.base_index(strides);
             for a in 0..N {
                 for b in 0..N {

@@ -1,0 +1,162 @@
+//! The particle stages both integrators run, written once: the symplectic-Euler step
+//! (`step.rs`) and the ODE form's right-hand side (`crate::ode::rhs`) each call them in the
+//! same order (stencils, stress, P2G; later the reverse of the stress), and differ only in
+//! what a particle scatters and in the grid update between the transfers (a discrete step
+//! against rates). Each forward stage stands beside its reverse.
+//!
+//! `min_len` is the fewest particles a parallel task takes: 1 where a step runs alone, more
+//! where many small runs go in parallel (the rope's controllers) and a fork-join would cost
+//! more than the work. Every stage gives the same bits whatever the thread count.
+
+use super::grid::Bins;
+use super::kernel::{Cached, Stencil, StencilCache};
+use super::stress::StressInputs;
+use super::transfer::{self, Affine, AxisNodes, Node};
+use crate::lanes::SimdLevel;
+use crate::material::ConstitutiveModel;
+use nalgebra::{Matrix3, Vector3};
+use rayon::prelude::*;
+
+/// Particles a batch holds: the material's vector lanes take a batch's stresses together.
+pub const CHUNK: usize = 64;
+
+/// Every particle's stencil at positions `x`, built four at a time on vector lanes (the bits
+/// of [`Stencil::new`]) into `cache`, for the transfers of one pass to share.
+pub fn stencils<'c, const N: usize>(
+    simd: SimdLevel,
+    x: &[Vector3<f64>],
+    origin: &Vector3<f64>,
+    dx: f64,
+    min_len: usize,
+    cache: &'c mut StencilCache,
+) -> &'c [Stencil<N>]
+where
+    Stencil<N>: Cached,
+{
+    let out = cache.sized::<N>(x.len());
+    out.par_chunks_mut(CHUNK)
+        .zip(x.par_chunks(CHUNK))
+        .with_min_len(min_len.div_ceil(CHUNK))
+        .for_each(|(s, x)| Stencil::fill(simd, x, origin, dx, s));
+    out
+}
+
+/// The stress stage: each particle's affine term `A_p = m C_p + k P(Fe_p) Fe_p^T` from its
+/// elastic gradient `fe` (and `c`, zero where `None`), with `m`, `k` from `inputs(p)`.
+/// Batches of [`CHUNK`] particles go to the material together (fixed-corotated runs their
+/// SVDs on vector lanes; the same bits as one at a time). With a non-empty `kept`
+/// (`kept_per_particle` numbers a particle) it also keeps what spares [`stress_reverse`]
+/// its costliest part.
+#[allow(clippy::too_many_arguments)]
+pub fn stress<'m>(
+    material: &dyn ConstitutiveModel,
+    simd: SimdLevel,
+    fe: &[Matrix3<f64>],
+    c: Option<&[Matrix3<f64>]>,
+    inputs: impl Fn(usize) -> StressInputs<'m> + Sync,
+    min_len: usize,
+    affine: &mut [Matrix3<f64>],
+    kept: &mut [f64],
+) {
+    let keep = kept.len() / fe.len().max(1);
+    let batch = |k: usize, a: &mut [Matrix3<f64>], fe: &[Matrix3<f64>], kept: &mut [f64]| {
+        if keep > 0 {
+            material.stress_batch_keeping(simd, fe, a, kept);
+        } else {
+            material.stress_batch(simd, fe, a);
+        }
+        for (i, (a, fe)) in a.iter_mut().zip(fe).enumerate() {
+            let p = k * CHUNK + i;
+            let c = c.map_or_else(Matrix3::zeros, |c| c[p]);
+            *a = inputs(p).affine_from_stress(&c, fe, a);
+        }
+    };
+    let batches = affine
+        .par_chunks_mut(CHUNK)
+        .zip(fe.par_chunks(CHUNK))
+        .with_min_len(min_len.div_ceil(CHUNK));
+    if keep > 0 {
+        batches
+            .zip(kept.par_chunks_mut(CHUNK * keep))
+            .enumerate()
+            .for_each(|(k, ((a, fe), kept))| batch(k, a, fe, kept));
+    } else {
+        batches
+            .enumerate()
+            .for_each(|(k, (a, fe))| batch(k, a, fe, &mut []));
+    }
+}
+
+/// Reverse of [`stress`] for one batch of particles `p0..p0 + fe.len()` (at most
+/// [`CHUNK`]): from dL/dA (`grad_a`) it writes dL/dC and dL/dFe of each. The material takes
+/// the batch's stress differentials together, from what the forward stage kept when `kept`
+/// holds it (the same bits either way).
+#[allow(clippy::too_many_arguments)]
+pub fn stress_reverse<'m>(
+    material: &dyn ConstitutiveModel,
+    simd: SimdLevel,
+    p0: usize,
+    fe: &[Matrix3<f64>],
+    kept: &[f64],
+    inputs: impl Fn(usize) -> StressInputs<'m>,
+    grad_a: &[Matrix3<f64>],
+    mut out: impl FnMut(usize, Matrix3<f64>, Matrix3<f64>),
+) {
+    let len = fe.len();
+    debug_assert!(len <= CHUNK && grad_a.len() == len);
+    let mut grad_p = [Matrix3::zeros(); CHUNK];
+    for (i, g) in grad_p[..len].iter_mut().enumerate() {
+        *g = inputs(p0 + i).stress_adjoint(&fe[i], &grad_a[i]);
+    }
+    let mut stress = [Matrix3::zeros(); CHUNK];
+    let mut d_stress = [Matrix3::zeros(); CHUNK];
+    if kept.is_empty() {
+        material.stress_and_differential_batch(
+            simd,
+            fe,
+            &grad_p[..len],
+            &mut stress[..len],
+            &mut d_stress[..len],
+        );
+    } else {
+        material.stress_and_differential_batch_kept(
+            simd,
+            fe,
+            kept,
+            &grad_p[..len],
+            &mut stress[..len],
+            &mut d_stress[..len],
+        );
+    }
+    for i in 0..len {
+        let (g_c, g_fe) =
+            inputs(p0 + i).affine_momentum_reverse_with(&grad_a[i], &stress[i], &d_stress[i]);
+        out(i, g_c, g_fe);
+    }
+}
+
+/// P2G: each particle's mass and its `K` affine fields (`fields(p)`) scattered to the grid
+/// nodes through its stencil, in the colour order of `bins` (in parallel, or on this thread
+/// in the very same order: identical sums in every node either way), into `nodes`.
+#[allow(clippy::too_many_arguments)]
+pub fn p2g<const N: usize, const K: usize>(
+    simd: SimdLevel,
+    bins: &Bins,
+    stencils: &[Stencil<N>],
+    strides: &[usize; 3],
+    mass: &[f64],
+    parallel: bool,
+    fields: impl Fn(usize) -> [Affine; K] + Sync,
+    axes: &mut AxisNodes<K>,
+    nodes: &mut Vec<Node<K>>,
+    node_count: usize,
+) {
+    axes.set_zero(node_count);
+    {
+        let shared = axes.shared();
+        bins.visit_coloured(parallel, |p| {
+            transfer::scatter(simd, &stencils[p], strides, mass[p], &fields(p), &shared);
+        });
+    }
+    axes.write_nodes(nodes);
+}
