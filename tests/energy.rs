@@ -7,7 +7,7 @@
 use morph::material::{ConstitutiveModel, FixedCorotated};
 use morph::mpm::model::Model;
 use morph::mpm::{Euler, GridSpec, KernelKind, State};
-use morph::ode::{OdeState, Rk4};
+use morph::ode::Rk4;
 use nalgebra::{Matrix3, Vector3};
 use std::sync::Arc;
 use std::time::Instant;
@@ -100,7 +100,7 @@ fn rk4(b: &Bar, dt: f64) -> (f64, f64) {
     )
     .unwrap();
     let sys = Rk4::new(model).unwrap();
-    let mut s = OdeState::at_rest(b.x.clone());
+    let mut s = State::ode_at_rest(b.x.clone());
     s.v = b.v.clone();
     let e0 = kinetic(&s.v, m) + sys.elastic_energy(&s);
     let params = sys.controls.zero_params();

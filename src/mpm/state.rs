@@ -5,7 +5,10 @@ use rayon::prelude::*;
 
 /// Particle state advanced by each step: position `x`, velocity `v`, APIC affine velocity `c`
 /// and deformation gradient `f`. Masses and rest volumes do not change and live in the
-/// [`super::Euler`].
+/// [`super::Model`]. Both integrators use it: the ODE form (RK4) carries no `c` (it
+/// recomputes the velocity gradient at every evaluation), so its states, rates and adjoints
+/// leave `c` empty ([`State::ode_zeros`], [`State::ode_part`]), and RK4's stage combinations
+/// `S + h k` are plain axpys over the fields there are.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct State {
     pub x: Vec<Vector3<f64>>,
@@ -23,6 +26,10 @@ pub fn par_copy<T: Copy + Send + Sync>(v: &[T]) -> Vec<T> {
 
 /// Gradient of a scalar loss with respect to every field of a [`State`].
 pub type StateGrad = State;
+
+/// Below this many particles the element-wise operations of the ODE form stay on the calling
+/// thread (the rope's controllers run many small rollouts at once).
+const MIN_LEN: usize = 4096;
 
 impl State {
     /// Particles at `positions`, at rest and undeformed.
@@ -56,6 +63,78 @@ impl State {
         }
     }
 
+    /// The ODE form's state of `n` particles, all zero (a rate or an adjoint seed): no `c`.
+    pub fn ode_zeros(n: usize) -> State {
+        State {
+            x: vec![Vector3::zeros(); n],
+            v: vec![Vector3::zeros(); n],
+            c: Vec::new(),
+            f: vec![Matrix3::zeros(); n],
+        }
+    }
+
+    /// Particles at `positions`, at rest and undeformed, as the ODE form holds them (no `c`).
+    pub fn ode_at_rest(positions: Vec<Vector3<f64>>) -> State {
+        let n = positions.len();
+        State {
+            x: positions,
+            v: vec![Vector3::zeros(); n],
+            c: Vec::new(),
+            f: vec![Matrix3::identity(); n],
+        }
+    }
+
+    /// The ODE form's part of this state: `x`, `v` and `F`, without `c`.
+    pub fn ode_part(&self) -> State {
+        State {
+            x: self.x.clone(),
+            v: self.v.clone(),
+            c: Vec::new(),
+            f: self.f.clone(),
+        }
+    }
+
+    /// This state with a zero `c` where it has none (an ODE-form state handed to code that
+    /// reads every field).
+    pub fn with_affine(mut self) -> State {
+        if self.c.is_empty() {
+            self.c = vec![Matrix3::zeros(); self.len()];
+        }
+        self
+    }
+
+    /// `self += a * other`, field by field (`c` where both have one).
+    pub fn axpy(&mut self, a: f64, other: &State) {
+        fn field<T>(s: &mut [T], o: &[T], a: f64)
+        where
+            T: Copy + Send + Sync + std::ops::AddAssign + std::ops::Mul<f64, Output = T>,
+        {
+            s.par_iter_mut()
+                .with_min_len(MIN_LEN)
+                .zip(o)
+                .for_each(|(s, o)| *s += *o * a);
+        }
+        field(&mut self.x, &other.x, a);
+        field(&mut self.v, &other.v, a);
+        field(&mut self.c, &other.c, a);
+        field(&mut self.f, &other.f, a);
+    }
+
+    /// `out = self + a * other` into an existing buffer (no allocation once sized).
+    pub fn combine_into(&self, a: f64, other: &State, out: &mut State) {
+        out.clone_from(self);
+        out.axpy(a, other);
+    }
+
+    /// Sum of `<self, other>` over all fields (for directional-derivative checks).
+    pub fn dot(&self, other: &State) -> f64 {
+        let x: f64 = self.x.iter().zip(&other.x).map(|(a, b)| a.dot(b)).sum();
+        let v: f64 = self.v.iter().zip(&other.v).map(|(a, b)| a.dot(b)).sum();
+        let c: f64 = self.c.iter().zip(&other.c).map(|(a, b)| a.dot(b)).sum();
+        let f: f64 = self.f.iter().zip(&other.f).map(|(a, b)| a.dot(b)).sum();
+        x + v + c + f
+    }
+
     pub fn len(&self) -> usize {
         self.x.len()
     }
@@ -69,27 +148,38 @@ impl State {
         n * (2 * size_of::<Vector3<f64>>() + 2 * size_of::<Matrix3<f64>>())
     }
 
+    /// Bytes a particle of the ODE form's state holds: `x`, `v` and `F`.
+    pub const ODE_BYTES_PER_PARTICLE: usize =
+        2 * size_of::<Vector3<f64>>() + size_of::<Matrix3<f64>>();
+
     /// Heap bytes this state holds.
     pub fn bytes(&self) -> usize {
-        State::bytes_for(self.len())
+        (self.x.len() + self.v.len()) * size_of::<Vector3<f64>>()
+            + (self.c.len() + self.f.len()) * size_of::<Matrix3<f64>>()
     }
 
     /// Index and name of the first particle with a non-finite field, if any.
     pub fn first_non_finite(&self) -> Option<(usize, &'static str)> {
-        use rayon::prelude::*;
-        (0..self.len()).into_par_iter().find_map_first(|p| {
-            if !self.x[p].iter().all(|a| a.is_finite()) {
-                Some((p, "position"))
-            } else if !self.v[p].iter().all(|a| a.is_finite()) {
-                Some((p, "velocity"))
-            } else if !self.c[p].iter().all(|a| a.is_finite()) {
-                Some((p, "affine velocity C"))
-            } else if !self.f[p].iter().all(|a| a.is_finite()) {
-                Some((p, "deformation gradient F"))
-            } else {
-                None
-            }
-        })
+        (0..self.len())
+            .into_par_iter()
+            .with_min_len(MIN_LEN)
+            .find_map_first(|p| {
+                if !self.x[p].iter().all(|a| a.is_finite()) {
+                    Some((p, "position"))
+                } else if !self.v[p].iter().all(|a| a.is_finite()) {
+                    Some((p, "velocity"))
+                } else if self
+                    .c
+                    .get(p)
+                    .is_some_and(|c| !c.iter().all(|a| a.is_finite()))
+                {
+                    Some((p, "affine velocity C"))
+                } else if !self.f[p].iter().all(|a| a.is_finite()) {
+                    Some((p, "deformation gradient F"))
+                } else {
+                    None
+                }
+            })
     }
 
     /// Total linear momentum for per-particle masses `m`.

@@ -8,8 +8,6 @@
 pub mod rhs;
 pub mod rk4;
 pub mod rollout;
-pub mod state;
 
 pub use rhs::{At, Rk4};
 pub use rk4::Rk4Tape;
-pub use state::OdeState;

@@ -11,9 +11,9 @@
 //! system conserves kinetic + elastic + gravitational energy exactly: the only losses left are
 //! the integrator's (see docs/control.md).
 
-use super::state::OdeState;
 use crate::effects::GridContext;
 use crate::mpm::SimError;
+use crate::mpm::State;
 use crate::mpm::grid::{Bins, SharedMut};
 use crate::mpm::kernel::{Cached, KernelKind, Stencil, StencilCache};
 use crate::mpm::model::Model;
@@ -65,7 +65,7 @@ impl<'a> At<'a> {
 
 /// dL/d(inputs) of one right-hand-side evaluation.
 pub struct RhsGrad {
-    pub state: OdeState,
+    pub state: State,
     /// dL/d(control values) at the evaluation time, one per control.
     pub controls: Vec<Vector3<f64>>,
     /// dL/d(effect parameters), in model order.
@@ -100,19 +100,14 @@ impl Rk4 {
 
     /// The velocity particle `p` carries to the grid given the control values.
     #[inline]
-    pub fn transfer_velocity(
-        &self,
-        s: &OdeState,
-        values: &[Vector3<f64>],
-        p: usize,
-    ) -> Vector3<f64> {
+    pub fn transfer_velocity(&self, s: &State, values: &[Vector3<f64>], p: usize) -> Vector3<f64> {
         self.prescribed_velocity(values, p).unwrap_or(s.v[p])
     }
 
     /// Kinetic energy of the particle velocities `1/2 sum m |v~|^2` (clamped particles at their
     /// prescribed velocity). Unlike [`Rk4::motion_energy`] it includes the velocity modes
     /// the grid cannot see; the report gives both.
-    pub fn kinetic_energy(&self, s: &OdeState, values: &[Vector3<f64>]) -> f64 {
+    pub fn kinetic_energy(&self, s: &State, values: &[Vector3<f64>]) -> f64 {
         (0..s.len())
             .map(|p| 0.5 * self.mass[p] * self.transfer_velocity(s, values, p).norm_squared())
             .sum()
@@ -124,11 +119,11 @@ impl Rk4 {
     /// nothing and no grid force can remove them, so they are not counted as motion.
     pub fn motion_energy(
         &self,
-        s: &OdeState,
+        s: &State,
         values: &[Vector3<f64>],
         step: usize,
     ) -> Result<f64, SimError> {
-        let mut d = OdeState::zeros(0);
+        let mut d = State::ode_zeros(0);
         let at = At::end_of_step(values, step);
         self.rhs(s, &at, &mut d)?;
         Ok(d.x
@@ -141,30 +136,31 @@ impl Rk4 {
     /// Reverse of [`Rk4::motion_energy`] scaled by `weight`.
     pub fn motion_energy_reverse(
         &self,
-        s: &OdeState,
+        s: &State,
         values: &[Vector3<f64>],
         step: usize,
         weight: f64,
     ) -> RhsGrad {
-        let mut d = OdeState::zeros(0);
+        let mut d = State::ode_zeros(0);
         let at = At::end_of_step(values, step);
         self.rhs(s, &at, &mut d)
             .expect("reverse pass replays a forward evaluation that succeeded");
         let n = s.len();
-        let seed = OdeState {
+        let seed = State {
             x: d.x
                 .iter()
                 .zip(&self.mass)
                 .map(|(v, m)| weight * m * v)
                 .collect(),
             v: vec![Vector3::zeros(); n],
+            c: Vec::new(),
             f: vec![Matrix3::zeros(); n],
         };
         self.rhs_reverse(s, &at, &seed)
     }
 
     /// Elastic energy `sum V psi(F)`.
-    pub fn elastic_energy(&self, s: &OdeState) -> f64 {
+    pub fn elastic_energy(&self, s: &State) -> f64 {
         s.f.iter()
             .zip(&self.volume)
             .map(|(f, v)| v * self.material.energy_density(f))
@@ -172,7 +168,7 @@ impl Rk4 {
     }
 
     /// Potential energy of the conservative effects (gravity `-sum m g . x`).
-    pub fn potential_energy(&self, s: &OdeState) -> f64 {
+    pub fn potential_energy(&self, s: &State) -> f64 {
         self.model.potential_energy(&s.x)
     }
 
@@ -181,7 +177,7 @@ impl Rk4 {
     #[inline]
     fn scatter_fields(
         &self,
-        s: &OdeState,
+        s: &State,
         values: &[Vector3<f64>],
         stress_force: &[Matrix3<f64>],
         body: &[Vector3<f64>],
@@ -212,7 +208,7 @@ impl Rk4 {
     }
 
     /// Evaluates `f(S, u, t)` into `out` (`at.step` also labels errors).
-    pub fn rhs(&self, s: &OdeState, at: &At, out: &mut OdeState) -> Result<(), SimError> {
+    pub fn rhs(&self, s: &State, at: &At, out: &mut State) -> Result<(), SimError> {
         match self.kernel {
             KernelKind::Quadratic => self.rhs_impl::<3>(s, at, out),
             KernelKind::Cubic => self.rhs_impl::<4>(s, at, out),
@@ -220,7 +216,7 @@ impl Rk4 {
     }
 
     /// Reverse of [`Rk4::rhs`] at state `s`: `grad_out` is dL/d(dS/dt).
-    pub fn rhs_reverse(&self, s: &OdeState, at: &At, grad_out: &OdeState) -> RhsGrad {
+    pub fn rhs_reverse(&self, s: &State, at: &At, grad_out: &State) -> RhsGrad {
         match self.kernel {
             KernelKind::Quadratic => self.rhs_reverse_impl::<3>(s, at, grad_out),
             KernelKind::Cubic => self.rhs_reverse_impl::<4>(s, at, grad_out),
@@ -241,7 +237,7 @@ impl Rk4 {
     /// Forward pieces shared by the evaluation and its reverse. Only the grid nodes inside
     /// some particle's stencil (the active nodes) are touched, in dense buffers borrowed from
     /// the pool, so the cost follows the particles and not the domain's size.
-    fn forward_grid<const N: usize>(&self, s: &OdeState, at: &At) -> Result<Forward, SimError>
+    fn forward_grid<const N: usize>(&self, s: &State, at: &At) -> Result<Forward, SimError>
     where
         Stencil<N>: Cached,
     {
@@ -346,12 +342,7 @@ impl Rk4 {
         })
     }
 
-    fn rhs_impl<const N: usize>(
-        &self,
-        s: &OdeState,
-        at: &At,
-        out: &mut OdeState,
-    ) -> Result<(), SimError>
+    fn rhs_impl<const N: usize>(&self, s: &State, at: &At, out: &mut State) -> Result<(), SimError>
     where
         Stencil<N>: Cached,
     {
@@ -387,12 +378,7 @@ impl Rk4 {
         Ok(())
     }
 
-    fn rhs_reverse_impl<const N: usize>(
-        &self,
-        s: &OdeState,
-        at: &At,
-        grad_out: &OdeState,
-    ) -> RhsGrad
+    fn rhs_reverse_impl<const N: usize>(&self, s: &State, at: &At, grad_out: &State) -> RhsGrad
     where
         Stencil<N>: Cached,
     {
@@ -404,7 +390,7 @@ impl Rk4 {
         let par = n >= PARALLEL_MIN;
         let strides = self.grid.strides();
         let inv_d = self.inv_d();
-        let mut grad = OdeState::zeros(n);
+        let mut grad = State::ode_zeros(n);
         // The forward evaluation's stencils (put back with the buffers at the end).
         let mut cache = std::mem::take(&mut fw.buf.stencils);
         let stencils = &*cache.sized::<N>(n);
@@ -595,7 +581,7 @@ impl Rk4 {
     }
 
     /// Checks a state before integrating it.
-    pub fn check_state(&self, s: &OdeState, step: usize) -> Result<(), SimError> {
+    pub fn check_state(&self, s: &State, step: usize) -> Result<(), SimError> {
         if s.v.len() != s.len() || s.f.len() != s.len() {
             return Err(SimError::InvalidScene(
                 "state fields differ in length".into(),

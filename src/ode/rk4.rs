@@ -8,7 +8,6 @@
 //! `gS = gS' + gS1 + gS2 + gS3 + gS4` with `gSi = f_rev(Si, gki)`.
 
 use super::rhs::{At, Rk4};
-use super::state::OdeState;
 use crate::integrator::{Integrator, OnStep, RunTape, SeedAfter, StepControls};
 use crate::mpm::ControlParams;
 use crate::mpm::SimError;
@@ -31,14 +30,14 @@ fn stage_at(values: &[nalgebra::Vector3<f64>], step: usize, i: usize) -> At<'_> 
 }
 
 /// The four stage inputs of one step.
-pub type StepStages = [OdeState; 4];
+pub type StepStages = [State; 4];
 
 impl Rk4 {
     /// Advances `s` by one RK4 step (global index `step`, used for the control schedule and
     /// to label errors). Returns the stage inputs when asked (for the tape).
     pub fn rk4_step(
         &self,
-        s: &mut OdeState,
+        s: &mut State,
         params: &ControlParams,
         step: usize,
         record: bool,
@@ -46,13 +45,13 @@ impl Rk4 {
         let h = self.dt;
         let n = s.len();
         let mut k = [
-            OdeState::zeros(n),
-            OdeState::zeros(n),
-            OdeState::zeros(n),
-            OdeState::zeros(n),
+            State::ode_zeros(n),
+            State::ode_zeros(n),
+            State::ode_zeros(n),
+            State::ode_zeros(n),
         ];
         let mut stage = s.clone();
-        let mut stages: Vec<OdeState> = Vec::with_capacity(if record { 4 } else { 0 });
+        let mut stages: Vec<State> = Vec::with_capacity(if record { 4 } else { 0 });
         let scale = [0.5 * h, 0.5 * h, h];
         for i in 0..4 {
             if i > 0 {
@@ -74,7 +73,7 @@ impl Rk4 {
     }
 
     /// Rejects a non-finite state or a particle moving more than `max_cfl` cells per step.
-    fn check_step(&self, s: &OdeState, step: usize) -> Result<(), SimError> {
+    fn check_step(&self, s: &State, step: usize) -> Result<(), SimError> {
         self.check_finite_and_cfl(s.first_non_finite(), &s.v, step)
     }
 
@@ -85,7 +84,7 @@ impl Rk4 {
         stages: &StepStages,
         params: &ControlParams,
         step: usize,
-        adj: &mut OdeState,
+        adj: &mut State,
         grad_params: &mut ControlParams,
         grad_effects: &mut [Vec<f64>],
     ) {
@@ -94,7 +93,7 @@ impl Rk4 {
         // dL/d(S_i) passed on to stage i-1's k (S_i = S + scale_i k_{i-1}).
         let scale = [0.0, 0.5 * h, 0.5 * h, h];
         let out = adj.clone();
-        let mut carried: Option<OdeState> = None;
+        let mut carried: Option<State> = None;
         for i in (0..4).rev() {
             let mut gk = out.clone();
             // gk_i = w_i gS' + scale_{i+1} gS_{i+1}
@@ -140,20 +139,6 @@ pub struct Rk4Tape {
     pub last: State,
 }
 
-pub(crate) fn to_ode(s: &State) -> OdeState {
-    OdeState::from(s)
-}
-
-pub(crate) fn from_ode(s: OdeState) -> State {
-    let n = s.len();
-    State {
-        x: s.x,
-        v: s.v,
-        c: vec![Matrix3::zeros(); n],
-        f: s.f,
-    }
-}
-
 impl Integrator for Rk4 {
     type Tape = Rk4Tape;
 
@@ -171,7 +156,7 @@ impl Integrator for Rk4 {
         mut on_step: Option<&mut OnStep>,
     ) -> Result<(), SimError> {
         let params = self.controls.zero_params();
-        let mut s = to_ode(state);
+        let mut s = state.ode_part();
         self.check_state(&s, first_step)?;
         if let Some(t) = tape.as_deref_mut() {
             t.first_step = first_step;
@@ -197,10 +182,10 @@ impl Integrator for Rk4 {
                 t.pre_control_f.push(pre_f);
             }
             if let Some(f) = on_step.as_deref_mut() {
-                f(first_step + k, &from_ode(s.clone()));
+                f(first_step + k, &s.clone().with_affine());
             }
         }
-        *state = from_ode(s);
+        *state = s.with_affine();
         if let Some(t) = tape {
             t.last = state.clone();
         }
@@ -209,7 +194,7 @@ impl Integrator for Rk4 {
 
     fn tape_bytes_per_step(&self, particles: usize) -> usize {
         // Four stage states (x, v, F) and the F before a control.
-        particles * (4 * OdeState::BYTES_PER_PARTICLE + size_of::<Matrix3<f64>>())
+        particles * (4 * State::ODE_BYTES_PER_PARTICLE + size_of::<Matrix3<f64>>())
     }
 
     fn backward(&self, tape: &Rk4Tape, controls: &StepControls, grad_last: StateGrad) -> Gradients {
@@ -240,7 +225,7 @@ impl Rk4 {
         let params = self.controls.zero_params();
         let mut grad_params = self.controls.zero_params();
         let mut effect_params = self.zero_effect_params();
-        let mut adj = to_ode(&grad_last);
+        let mut adj = grad_last.ode_part();
         let first_step = tape.first_step;
         let mut grad_controls = vec![None; tape.steps.len()];
         for k in (0..tape.steps.len()).rev() {
@@ -281,7 +266,7 @@ impl Rk4 {
             }
         }
         Gradients {
-            initial: from_ode(adj),
+            initial: adj.with_affine(),
             controls: grad_controls,
             effect_params,
         }
@@ -296,7 +281,7 @@ impl RunTape for Rk4Tape {
     fn state_at(&self, k: usize) -> Cow<'_, State> {
         match self.steps.get(k) {
             Some(st) => {
-                let mut s = from_ode(st[0].clone());
+                let mut s = st[0].clone().with_affine();
                 if let Some(Some(f)) = self.pre_control_f.get(k) {
                     s.f = f.clone();
                 }

@@ -6,8 +6,7 @@
 //! active-damping objective.
 
 use super::rhs::Rk4;
-use super::rk4::{Rk4Tape, from_ode, to_ode};
-use super::state::OdeState;
+use super::rk4::Rk4Tape;
 use crate::integrator::{ControlGradient, Controlled};
 use crate::mpm::ControlParams;
 use crate::mpm::SimError;
@@ -18,7 +17,7 @@ use rayon::prelude::*;
 /// dL/d(initial state) and dL/d(control knots) of a run.
 #[derive(Clone, Debug)]
 pub struct RunGradient {
-    pub initial: OdeState,
+    pub initial: State,
     pub params: ControlParams,
     /// dL/d(effect parameters), in model order.
     pub effect_params: Vec<Vec<f64>>,
@@ -30,12 +29,12 @@ impl Rk4 {
     /// every state after step `k`.
     pub fn rollout(
         &self,
-        s: &mut OdeState,
+        s: &mut State,
         params: &ControlParams,
         first_step: usize,
         n_steps: usize,
         mut tape: Option<&mut Rk4Tape>,
-        mut on_step: impl FnMut(usize, &OdeState),
+        mut on_step: impl FnMut(usize, &State),
     ) -> Result<Vec<f64>, SimError> {
         self.controls.check_params(params)?;
         self.check_state(s, first_step)?;
@@ -56,7 +55,7 @@ impl Rk4 {
             on_step(k, s);
         }
         if let Some(t) = tape {
-            t.last = super::rk4::from_ode(s.clone());
+            t.last = s.clone().with_affine();
             // With a tape every state is kept, so the energies can be evaluated afterwards in
             // parallel (the same evaluations, so the same bits).
             energy = (0..n_steps)
@@ -77,12 +76,12 @@ impl Rk4 {
         &self,
         tape: &Rk4Tape,
         params: &ControlParams,
-        last: &OdeState,
+        last: &State,
         weight: f64,
-        grad_last: Option<&OdeState>,
+        grad_last: Option<&State>,
     ) -> RunGradient {
         let n = last.len();
-        let mut adj = grad_last.cloned().unwrap_or_else(|| OdeState::zeros(n));
+        let mut adj = grad_last.cloned().unwrap_or_else(|| State::ode_zeros(n));
         let mut grad_params = self.controls.zero_params();
         let mut grad_effects = self.zero_effect_params();
         // The energy terms' adjoints do not depend on the sweep: evaluate them in parallel first.
@@ -123,7 +122,7 @@ impl Rk4 {
     }
 }
 
-/// The ODE form through the common interface: states convert to and from [`OdeState`]
+/// The ODE form through the common interface: states convert to and from [`State`]
 /// (the APIC matrix `c` is not part of the ODE form).
 impl Controlled for Rk4 {
     fn run(
@@ -135,11 +134,11 @@ impl Controlled for Rk4 {
         tape: Option<&mut Rk4Tape>,
         on_step: &mut dyn FnMut(usize, &State),
     ) -> Result<Vec<f64>, SimError> {
-        let mut s = to_ode(state);
+        let mut s = state.ode_part();
         let energy = self.rollout(&mut s, params, first_step, n_steps, tape, |k, st| {
-            on_step(k, &from_ode(st.clone()))
+            on_step(k, &st.clone().with_affine())
         })?;
-        *state = from_ode(s);
+        *state = s.with_affine();
         Ok(energy)
     }
 
@@ -150,17 +149,17 @@ impl Controlled for Rk4 {
         weight: f64,
         grad_last: Option<&StateGrad>,
     ) -> ControlGradient {
-        let last = to_ode(&tape.last);
-        let seed = grad_last.map(to_ode);
+        let last = tape.last.ode_part();
+        let seed = grad_last.map(State::ode_part);
         let g = self.rollout_cost_gradient(tape, params, &last, weight, seed.as_ref());
         ControlGradient {
-            initial: from_ode(g.initial),
+            initial: g.initial.with_affine(),
             params: g.params,
             effect_params: g.effect_params,
         }
     }
 
     fn particle_energy(&self, state: &State, params: &ControlParams, step: usize) -> f64 {
-        self.kinetic_energy(&to_ode(state), &self.control_values(params, step, 1.0))
+        self.kinetic_energy(&state.ode_part(), &self.control_values(params, step, 1.0))
     }
 }
