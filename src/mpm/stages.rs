@@ -59,22 +59,11 @@ pub fn stress<'m>(
     kept: &mut [f64],
 ) {
     let keep = kept.len() / fe.len().max(1);
-    let batch = |k: usize, a: &mut [Matrix3<f64>], fe: &[Matrix3<f64>], kept: &mut [f64]| {
-        if keep > 0 {
-            material.stress_batch_keeping(simd, fe, a, kept);
-        } else {
-            material.stress_batch(simd, fe, a);
-        }
-        for (i, (a, fe)) in a.iter_mut().zip(fe).enumerate() {
-            let p = k * CHUNK + i;
-            let c = c.map_or_else(Matrix3::zeros, |c| c[p]);
-            *a = inputs(p).affine_from_stress(&c, fe, a);
-        }
-    };
     let batches = affine
         .par_chunks_mut(CHUNK)
         .zip(fe.par_chunks(CHUNK))
         .with_min_len(min_len.div_ceil(CHUNK));
+    let batch = |k, a, fe, kept| stress_batch(material, simd, k, fe, c, &inputs, a, kept);
     if keep > 0 {
         batches
             .zip(kept.par_chunks_mut(CHUNK * keep))
@@ -84,6 +73,68 @@ pub fn stress<'m>(
         batches
             .enumerate()
             .for_each(|(k, (a, fe))| batch(k, a, fe, &mut []));
+    }
+}
+
+/// [`stress`] where each batch first writes its particles' elastic gradients into `fe`,
+/// `fe[p] = elastic(p)` (the Euler step: `F` after the control), in the same pass.
+#[allow(clippy::too_many_arguments)]
+pub fn stress_of<'m>(
+    material: &dyn ConstitutiveModel,
+    simd: SimdLevel,
+    elastic: impl Fn(usize) -> Matrix3<f64> + Sync,
+    fe: &mut [Matrix3<f64>],
+    c: Option<&[Matrix3<f64>]>,
+    inputs: impl Fn(usize) -> StressInputs<'m> + Sync,
+    min_len: usize,
+    affine: &mut [Matrix3<f64>],
+    kept: &mut [f64],
+) {
+    let keep = kept.len() / fe.len().max(1);
+    let batches = affine
+        .par_chunks_mut(CHUNK)
+        .zip(fe.par_chunks_mut(CHUNK))
+        .with_min_len(min_len.div_ceil(CHUNK));
+    let batch = |k: usize, a, fe: &mut [Matrix3<f64>], kept| {
+        for (i, fe) in fe.iter_mut().enumerate() {
+            *fe = elastic(k * CHUNK + i);
+        }
+        stress_batch(material, simd, k, fe, c, &inputs, a, kept)
+    };
+    if keep > 0 {
+        batches
+            .zip(kept.par_chunks_mut(CHUNK * keep))
+            .enumerate()
+            .for_each(|(k, ((a, fe), kept))| batch(k, a, fe, kept));
+    } else {
+        batches
+            .enumerate()
+            .for_each(|(k, (a, fe))| batch(k, a, fe, &mut []));
+    }
+}
+
+/// One batch of the stress stage: particles `k * CHUNK ..`.
+#[allow(clippy::too_many_arguments)]
+#[inline]
+fn stress_batch<'m>(
+    material: &dyn ConstitutiveModel,
+    simd: SimdLevel,
+    k: usize,
+    fe: &[Matrix3<f64>],
+    c: Option<&[Matrix3<f64>]>,
+    inputs: &impl Fn(usize) -> StressInputs<'m>,
+    a: &mut [Matrix3<f64>],
+    kept: &mut [f64],
+) {
+    if kept.is_empty() {
+        material.stress_batch(simd, fe, a);
+    } else {
+        material.stress_batch_keeping(simd, fe, a, kept);
+    }
+    for (i, (a, fe)) in a.iter_mut().zip(fe).enumerate() {
+        let p = k * CHUNK + i;
+        let c = c.map_or_else(Matrix3::zeros, |c| c[p]);
+        *a = inputs(p).affine_from_stress(&c, fe, a);
     }
 }
 

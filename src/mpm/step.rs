@@ -301,16 +301,14 @@ impl Euler {
             ws.scale.par_extend(fc.par_iter().map(|fc| form.scale(fc)));
         }
         let scale = &ws.scale;
-        ws.fe.par_iter_mut().enumerate().for_each(|(p, fe)| {
-            *fe = match fc {
-                Some(fc) => form.apply_scaled(&state.f[p], &fc[p], scale_of(scale, p)),
-                None => state.f[p],
-            }
-        });
-        stages::stress(
+        stages::stress_of(
             self.material.as_ref(),
             self.simd,
-            &ws.fe,
+            |p| match fc {
+                Some(fc) => form.apply_scaled(&state.f[p], &fc[p], scale_of(scale, p)),
+                None => state.f[p],
+            },
+            &mut ws.fe,
             Some(&state.c),
             |p| self.stress_inputs(p),
             1,
