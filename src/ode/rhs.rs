@@ -11,9 +11,9 @@
 //! system conserves kinetic + elastic + gravitational energy exactly: the only losses left are
 //! the integrator's (see docs/control.md).
 
-use crate::effects::GridContext;
 use crate::mpm::SimError;
 use crate::mpm::State;
+use crate::mpm::effect::GridContext;
 use crate::mpm::grid::{Bins, SharedMut};
 use crate::mpm::kernel::{Cached, KernelKind, Stencil, StencilCache};
 use crate::mpm::model::Model;
