@@ -14,8 +14,10 @@
 //! - [`loss`]: nodal mass losses;
 //! - [`geometry`]: meshes in (OBJ/PLY, validation, welding, winding-number voxelization,
 //!   placement) and surfaces out;
-//! - [`morph`]: the morph (segment optimizers, the chained multi-pass driver with its
-//!   [`morph::Observer`], checkpoints, the output folder writer);
+//! - the morph itself at the crate root (its folder `src/morph/`, a private module whose
+//!   items the root re-exports, so a caller writes `morph::Job`, `morph::settings::limits`,
+//!   `morph::output::morph_to_folder`): the segment optimizers, the chained multi-pass
+//!   driver with its [`Observer`], checkpoints, the output folder writer;
 //! - [`apps`]: what is built on the engine besides the morph: the rope (control of deformable
 //!   objects: gradient control, MPPI), `morph study` (what accuracy costs in time) and the
 //!   benchmark workloads;
@@ -40,16 +42,13 @@ pub mod io;
 pub mod lanes;
 pub mod loss;
 pub mod material;
-pub mod morph;
+mod morph;
 pub mod mpm;
 pub mod ode;
 pub mod optim;
 pub mod scene;
 
-pub use morph::{
-    Frame, FrameRecord, FrameSink, Job, MeshSource, MorphError, MorphEvent, MorphResult,
-    MorphSettings, Observer, Prepared, Preset, SinkFrame,
-};
+pub use morph::*;
 
 /// Runs `job`: loads and places the meshes, optimizes the morph, and hands every event and
 /// exported frame (world units) to `observer`, which may cancel it

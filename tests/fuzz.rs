@@ -10,9 +10,9 @@
 //! The long run a developer can start (documented in README.md):
 //! `MORPH_FUZZ_CASES=1000000 cargo test --release --test fuzz -- --nocapture`
 
+use morph::MorphSettings;
 use morph::geometry::parse_mesh;
 use morph::io::massgrid::MassGrid;
-use morph::morph::MorphSettings;
 use proptest::prelude::*;
 use proptest::test_runner::{Config, TestCaseError, TestRunner};
 use std::path::Path;
@@ -283,7 +283,7 @@ fn mgrid_reader() {
 
 #[test]
 fn settings_parser() {
-    let seeds = [morph::morph::Preset::Draft, morph::morph::Preset::Final]
+    let seeds = [morph::Preset::Draft, morph::Preset::Final]
         .map(|p| serde_json::to_vec_pretty(&MorphSettings::preset(p)).unwrap())
         .to_vec();
     fuzz("settings", seeds, |bytes| {
@@ -301,9 +301,9 @@ fn settings_parser() {
 /// (naming the file), or reads back exactly what was saved; never a different result.
 #[test]
 fn checkpoint_reader() {
-    use morph::morph::checkpoint;
-    use morph::morph::{RunProgress, segment::Layers};
+    use morph::checkpoint;
     use morph::mpm::State;
+    use morph::{RunProgress, segment::Layers};
     use nalgebra::{Matrix3, Vector3};
     // A real checkpoint of a tiny run: 3 particles, 2 segments of 2 layers; segment 0 done
     // (so segment 1's controls are still zero, and the checkpoint stores none for it).

@@ -423,7 +423,7 @@ fn segment_objective_gradient_matches_finite_differences() {
 }
 
 fn check_segment<I: Integrator>(sim: &I, mut init: State) {
-    use morph::morph::segment::{PathPoint, Segment};
+    use morph::segment::{PathPoint, Segment};
     let mut rng = Lcg(2024);
     deform(&mut init, &mut rng);
     let n = init.len();
@@ -492,7 +492,7 @@ fn check_segment<I: Integrator>(sim: &I, mut init: State) {
     for v in &mut box_mesh.vertices {
         *v = lo + (hi - lo).component_mul(&(*v + Vector3::repeat(1.0))) / 2.0;
     }
-    let reach = morph::morph::reach::ReachLoss::new(&box_mesh, spacing, 0.02);
+    let reach = morph::reach::ReachLoss::new(&box_mesh, spacing, 0.02);
     assert!(reach.value(&init.x) > 0.0, "the grown faces pull");
     for (arrival_weight, volume_weight, fine_loss, path_weight, waypoint, smoothing, reach) in [
         (0.0, 0.0, None, 0.0, false, 0.0, None),

@@ -29,7 +29,7 @@ fn check(name: &str) -> Outcome {
 #[test]
 fn stiff_materials_substep_instead_of_failing() {
     let base = morph::apps::bench::hard_cases::quick();
-    let step = morph::morph::MORPH_STEP;
+    let step = morph::MORPH_STEP;
     let mut bounds = Vec::new();
     for name in ["stiff-x100", "stiff-x10000"] {
         let m = check(name).measured.unwrap();

@@ -110,7 +110,7 @@ fn in_memory_meshes_world_frames_and_cancel() {
 /// tape, frames included, with both optimizers.
 #[test]
 fn a_memory_budget_never_changes_the_morph() {
-    use morph::morph::segment::Optimizer;
+    use morph::segment::Optimizer;
     let mesh = |name: &str, m| prepare_mesh(Path::new(name), m, Vec::new()).unwrap();
     let src = mesh("sphere", assets::uv_sphere(1.0, 16, 32, |_, _| 1.0));
     let tgt = mesh("lobes", assets::two_lobes(24, 32));
@@ -122,7 +122,7 @@ fn a_memory_budget_never_changes_the_morph() {
         s.optimizer.iterations = 3;
         s.optimizer.learning_rate = kind.default_learning_rate();
         let run = |budget: usize| {
-            let mut prep = morph::morph::Prepared::from_meshes(
+            let mut prep = morph::Prepared::from_meshes(
                 &s,
                 (&src, Path::new("sphere")),
                 &[(&tgt, Path::new("lobes"))],
@@ -130,7 +130,7 @@ fn a_memory_budget_never_changes_the_morph() {
             .unwrap();
             prep.tape_budget = budget;
             let mut frames = FrameStates::default();
-            let result = morph::morph::run(&prep, None, &mut frames).unwrap();
+            let result = morph::run_prepared(&prep, None, &mut frames).unwrap();
             let chunked =
                 prep.segment_chunk_plan() != morph::integrator::recompute::ChunkPlan::WHOLE;
             (result.final_state, frames.0, chunked)

@@ -1,6 +1,6 @@
 //! The motion a viewer sees (issue 27), measured from the written frames: the rms particle
 //! speed of every frame from its PLY velocities, progress toward the target from its PLY
-//! positions, and the measures (`morph::morph::motion`) from those, against the manifest's
+//! positions, and the measures (`morph::motion`) from those, against the manifest's
 //! own figures and against the goals.
 
 mod common;
@@ -8,8 +8,8 @@ mod common;
 use common::cli::{manifest, morph, ok, root, scratch_in};
 use morph::geometry::load_mesh;
 use morph::io::usd::read_points_ply;
-use morph::morph::motion::{MotionMeasures, measure};
-use morph::morph::quality::Progress;
+use morph::motion::{MotionMeasures, measure};
+use morph::quality::Progress;
 use nalgebra::Vector3;
 use std::path::Path;
 

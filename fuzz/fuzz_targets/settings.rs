@@ -2,7 +2,7 @@
 //! libFuzzer target: settings and scene JSON parse and validate without panicking.
 
 libfuzzer_sys::fuzz_target!(|data: &[u8]| {
-    if let Ok(s) = serde_json::from_slice::<morph::morph::MorphSettings>(data) {
+    if let Ok(s) = serde_json::from_slice::<morph::MorphSettings>(data) {
         let _ = s.validate();
     }
     if let Ok(scene) = serde_json::from_slice::<morph::scene::SceneConfig>(data) {

@@ -6,9 +6,9 @@
 //! runs; callbacks take it back. A callback that returns `False` (or raises) stops the run at
 //! its next evaluation, as Ctrl-C does; so does Ctrl-C in Python.
 
-use morph::morph::output::{OutputRequest, morph_to_folder};
-use morph::morph::progress::ProgressMeter;
-use morph::morph::scene_file::SceneFile;
+use morph::output::{OutputRequest, morph_to_folder};
+use morph::progress::ProgressMeter;
+use morph::scene_file::SceneFile;
 use morph::{Frame, Job, MeshSource, MorphError, MorphEvent, MorphSettings, Observer};
 use numpy::{PyArray1, PyArrayMethods, PyReadonlyArray2};
 use pyo3::exceptions::PyException;

@@ -3,8 +3,8 @@
 use super::fail;
 use clap::Args;
 use morph::integrator::IntegratorKind;
-use morph::morph::settings::limits;
 use morph::mpm::KernelKind;
+use morph::settings::limits;
 use std::path::PathBuf;
 use std::process::ExitCode;
 

@@ -94,7 +94,7 @@ pub fn run(args: &FarmTemplateArgs) -> ExitCode {
                 Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
                 _ => PathBuf::from("."),
             };
-            morph::morph::farm::openjd_template(&settings, &source, &targets, &out, &command, &dir)
+            morph::farm::openjd_template(&settings, &source, &targets, &out, &command, &dir)
         }
     };
     match morph::io::write_atomically(&args.template, |w| {

@@ -2,7 +2,7 @@
 
 use super::{defaults, fail, help};
 use clap::Args;
-use morph::morph::settings::limits;
+use morph::settings::limits;
 use std::path::PathBuf;
 use std::process::ExitCode;
 

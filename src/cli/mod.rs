@@ -19,7 +19,7 @@ mod morph;
 mod rope;
 mod study;
 
-use ::morph::morph::{MorphSettings, Preset};
+use ::morph::{MorphSettings, Preset};
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
 
@@ -137,7 +137,7 @@ pub fn main() -> ExitCode {
     };
     let mut threads = cli.threads;
     if let Some(t) = threads {
-        let r = ::morph::morph::settings::limits::THREADS;
+        let r = ::morph::settings::limits::THREADS;
         if !r.contains(&t) {
             return fail(
                 json,

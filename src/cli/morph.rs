@@ -4,17 +4,17 @@
 
 use super::{choice, defaults, fail, help, name};
 use clap::Args;
+use morph::basis::ControlResolution;
 use morph::geometry::TargetFit;
 use morph::integrator::IntegratorKind;
 use morph::loss::MassLossKind;
 use morph::material::MaterialModel;
-use morph::morph::basis::ControlResolution;
-use morph::morph::memory::MemoryLimit;
-use morph::morph::scene_file::SceneFile;
-use morph::morph::segment::Optimizer;
-use morph::morph::settings::{Inbetween, RebuiltMethod, Surfaces, UsdFormat, limits};
-use morph::morph::{MorphError, MorphEvent, MorphSettings, Preset};
+use morph::memory::MemoryLimit;
 use morph::mpm::ControlForm;
+use morph::scene_file::SceneFile;
+use morph::segment::Optimizer;
+use morph::settings::{Inbetween, RebuiltMethod, Surfaces, UsdFormat, limits};
+use morph::{MorphError, MorphEvent, MorphSettings, Preset};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
@@ -532,7 +532,7 @@ pub fn run(args: &MorphArgs) -> ExitCode {
     let show_bar = !args.quiet && !args.json && !openjd && std::io::stderr().is_terminal();
     // Open Job Description progress: the percent when its first decimal changes; 100 only
     // once every file is written.
-    let mut meter = morph::morph::progress::ProgressMeter::new();
+    let mut meter = morph::progress::ProgressMeter::new();
     let mut shown_percent = String::new();
     let bar = ProgressBar::hidden();
     let mut last_loss = f64::NAN;
@@ -643,7 +643,7 @@ pub fn run(args: &MorphArgs) -> ExitCode {
             MorphEvent::Segment { .. } | MorphEvent::Done { .. } => {}
         }
     };
-    let request = morph::morph::output::OutputRequest {
+    let request = morph::output::OutputRequest {
         out: &args.output,
         overwrite: args.overwrite,
         resume: args.resume,
@@ -652,8 +652,7 @@ pub fn run(args: &MorphArgs) -> ExitCode {
         scene: args.scene.as_deref(),
         on_frame: None,
     };
-    let result =
-        morph::morph::output::morph_to_folder(&settings, &source, &targets, &request, on_event);
+    let result = morph::output::morph_to_folder(&settings, &source, &targets, &request, on_event);
     bar.finish_and_clear();
     match result {
         Ok(summary) => {

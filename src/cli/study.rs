@@ -2,9 +2,9 @@
 
 use super::{choice, fail};
 use clap::Args;
+use morph::Preset;
 use morph::apps::study::{self, StudyError, StudyEvent, StudyGrid};
 use morph::integrator::IntegratorKind;
-use morph::morph::Preset;
 use morph::mpm::KernelKind;
 use std::path::PathBuf;
 use std::process::ExitCode;

@@ -2,7 +2,7 @@
 //! watches it run (events, frames, cancel), and what comes back (`MorphResult`, the
 //! records of iterations, segments and levels, `MorphError`).
 
-use super::{MorphSettings, Prepared, RunProgress, run};
+use super::{MorphSettings, Prepared, RunProgress, run_prepared};
 
 use crate::geometry::{LoadedMesh, MeshError};
 use crate::mpm::{SimError, State};
@@ -236,7 +236,7 @@ impl Job {
     /// may cancel it. Returns the prepared morph with its result.
     pub fn run(&self, observer: &mut dyn Observer) -> Result<(Prepared, MorphResult), MorphError> {
         let prep = self.prepare()?;
-        let result = run(&prep, None, observer)?;
+        let result = run_prepared(&prep, None, observer)?;
         Ok((prep, result))
     }
 }

@@ -155,8 +155,8 @@ impl RunProgress {
 /// Runs the chain, from the start or from `resume` (a checkpoint of an earlier run with the
 /// same inputs and settings, which then continues bit for bit). The observer sees progress,
 /// receives every exported frame of the last pass in order as soon as its segment is final,
-/// and every completed segment.
-pub fn run(
+/// and every completed segment. ([`crate::run`] prepares a [`super::Job`] and calls it.)
+pub fn run_prepared(
     prep: &Prepared,
     resume: Option<RunProgress>,
     observer: &mut dyn Observer,

@@ -246,7 +246,7 @@ fn measure(case: &Case) -> Result<Measured, MorphError> {
         last_energy: 0.0,
         start: prep.initial.x.clone(),
     };
-    let result = morph::run(&prep, None, &mut watch)?;
+    let result = morph::run_prepared(&prep, None, &mut watch)?;
     let mut m = watch.m;
     m.last_over_peak_energy = if watch.peak_energy > 0.0 {
         watch.last_energy / watch.peak_energy

@@ -7,7 +7,7 @@ use crate::morph::memory::WRITE_QUEUE;
 use crate::morph::quality::{Progress, Quality, close_neighbour_share};
 use crate::morph::{
     Frame, MorphError, MorphEvent, MorphResult, Observer, Prepared, RunProgress, WorldFrame,
-    checkpoint, run,
+    checkpoint, run_prepared,
 };
 use crate::mpm::State;
 use nalgebra::Vector3;
@@ -86,7 +86,7 @@ pub(super) fn run_writing_frames(
                 answers,
             )
         });
-        let result = run(prep, resume, &mut writer).and_then(|r| {
+        let result = run_prepared(prep, resume, &mut writer).and_then(|r| {
             writer.collect(true)?;
             Ok(r)
         });
