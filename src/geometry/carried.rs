@@ -12,7 +12,7 @@
 //! any affine motion of the particles, and at rest every term is exactly zero, so frame 1 is
 //! the source asset, bit for bit: its vertex lines are written as they were read.
 //!
-//! Why this form and this radius ([`BIND_SPACINGS`]): where the body's surface compresses
+//! Why this form and this radius (`BIND_SPACINGS`): where the body's surface compresses
 //! (sphere -> spot's neck, 30x in one direction) neighbouring vertices come closer than the
 //! particles' own jitter, and the carried mesh creases. 0.3.0 applied each particle's own
 //! `F_p` to the vertex's offset from that particle, `sum_p w_p F_p (X - X_p)`, within 2.5
@@ -20,7 +20,7 @@
 //! radius, folded 3.3% of sphere -> spot's faces. Averaging motion and deformation first, over
 //! 4.5 spacings, folds none there (docs/geometry.md, "The carried surface"); and over at least
 //! three of the vertex's own edge lengths, so that a finer body (more particles, the same mesh)
-//! does not fold it either ([`BIND_EDGES`]).
+//! does not fold it either (`BIND_EDGES`).
 //!
 //! Normals follow the deformation too: `n' ~ F^-T n` with `F = I + G` at their vertex.
 //!

@@ -331,7 +331,7 @@ fn render_tiles(frames: &[(usize, Vec<Vector3<f64>>)], particle_radius: f64) -> 
         .collect()
 }
 
-/// `preview.png`: the given frames side by side (see [`render_tiles`]).
+/// `preview.png`: the given frames side by side (see `render_tiles`).
 pub fn write_preview(
     path: &Path,
     frames: &[(usize, Vec<Vector3<f64>>)],

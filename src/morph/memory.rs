@@ -180,7 +180,7 @@ pub fn cgroup_limit_in(root: &std::path::Path, proc_self_cgroup: &str) -> Option
 /// Bytes of everything but the tapes for a morph of `particles` source particles,
 /// `targets` target particles (all targets), `nodes` grid nodes and `keyframes` targets
 /// before the last, under `settings`, with a segment's path targets when its path weight is
-/// on (see the constants above and [`working_bytes`]).
+/// on (see the constants above and `working_bytes`).
 pub fn fixed_bytes(
     settings: &MorphSettings,
     particles: u64,

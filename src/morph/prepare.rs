@@ -80,7 +80,7 @@ impl Prepared {
     }
 
     /// The grid and particle counts this morph will have, estimated before setup (see
-    /// [`MorphGeometry::estimate`]): what [`memory::check_before_setup`] checks.
+    /// [`MorphGeometry::estimate`]): what [`super::memory::check_before_setup`] checks.
     pub fn estimate(
         settings: &MorphSettings,
         source: (&LoadedMesh, &Path),
@@ -102,7 +102,7 @@ impl Prepared {
     /// [`crate::geometry::prepare_mesh`], the checks and repairs loading applies, with the name
     /// its messages should use), fills the source with particles, builds the model and the
     /// losses. The targets are reached in turn, each at its frame in [`MorphSettings::at`]
-    /// (spread over the shot when empty), the last being the final one. [`Job::prepare`] does
+    /// (spread over the shot when empty), the last being the final one. [`super::Job::prepare`] does
     /// the same from files.
     pub fn from_meshes(
         settings: &MorphSettings,

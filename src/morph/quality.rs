@@ -57,7 +57,7 @@ pub struct Quality {
     /// Mean distance from the target's surface to the nearest particle, in spacings.
     pub surface_gap: f64,
     /// Reach: the same distance's 99th percentile over the target's area, and its largest
-    /// (capped at [`GAP_CAP`]), in spacings. A horn or an ear no particle reaches shows here,
+    /// (capped at `GAP_CAP`), in spacings. A horn or an ear no particle reaches shows here,
     /// not in the IoU.
     #[serde(default)]
     pub reach_p99: f64,

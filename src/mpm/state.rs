@@ -5,7 +5,7 @@ use rayon::prelude::*;
 
 /// Particle state advanced by each step: position `x`, velocity `v`, APIC affine velocity `c`
 /// and deformation gradient `f`. Masses and rest volumes do not change and live in the
-/// [`super::Model`]. Both integrators use it: the ODE form (RK4) carries no `c` (it
+/// [`super::model::Model`]. Both integrators use it: the ODE form (RK4) carries no `c` (it
 /// recomputes the velocity gradient at every evaluation), so its states, rates and adjoints
 /// leave `c` empty ([`State::ode_zeros`], [`State::ode_part`]), and RK4's stage combinations
 /// `S + h k` are plain axpys over the fields there are.

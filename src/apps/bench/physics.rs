@@ -95,7 +95,7 @@ pub struct BarCase {
     pub seconds: f64,
 }
 
-/// Rings the bar for [`PERIODS`] periods and measures its period from the zero crossings of
+/// Rings the bar for `PERIODS` periods and measures its period from the zero crossings of
 /// the mode's amplitude `sum m v_x cos(pi X / L)` (X the rest position).
 pub fn ring(
     integrator: IntegratorKind,

@@ -1,4 +1,4 @@
-//! Control of deformable objects with the ODE form: the rope scene ([`rope`]), the gradient
+//! Control of deformable objects with the ODE form: the rope scene ([`scene`]), the gradient
 //! controller ([`gradient`], Adam over inner batches) and the MPPI baseline ([`mppi`]), and
 //! the three-way comparison `morph rope` runs ([`compare`]).
 //!

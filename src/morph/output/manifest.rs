@@ -79,7 +79,7 @@ pub struct FrameStats {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub rebuilt: Option<RebuiltStats>,
     /// The body's IoU with each target's inside on the coarse progress lattice, in target
-    /// order ([`super::quality::Progress`]): how far it has come toward each.
+    /// order ([`crate::morph::quality::Progress`]): how far it has come toward each.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub progress_iou: Vec<f64>,
     /// Volume inside the rebuilt surface (world units), when surfaces are written.
