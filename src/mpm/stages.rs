@@ -59,21 +59,14 @@ pub fn stress<'m>(
     kept: &mut [f64],
 ) {
     let keep = kept.len() / fe.len().max(1);
-    let batches = affine
-        .par_chunks_mut(CHUNK)
-        .zip(fe.par_chunks(CHUNK))
-        .with_min_len(min_len.div_ceil(CHUNK));
-    let batch = |k, a, fe, kept| stress_batch(material, simd, k, fe, c, &inputs, a, kept);
-    if keep > 0 {
-        batches
-            .zip(kept.par_chunks_mut(CHUNK * keep))
-            .enumerate()
-            .for_each(|(k, ((a, fe), kept))| batch(k, a, fe, kept));
-    } else {
-        batches
-            .enumerate()
-            .for_each(|(k, (a, fe))| batch(k, a, fe, &mut []));
-    }
+    in_batches(
+        affine,
+        fe.par_chunks(CHUNK),
+        kept,
+        keep,
+        min_len,
+        |k, a, fe, kept| stress_batch(material, simd, k, fe, c, &inputs, a, kept),
+    );
 }
 
 /// [`stress`] where each batch first writes its particles' elastic gradients into `fe`,
@@ -91,16 +84,36 @@ pub fn stress_of<'m>(
     kept: &mut [f64],
 ) {
     let keep = kept.len() / fe.len().max(1);
+    in_batches(
+        affine,
+        fe.par_chunks_mut(CHUNK),
+        kept,
+        keep,
+        min_len,
+        |k, a, fe: &mut [Matrix3<f64>], kept| {
+            for (i, fe) in fe.iter_mut().enumerate() {
+                *fe = elastic(k * CHUNK + i);
+            }
+            stress_batch(material, simd, k, fe, c, &inputs, a, kept)
+        },
+    );
+}
+
+/// Runs `batch(k, affine, fe, kept)` on every batch `k` of [`CHUNK`] particles in parallel
+/// (at least `min_len` particles a task): the batch's affine terms, its part of `fe`, and its
+/// part of `kept` (`keep` numbers a particle; empty when 0).
+fn in_batches<T: Send>(
+    affine: &mut [Matrix3<f64>],
+    fe: impl IndexedParallelIterator<Item = T>,
+    kept: &mut [f64],
+    keep: usize,
+    min_len: usize,
+    batch: impl Fn(usize, &mut [Matrix3<f64>], T, &mut [f64]) + Sync + Send,
+) {
     let batches = affine
         .par_chunks_mut(CHUNK)
-        .zip(fe.par_chunks_mut(CHUNK))
+        .zip(fe)
         .with_min_len(min_len.div_ceil(CHUNK));
-    let batch = |k: usize, a, fe: &mut [Matrix3<f64>], kept| {
-        for (i, fe) in fe.iter_mut().enumerate() {
-            *fe = elastic(k * CHUNK + i);
-        }
-        stress_batch(material, simd, k, fe, c, &inputs, a, kept)
-    };
     if keep > 0 {
         batches
             .zip(kept.par_chunks_mut(CHUNK * keep))

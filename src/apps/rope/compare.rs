@@ -8,7 +8,8 @@
 //! OUT/frames/<method>/frame_NNNN.ply binary PLY points x y z vx vy vz J id
 //! ```
 
-use super::gradient::{ControllerRun, GradientSettings, gradient_control};
+use super::ControllerRun;
+use super::gradient::{GradientSettings, gradient_control};
 use super::mppi::{MppiSettings, mppi_control};
 use super::scene::{Rope, RopeConfig};
 use super::{Committed, ControlEvent};

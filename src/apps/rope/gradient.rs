@@ -6,14 +6,13 @@
 //! would only add energy). After the iterations the best evaluated controls of the batch are
 //! committed and its end state carried over.
 
-use super::{Committed, ControlEvent, free_knots};
+use super::{ControlEvent, ControllerRun, Online, free_knots};
 use crate::integrator::Controlled;
 use crate::mpm::ControlParams;
 use crate::mpm::SimError;
 use crate::mpm::State;
 use crate::optim::Adam;
 use serde::Serialize;
-use std::time::Instant;
 
 #[derive(Clone, Debug, Serialize)]
 pub struct GradientSettings {
@@ -43,19 +42,6 @@ impl Default for GradientSettings {
             beta2: 0.999,
         }
     }
-}
-
-/// The result of an online controller.
-#[derive(Clone, Debug)]
-pub struct ControllerRun {
-    pub params: ControlParams,
-    /// Wall seconds spent deciding the controls.
-    pub compute_s: f64,
-    pub committed: Vec<Committed>,
-    /// Cost of every evaluation, in order, with the compute time at which it finished.
-    pub evaluations: Vec<(f64, f64)>,
-    /// RK4 steps simulated (forward), a machine-independent measure of work.
-    pub simulated_steps: usize,
 }
 
 impl GradientSettings {
@@ -111,18 +97,13 @@ pub fn gradient_control<S: Controlled>(
     let (plan, dt) = (&sys.model().controls, sys.model().dt);
     let (schedule, bounds) = (plan.schedule, plan.bounds());
     settings.validate(horizon, schedule.steps_per_interval)?;
-    let started = Instant::now();
-    let mut params = plan.zero_params();
-    let mut state = init.clone();
-    let mut committed = Vec::with_capacity(horizon);
-    let mut evaluations = Vec::new();
-    let mut simulated_steps = 0;
+    let mut run = Online::start(plan.zero_params(), init, horizon);
     let n = settings.batch_steps;
     for a in (0..horizon).step_by(n) {
         let len = (n + settings.lookahead_steps).min(horizon - a);
         let knots = free_knots(&schedule, a, a + len);
         let commit_knots = free_knots(&schedule, a, a + n);
-        let ne = params.len();
+        let ne = run.params.len();
         // Adam over this batch's knots: entry (e, knot, axis), stepped by the control's bound.
         let mut adam = Adam::new(ne * knots.len() * 3, settings.beta1, settings.beta2, 1e-12);
         let scale = |i: usize| bounds[i / (3 * knots.len())][i % 3];
@@ -130,35 +111,42 @@ pub fn gradient_control<S: Controlled>(
         let mut lr = settings.learning_rate;
         let mut failures = 0;
         for _ in 0..settings.iterations {
-            let mut s = state.clone();
+            let mut s = run.state.clone();
             let mut tape = S::Tape::default();
-            simulated_steps += len;
+            run.simulated_steps += len;
             let mut mid = None;
-            let run = sys.run(&mut s, &params, a, len, Some(&mut tape), &mut |k, st| {
-                if k + 1 == a + n {
-                    mid = Some(st.clone());
-                }
-            });
-            let energy = match run {
+            let ran = sys.run(
+                &mut s,
+                &run.params,
+                a,
+                len,
+                Some(&mut tape),
+                &mut |k, st| {
+                    if k + 1 == a + n {
+                        mid = Some(st.clone());
+                    }
+                },
+            );
+            let energy = match ran {
                 Ok(e) => e,
                 Err(_) if best.is_some() => {
                     // The step left the stable region: go back to the best and halve it.
-                    params = best.as_ref().unwrap().1.clone();
+                    run.params = best.as_ref().unwrap().1.clone();
                     lr *= 0.5;
                     continue;
                 }
                 Err(e) => return Err(e),
             };
             let cost = dt * energy.iter().sum::<f64>();
-            evaluations.push((started.elapsed().as_secs_f64(), cost));
+            run.evaluated(cost);
             if best.as_ref().is_none_or(|b| cost < b.0) {
                 let mid = mid.expect("the run passes the batch's end");
-                best = Some((cost, params.clone(), mid, energy[..n].to_vec()));
+                best = Some((cost, run.params.clone(), mid, energy[..n].to_vec()));
                 failures = 0;
             } else {
                 // The step made things worse: go back to the best controls, shorten the step;
                 // after two failures in a row the batch has converged.
-                params = best.as_ref().unwrap().1.clone();
+                run.params = best.as_ref().unwrap().1.clone();
                 lr *= 0.5;
                 failures += 1;
                 if failures == 2 {
@@ -166,29 +154,30 @@ pub fn gradient_control<S: Controlled>(
                 }
                 continue;
             }
-            let grad = sys.kinetic_cost_gradient(&tape, &params, dt, None);
+            let grad = sys.kinetic_cost_gradient(&tape, &run.params, dt, None);
             // Adam on this batch's knots, then projection onto the bounds.
             let batch = |p: &ControlParams| -> Vec<f64> {
                 p.iter()
                     .flat_map(|e| e[knots.clone()].iter().flat_map(|k| k.iter().copied()))
                     .collect()
             };
-            let mut flat = batch(&params);
+            let mut flat = batch(&run.params);
             adam.step(&mut flat, &batch(&grad.params), lr, scale);
             let mut values = flat.into_iter();
-            for e in params.iter_mut() {
+            for e in run.params.iter_mut() {
                 for k in e[knots.clone()].iter_mut() {
                     for c in k.iter_mut() {
                         *c = values.next().expect("one value per entry");
                     }
                 }
             }
-            plan.project(&mut params);
+            plan.project(&mut run.params);
         }
         let (cost, best_params, end, energy) = best.expect("at least one evaluation");
         // Commit the batch's best knots; the lookahead's knots are the next batch's warm
         // start, and knots past the window hold the window's last value.
         debug_assert!(commit_knots.end <= knots.end);
+        let params = &mut run.params;
         for e in 0..params.len() {
             for j in knots.clone() {
                 params[e][j] = best_params[e][j];
@@ -198,22 +187,8 @@ pub fn gradient_control<S: Controlled>(
                 params[e][j] = best_params[e][knots.end - 1];
             }
         }
-        state = end;
-        let now = started.elapsed().as_secs_f64();
-        super::commit(&mut committed, a, now, &energy);
-        on_event(ControlEvent::Window {
-            method: "gradient",
-            step: a + n,
-            of: horizon,
-            cost,
-            compute_s: now,
-        });
+        run.state = end;
+        run.commit("gradient", a, &energy, horizon, cost, &mut on_event);
     }
-    Ok(ControllerRun {
-        params,
-        compute_s: started.elapsed().as_secs_f64(),
-        committed,
-        evaluations,
-        simulated_steps,
-    })
+    Ok(run.finish())
 }

@@ -12,9 +12,10 @@ pub mod gradient;
 pub mod mppi;
 pub mod scene;
 
-use crate::mpm::{ControlSchedule, Interpolation};
+use crate::mpm::{ControlParams, ControlSchedule, Interpolation, State};
 use serde::Serialize;
 use std::ops::Range;
+use std::time::Instant;
 
 /// Knots a window of steps `[a, b)` may change without touching steps before `a`
 /// (`a` and `b` on interval boundaries): a linear schedule's knot at `a` is shared with the
@@ -36,13 +37,92 @@ pub struct Committed {
     pub energy: f64,
 }
 
-/// Records steps `first..` of a window as committed at compute time `now`.
-pub(crate) fn commit(out: &mut Vec<Committed>, first: usize, now: f64, energy: &[f64]) {
-    out.extend(energy.iter().enumerate().map(|(i, &e)| Committed {
-        step: first + i,
-        compute_s: now,
-        energy: e,
-    }));
+/// The result of an online controller.
+#[derive(Clone, Debug)]
+pub struct ControllerRun {
+    pub params: ControlParams,
+    /// Wall seconds spent deciding the controls.
+    pub compute_s: f64,
+    pub committed: Vec<Committed>,
+    /// Cost of every evaluation, in order, with the compute time at which it finished.
+    pub evaluations: Vec<(f64, f64)>,
+    /// RK4 steps simulated (forward), a machine-independent measure of work.
+    pub simulated_steps: usize,
+}
+
+/// What an online controller carries from window to window, the same for both: the control
+/// knots, the state its committed steps reached, and the record [`ControllerRun`] reports.
+/// Each controller plans a window its own way and hands the result here.
+pub(crate) struct Online {
+    started: Instant,
+    pub params: ControlParams,
+    pub state: State,
+    committed: Vec<Committed>,
+    evaluations: Vec<(f64, f64)>,
+    /// RK4 steps simulated so far (each controller adds what it runs).
+    pub simulated_steps: usize,
+}
+
+impl Online {
+    /// A run of `total` steps from `init`, the knots at `params`; its compute clock starts.
+    pub fn start(params: ControlParams, init: &State, total: usize) -> Online {
+        Online {
+            started: Instant::now(),
+            params,
+            state: init.clone(),
+            committed: Vec::with_capacity(total),
+            evaluations: Vec::new(),
+            simulated_steps: 0,
+        }
+    }
+
+    /// Seconds of compute since the start.
+    pub fn seconds(&self) -> f64 {
+        self.started.elapsed().as_secs_f64()
+    }
+
+    /// Records an evaluation's cost, at the compute time it finished.
+    pub fn evaluated(&mut self, cost: f64) {
+        let now = self.seconds();
+        self.evaluations.push((now, cost));
+    }
+
+    /// Commits the window's steps `first..` (their kinetic energies, the state already
+    /// carried to their end) as decided now, and reports the window to `on_event`.
+    pub fn commit(
+        &mut self,
+        method: &'static str,
+        first: usize,
+        energy: &[f64],
+        total: usize,
+        cost: f64,
+        on_event: &mut impl FnMut(ControlEvent),
+    ) {
+        let now = self.seconds();
+        self.committed
+            .extend(energy.iter().enumerate().map(|(i, &e)| Committed {
+                step: first + i,
+                compute_s: now,
+                energy: e,
+            }));
+        on_event(ControlEvent::Window {
+            method,
+            step: first + energy.len(),
+            of: total,
+            cost,
+            compute_s: now,
+        });
+    }
+
+    pub fn finish(self) -> ControllerRun {
+        ControllerRun {
+            compute_s: self.seconds(),
+            params: self.params,
+            committed: self.committed,
+            evaluations: self.evaluations,
+            simulated_steps: self.simulated_steps,
+        }
+    }
 }
 
 /// Progress reports of the controllers (for progress bars and `--json`).

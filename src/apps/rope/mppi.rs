@@ -7,8 +7,7 @@
 //! current plan's information. Noise is drawn per (window, refinement, sample) from a seeded
 //! generator, so runs are identical whatever the thread count.
 
-use super::gradient::ControllerRun;
-use super::{ControlEvent, free_knots};
+use super::{ControlEvent, ControllerRun, Online, free_knots};
 use crate::integrator::Controlled;
 use crate::mpm::ControlParams;
 use crate::mpm::SimError;
@@ -18,7 +17,6 @@ use rand_distr::{Distribution, StandardNormal};
 use rand_pcg::Pcg64;
 use rayon::prelude::*;
 use serde::Serialize;
-use std::time::Instant;
 
 #[derive(Clone, Debug, Serialize)]
 pub struct MppiSettings {
@@ -110,12 +108,7 @@ pub fn mppi_control<S: Controlled>(
     let (plan, dt) = (&sys.model().controls, sys.model().dt);
     let (schedule, bounds) = (plan.schedule, plan.bounds());
     settings.validate(total, schedule.steps_per_interval)?;
-    let started = Instant::now();
-    let mut params = plan.zero_params();
-    let mut state = init.clone();
-    let mut committed = Vec::with_capacity(total);
-    let mut evaluations = Vec::new();
-    let mut simulated_steps = 0;
+    let mut run = Online::start(plan.zero_params(), init, total);
     for (window, k) in (0..total).step_by(settings.replan_steps).enumerate() {
         let len = settings.horizon_steps.min(total - k);
         let knots = free_knots(&schedule, k, k + len);
@@ -124,7 +117,7 @@ pub fn mppi_control<S: Controlled>(
             let stream = (window * settings.refinements + r) as u64;
             let samples: Vec<ControlParams> = (0..settings.samples)
                 .map(|i| {
-                    let mut p = params.clone();
+                    let mut p = run.params.clone();
                     if i > 0 {
                         let mut rng = Pcg64::seed_from_u64(
                             settings.seed ^ (stream << 20) ^ (i as u64).wrapping_mul(0x9e37_79b9),
@@ -145,14 +138,14 @@ pub fn mppi_control<S: Controlled>(
             let costs: Vec<f64> = samples
                 .par_iter()
                 .map(|p| {
-                    let mut s = state.clone();
+                    let mut s = run.state.clone();
                     match sys.run(&mut s, p, k, len, None, &mut |_, _| {}) {
                         Ok(e) => dt * e.iter().sum::<f64>(),
                         Err(_) => f64::INFINITY,
                     }
                 })
                 .collect();
-            simulated_steps += settings.samples * len;
+            run.simulated_steps += settings.samples * len;
             let finite: Vec<f64> = costs.iter().copied().filter(|c| c.is_finite()).collect();
             if finite.is_empty() {
                 return Err(SimError::InvalidScene(format!(
@@ -173,9 +166,9 @@ pub fn mppi_control<S: Controlled>(
                 })
                 .collect();
             let total_w: f64 = weights.iter().sum();
-            for e in 0..params.len() {
+            for e in 0..run.params.len() {
                 for j in knots.clone() {
-                    params[e][j] = samples
+                    run.params[e][j] = samples
                         .iter()
                         .zip(&weights)
                         .map(|(p, w)| (w / total_w) * p[e][j])
@@ -183,34 +176,20 @@ pub fn mppi_control<S: Controlled>(
                 }
             }
             cost = costs[0];
-            evaluations.push((started.elapsed().as_secs_f64(), j_min));
+            run.evaluated(j_min);
         }
         // Commit the first steps of the plan and shift the window (new knots hold the plan's
         // last value as a warm start).
         let commit = settings.replan_steps.min(total - k);
-        let energy = sys.run(&mut state, &params, k, commit, None, &mut |_, _| {})?;
-        simulated_steps += commit;
-        let now = started.elapsed().as_secs_f64();
-        super::commit(&mut committed, k, now, &energy);
-        for knots_e in params.iter_mut() {
+        let energy = sys.run(&mut run.state, &run.params, k, commit, None, &mut |_, _| {})?;
+        run.simulated_steps += commit;
+        for knots_e in run.params.iter_mut() {
             let last = knots_e[knots.end - 1];
             for k in knots_e[knots.end..].iter_mut() {
                 *k = last;
             }
         }
-        on_event(ControlEvent::Window {
-            method: "mppi",
-            step: k + commit,
-            of: total,
-            cost,
-            compute_s: now,
-        });
+        run.commit("mppi", k, &energy, total, cost, &mut on_event);
     }
-    Ok(ControllerRun {
-        params,
-        compute_s: started.elapsed().as_secs_f64(),
-        committed,
-        evaluations,
-        simulated_steps,
-    })
+    Ok(run.finish())
 }
