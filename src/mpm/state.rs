@@ -216,3 +216,36 @@ impl State {
             .sum()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The ODE form's states leave `c` empty: the arithmetic RK4 does on them skips it, the
+    /// checks find non-finite values in the fields there are, and `with_affine` hands code
+    /// that reads every field a zero `c`.
+    #[test]
+    fn ode_states_go_without_c() {
+        let n = 5;
+        let mut s = State::ode_at_rest((0..n).map(|i| Vector3::repeat(i as f64)).collect());
+        assert!(s.c.is_empty() && s.len() == n);
+        assert_eq!(s.bytes(), n * State::ODE_BYTES_PER_PARTICLE);
+        let mut k = State::ode_zeros(n);
+        k.v[2] = Vector3::new(1.0, -2.0, 0.5);
+        k.f[4] = Matrix3::identity();
+        s.axpy(0.5, &k);
+        assert_eq!(s.v[2], Vector3::new(0.5, -1.0, 0.25));
+        assert_eq!(s.f[4], Matrix3::identity() * 1.5);
+        assert!(s.c.is_empty());
+        assert_eq!(s.dot(&k), 0.5 * 5.25 + 1.5 * 3.0);
+        assert_eq!(s.first_non_finite(), None);
+        s.f[3][(1, 2)] = f64::NAN;
+        assert_eq!(s.first_non_finite(), Some((3, "deformation gradient F")));
+        let full = s.with_affine();
+        assert_eq!(full.c, vec![Matrix3::zeros(); n]);
+        assert_eq!(full.bytes(), State::bytes_for(n));
+        // A full state's part for the ODE form, and back.
+        let part = full.ode_part();
+        assert!(part.c.is_empty() && part.x == full.x && part.v == full.v);
+    }
+}
