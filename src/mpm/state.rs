@@ -27,7 +27,7 @@ pub fn par_copy<T: Copy + Send + Sync>(v: &[T]) -> Vec<T> {
 /// Gradient of a scalar loss with respect to every field of a [`State`].
 pub type StateGrad = State;
 
-/// Below this many particles the element-wise operations of the ODE form stay on the calling
+/// Below this many particles a state's element-wise operations and checks stay on the calling
 /// thread (the rope's controllers run many small rollouts at once).
 const MIN_LEN: usize = 4096;
 

@@ -122,8 +122,9 @@ impl Rk4 {
     }
 }
 
-/// The ODE form through the common interface: states convert to and from [`State`]
-/// (the APIC matrix `c` is not part of the ODE form).
+/// The ODE form through the common interface: the caller's full states go in as their ODE
+/// part ([`State::ode_part`]: the APIC matrix `c` is not part of the ODE form) and come back
+/// with a zero `c` ([`State::with_affine`]).
 impl Controlled for Rk4 {
     fn run(
         &self,
