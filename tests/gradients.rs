@@ -6,7 +6,7 @@
 mod common;
 
 use common::*;
-use morph::effects::WallMode;
+use morph::effects::{GridContext, GridForm, NodeMotion, WallMode};
 use morph::engine::Engine;
 use morph::integrator::{Integrator, IntegratorKind};
 use morph::loss::{FINE_KERNEL, FineMassLoss, MassLoss, MassLossKind};
@@ -598,67 +598,42 @@ impl morph::effects::Effect for Pulse {
     fn name(&self) -> &'static str {
         "pulse"
     }
-    fn acts_on_grid(&self) -> bool {
+    fn acts_on_grid(&self, _: GridForm) -> bool {
         true
     }
     fn num_params(&self) -> usize {
         1
     }
-    fn apply_grid(&self, ctx: &morph::effects::GridContext, v: &mut [Vector3<f64>]) {
-        let factor = 1.0 + self.k * Self::w(ctx.step);
-        for (v, &m) in v.iter_mut().zip(ctx.mass) {
-            if m > 0.0 {
-                *v *= factor;
-            }
-        }
+    /// The Euler step scales the node's velocity by a sawtooth in the step; the ODE form its
+    /// velocity and acceleration by a smooth function of the time (so the four RK4 stages of
+    /// one step see different values).
+    fn apply_grid(&self, ctx: &GridContext, _node: usize, m: &mut NodeMotion) {
+        let factor = 1.0 + self.k * Self::weight(ctx);
+        m.v *= factor;
+        m.a *= factor;
     }
     fn reverse_grid(
         &self,
-        ctx: &morph::effects::GridContext,
-        v_in: &[Vector3<f64>],
-        grad_v: &mut [Vector3<f64>],
+        ctx: &GridContext,
+        _node: usize,
+        input: &NodeMotion,
+        grad: &mut NodeMotion,
         grad_params: &mut [f64],
     ) {
-        let w = Self::w(ctx.step);
+        let w = Self::weight(ctx);
         let factor = 1.0 + self.k * w;
-        for ((g, v), &m) in grad_v.iter_mut().zip(v_in).zip(ctx.mass) {
-            if m > 0.0 {
-                grad_params[0] += w * v.dot(g);
-                *g *= factor;
-            }
+        grad_params[0] += w * (input.v.dot(&grad.v) + input.a.dot(&grad.a));
+        grad.v *= factor;
+        grad.a *= factor;
+    }
+}
+
+impl Pulse {
+    fn weight(ctx: &GridContext) -> f64 {
+        match ctx.form {
+            GridForm::Step => Self::w(ctx.step),
+            GridForm::Rate => Self::wt(ctx.time / ctx.dt),
         }
-    }
-    // The ODE form: the node's velocity and acceleration scaled by a factor that follows the
-    // time (so the four RK4 stages of one step see different values).
-    fn acts_on_rates(&self) -> bool {
-        true
-    }
-    fn apply_rate(
-        &self,
-        ctx: &morph::effects::GridContext,
-        _node: usize,
-        v: &mut Vector3<f64>,
-        a: &mut Vector3<f64>,
-    ) {
-        let factor = 1.0 + self.k * Self::wt(ctx.time / ctx.dt);
-        *v *= factor;
-        *a *= factor;
-    }
-    fn reverse_rate(
-        &self,
-        ctx: &morph::effects::GridContext,
-        _node: usize,
-        v_in: &Vector3<f64>,
-        a_in: &Vector3<f64>,
-        grad_v: &mut Vector3<f64>,
-        grad_a: &mut Vector3<f64>,
-        grad_params: &mut [f64],
-    ) {
-        let w = Self::wt(ctx.time / ctx.dt);
-        let factor = 1.0 + self.k * w;
-        grad_params[0] += w * (v_in.dot(grad_v) + a_in.dot(grad_a));
-        *grad_v *= factor;
-        *grad_a *= factor;
     }
 }
 

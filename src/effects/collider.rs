@@ -30,7 +30,7 @@
 //! RK4 integrates stably, where an exact stick would need a whole step's velocity update.
 //! It is smooth, so the reverse pass is its exact derivative.
 
-use super::{Effect, GridContext};
+use super::{Effect, GridContext, GridForm, NodeMotion};
 use crate::geometry::TriMesh;
 use crate::geometry::winding::WindingNumber;
 use crate::mpm::GridSpec;
@@ -183,48 +183,54 @@ impl Effect for Collider {
         "collider"
     }
 
-    fn acts_on_grid(&self) -> bool {
+    fn acts_on_grid(&self, _: GridForm) -> bool {
         true
     }
 
-    fn apply_grid(&self, _: &GridContext, v: &mut [Vector3<f64>]) {
-        for (node, n) in &self.normals {
-            v[*node] = self.project(n, &v[*node]);
+    fn apply_grid(&self, ctx: &GridContext, node: usize, m: &mut NodeMotion) {
+        let Some(n) = self.normal_at(node) else {
+            return;
+        };
+        match ctx.form {
+            GridForm::Step => m.v = self.project(&n, &m.v),
+            GridForm::Rate => self.contact_rates(&n, ctx.dt, &mut m.v, &mut m.a),
         }
     }
 
     fn reverse_grid(
         &self,
-        _: &GridContext,
-        v_in: &[Vector3<f64>],
-        grad_v: &mut [Vector3<f64>],
-        _: &mut [f64],
-    ) {
-        for (node, n) in &self.normals {
-            grad_v[*node] = self.project_reverse(n, &v_in[*node], &grad_v[*node]);
-        }
-    }
-
-    fn acts_on_rates(&self) -> bool {
-        true
-    }
-
-    fn apply_rate(
-        &self,
         ctx: &GridContext,
         node: usize,
-        v: &mut Vector3<f64>,
-        a: &mut Vector3<f64>,
+        input: &NodeMotion,
+        grad: &mut NodeMotion,
+        _: &mut [f64],
     ) {
-        let k = self.slot[node];
-        if k == OUTSIDE {
+        let Some(n) = self.normal_at(node) else {
             return;
+        };
+        match ctx.form {
+            GridForm::Step => grad.v = self.project_reverse(&n, &input.v, &grad.v),
+            GridForm::Rate => self.contact_rates_reverse(&n, ctx.dt, input, grad),
         }
-        let n = self.normals[k as usize].1;
+    }
+}
+
+impl Collider {
+    /// The outward normal at `node`, if it lies inside the solid.
+    #[inline]
+    fn normal_at(&self, node: usize) -> Option<Vector3<f64>> {
+        let k = self.slot[node];
+        (k != OUTSIDE).then(|| self.normals[k as usize].1)
+    }
+
+    /// The rate form's contact at a node inside the solid with outward normal `n` (see the
+    /// module doc).
+    fn contact_rates(&self, n: &Vector3<f64>, dt: f64, v: &mut Vector3<f64>, a: &mut Vector3<f64>) {
+        let n = *n;
         let (vn, an) = (v.dot(&n), a.dot(&n));
         // In contact: moving into the solid, or pressed into it within one step (the node
         // Euler's update would project).
-        if vn >= 0.0 && vn + ctx.dt * an >= 0.0 {
+        if vn >= 0.0 && vn + dt * an >= 0.0 {
             return;
         }
         let vt = *v - vn * n;
@@ -234,36 +240,31 @@ impl Effect for Collider {
         if vn < 0.0 || an < 0.0 {
             *a -= an * n;
         }
-        let pressed = contact_force(vn, an, ctx.dt);
+        let pressed = contact_force(vn, an, dt);
         if self.friction > 0.0 && pressed > 0.0 {
             let limit = self.friction * pressed;
-            let d = (vt.norm_squared() + (limit * ctx.dt).powi(2)).sqrt();
+            let d = (vt.norm_squared() + (limit * dt).powi(2)).sqrt();
             *a -= (limit / d) * vt;
         }
     }
 
-    fn reverse_rate(
+    /// Reverse of [`Collider::contact_rates`]: `grad` from dL/d(outputs) to dL/d(inputs) at the
+    /// motion `input` the forward pass received.
+    fn contact_rates_reverse(
         &self,
-        ctx: &GridContext,
-        node: usize,
-        v_in: &Vector3<f64>,
-        a_in: &Vector3<f64>,
-        grad_v: &mut Vector3<f64>,
-        grad_a: &mut Vector3<f64>,
-        _: &mut [f64],
+        n: &Vector3<f64>,
+        dt: f64,
+        input: &NodeMotion,
+        grad: &mut NodeMotion,
     ) {
-        let k = self.slot[node];
-        if k == OUTSIDE {
-            return;
-        }
-        let n = self.normals[k as usize].1;
-        let dt = ctx.dt;
+        let n = *n;
+        let (v_in, a_in) = (&input.v, &input.a);
         let (vn, an) = (v_in.dot(&n), a_in.dot(&n));
         if vn >= 0.0 && vn + dt * an >= 0.0 {
             return;
         }
         let project = |g: Vector3<f64>| g - g.dot(&n) * n;
-        let (gv, ga) = (*grad_v, *grad_a);
+        let (gv, ga) = (grad.v, grad.a);
         let mut g_v = if vn < 0.0 { project(gv) } else { gv };
         let mut g_a = if vn < 0.0 || an < 0.0 {
             project(ga)
@@ -289,8 +290,8 @@ impl Effect for Collider {
                 g_a -= g_n * n;
             }
         }
-        *grad_v = g_v;
-        *grad_a = g_a;
+        grad.v = g_v;
+        grad.a = g_a;
     }
 }
 
@@ -386,6 +387,7 @@ mod tests {
         let spec = GridSpec::centred_cube(4, 1.0);
         let mass = [1.0];
         let ctx = GridContext {
+            form: GridForm::Rate,
             spec: &spec,
             mass: &mass,
             dt: 0.01,
@@ -394,9 +396,9 @@ mod tests {
         };
         let (gv, ga) = (Vector3::new(0.3, -0.7, 1.1), Vector3::new(-0.4, 0.2, 0.9));
         let out = |v: &Vector3<f64>, a: &Vector3<f64>| {
-            let (mut v, mut a) = (*v, *a);
-            c.apply_rate(&ctx, 0, &mut v, &mut a);
-            v.dot(&gv) + a.dot(&ga)
+            let mut m = NodeMotion { v: *v, a: *a };
+            c.apply_grid(&ctx, 0, &mut m);
+            m.v.dot(&gv) + m.a.dot(&ga)
         };
         for (v, a) in [
             (Vector3::new(1.0, -0.5, 0.3), Vector3::new(0.2, -9.0, 0.1)), // slides, pressed
@@ -405,8 +407,9 @@ mod tests {
             (Vector3::new(0.4, 0.6, -0.2), Vector3::new(0.2, -9.0, 0.1)), // lifts off
             (Vector3::new(0.1, 0.02, 0.3), Vector3::new(0.1, -9.0, 0.2)), // pressed in within a step
         ] {
-            let (mut g_v, mut g_a) = (gv, ga);
-            c.reverse_rate(&ctx, 0, &v, &a, &mut g_v, &mut g_a, &mut []);
+            let mut grad = NodeMotion { v: gv, a: ga };
+            c.reverse_grid(&ctx, 0, &NodeMotion { v, a }, &mut grad, &mut []);
+            let (g_v, g_a) = (grad.v, grad.a);
             let h = 1e-6;
             for k in 0..3 {
                 let e = Vector3::ith(k, h);

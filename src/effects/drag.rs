@@ -8,8 +8,7 @@
 //! would be a jolt the viewer sees. The coefficient depends on time only, so the reverse pass
 //! is the same scaling.
 
-use super::{Effect, GridContext};
-use nalgebra::Vector3;
+use super::{Effect, GridContext, GridForm, NodeMotion};
 
 #[derive(Clone, Copy, Debug)]
 pub struct Drag {
@@ -53,25 +52,24 @@ impl Effect for Drag {
         1.0 - dt * self.coefficient_at(time)
     }
 
-    fn acts_on_rates(&self) -> bool {
-        true
+    /// On the grid in the ODE form only: the Euler step's drag is its momentum retention.
+    fn acts_on_grid(&self, form: GridForm) -> bool {
+        form == GridForm::Rate
     }
 
-    fn apply_rate(&self, ctx: &GridContext, _: usize, v: &mut Vector3<f64>, a: &mut Vector3<f64>) {
-        *a -= self.coefficient_at(ctx.time) * *v;
+    fn apply_grid(&self, ctx: &GridContext, _: usize, m: &mut NodeMotion) {
+        m.a -= self.coefficient_at(ctx.time) * m.v;
     }
 
-    fn reverse_rate(
+    fn reverse_grid(
         &self,
         ctx: &GridContext,
         _: usize,
-        _: &Vector3<f64>,
-        _: &Vector3<f64>,
-        grad_v: &mut Vector3<f64>,
-        grad_a: &mut Vector3<f64>,
+        _: &NodeMotion,
+        grad: &mut NodeMotion,
         _: &mut [f64],
     ) {
-        *grad_v -= self.coefficient_at(ctx.time) * *grad_a;
+        grad.v -= self.coefficient_at(ctx.time) * grad.a;
     }
 }
 

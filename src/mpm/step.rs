@@ -2,10 +2,12 @@
 
 use super::advance::{advance, advance_reverse};
 use super::control::ControlForm;
-use super::effect::GridContext;
+use super::effect::{GridContext, GridEffects, GridForm};
 use super::error::SimError;
 use super::grid::{Bins, SharedMut};
-use super::grid_update::{grid_velocity, grid_velocity_reverse};
+use super::grid_update::{
+    apply_grid_effects, grid_velocity, grid_velocity_reverse, reverse_grid_effects,
+};
 use super::kernel::{Cached, KernelKind, Stencil, StencilCache};
 use super::model::Model;
 use super::profile::{Laps, Stage, StageClock};
@@ -66,7 +68,6 @@ struct ReverseWorkspace {
     fe: Vec<Matrix3<f64>>,
     grad_fe: Vec<Matrix3<f64>>,
     grid_v: Vec<Vector3<f64>>,
-    effect_inputs: Vec<Vec<Vector3<f64>>>,
     grad_grid_v: Vec<Vector3<f64>>,
     grad_nodes: Vec<Node<1>>,
     stencils: StencilCache,
@@ -172,6 +173,18 @@ impl Euler {
             volume: self.volume[p],
             dt: self.dt,
             inv_d: self.inv_d(),
+        }
+    }
+
+    /// The context the grid effects see in global step `step`.
+    fn grid_context<'a>(&'a self, mass: &'a [f64], step: usize) -> GridContext<'a> {
+        GridContext {
+            form: GridForm::Step,
+            spec: &self.grid,
+            mass,
+            dt: self.dt,
+            step,
+            time: step as f64 * self.dt,
         }
     }
 
@@ -344,9 +357,9 @@ impl Euler {
         // G: grid velocity, then effects.
         ws.grid_v.resize(self.grid.node_count(), Vector3::zeros());
         grid_velocity(&ws.nodes, &mut ws.grid_v);
-        let has_grid_effects = self.effects.iter().any(|e| e.acts_on_grid());
+        let effects = GridEffects::new(&self.effects, GridForm::Step);
         // Nodal masses alone: the tape and the grid effects need them.
-        let grid_mass: Vec<f64> = if tape.is_some() || has_grid_effects {
+        let grid_mass: Vec<f64> = if tape.is_some() || !effects.is_empty() {
             ws.nodes.par_iter().map(|n| n.mass).collect()
         } else {
             Vec::new()
@@ -356,17 +369,9 @@ impl Euler {
         } else {
             Vec::new()
         };
-        if has_grid_effects {
-            let ctx = GridContext {
-                spec: &self.grid,
-                mass: &grid_mass,
-                dt,
-                step,
-                time: step as f64 * dt,
-            };
-            for e in self.effects.iter().filter(|e| e.acts_on_grid()) {
-                e.apply_grid(&ctx, &mut ws.grid_v);
-            }
+        if !effects.is_empty() {
+            let ctx = self.grid_context(&grid_mass, step);
+            apply_grid_effects(&effects, &ctx, &mut ws.grid_v);
         }
         // Kinematic controls hold the nodes their particles touch at the prescribed velocity
         // (a grid boundary condition: the body near a clamp feels it through its stress).
@@ -568,23 +573,11 @@ impl Euler {
         });
         let fe = &rws.fe;
 
-        // Replay the grid effects to recover each one's input velocity.
-        let ctx = GridContext {
-            spec: &self.grid,
-            mass: &tape.grid_mass,
-            dt,
-            step: tape.step,
-            time: tape.step as f64 * dt,
-        };
-        let grid_effects: Vec<usize> = (0..self.effects.len())
-            .filter(|&e| self.effects[e].acts_on_grid())
-            .collect();
-        rws.effect_inputs.resize_with(grid_effects.len(), Vec::new);
+        // The grid velocity G2P read: replayed from the tape through the grid effects.
+        let ctx = self.grid_context(&tape.grid_mass, tape.step);
+        let effects = GridEffects::new(&self.effects, GridForm::Step);
         rws.grid_v.clone_from(&tape.grid_v);
-        for (k, &e) in grid_effects.iter().enumerate() {
-            rws.effect_inputs[k].clone_from(&rws.grid_v);
-            self.effects[e].apply_grid(&ctx, &mut rws.grid_v);
-        }
+        apply_grid_effects(&effects, &ctx, &mut rws.grid_v);
         let clamp_nodes = match values {
             Some(vals) => {
                 let nodes = self.clamp_nodes::<N>(&pre.x);
@@ -653,14 +646,7 @@ impl Euler {
         }
 
         // G reverse: effects backwards, then v = p / m.
-        for (k, &e) in grid_effects.iter().enumerate().rev() {
-            self.effects[e].reverse_grid(
-                &ctx,
-                &rws.effect_inputs[k],
-                grad_grid_v,
-                &mut effect_params[e],
-            );
-        }
+        reverse_grid_effects(&effects, &ctx, &tape.grid_v, grad_grid_v, effect_params);
         rws.grad_nodes.resize(nodes, Node::ZERO);
         grid_velocity_reverse(
             &tape.grid_mass,

@@ -13,7 +13,7 @@
 
 use crate::mpm::SimError;
 use crate::mpm::State;
-use crate::mpm::effect::GridContext;
+use crate::mpm::effect::{GridContext, GridEffects, GridForm, NodeMotion};
 use crate::mpm::grid::{Bins, SharedMut};
 use crate::mpm::kernel::{Cached, KernelKind, Stencil, StencilCache};
 use crate::mpm::model::Model;
@@ -28,8 +28,6 @@ use rayon::prelude::*;
 #[derive(Debug)]
 pub struct Rk4 {
     pub model: Model,
-    /// Effects that act on the grid rates, in model order.
-    rate_effects: Vec<usize>,
     pool: BufferPool,
 }
 
@@ -39,9 +37,6 @@ impl std::ops::Deref for Rk4 {
         &self.model
     }
 }
-
-/// Most effects a node's rates may pass through (their inputs are kept on the stack).
-const MAX_RATE_EFFECTS: usize = 8;
 
 /// Where and with what one right-hand side is evaluated: the controls' values and the time
 /// (step and fraction of the step).
@@ -77,18 +72,8 @@ impl Rk4 {
     /// stability region on the imaginary axis (|h w| < 2.8) leaves a margin above the
     /// model's elastic bound.
     pub fn new(model: Model) -> Result<Rk4, SimError> {
-        let rate_effects: Vec<usize> = (0..model.effects.len())
-            .filter(|&e| model.effects[e].acts_on_rates())
-            .collect();
-        if rate_effects.len() > MAX_RATE_EFFECTS {
-            return Err(SimError::InvalidScene(format!(
-                "the ODE form takes at most {MAX_RATE_EFFECTS} grid effects, the scene has {}",
-                rate_effects.len()
-            )));
-        }
         Ok(Rk4 {
             model,
-            rate_effects,
             pool: BufferPool::default(),
         })
     }
@@ -226,6 +211,7 @@ impl Rk4 {
     /// The context the effects see at evaluation `at`.
     fn grid_context<'a>(&'a self, mass: &'a [f64], at: &At) -> GridContext<'a> {
         GridContext {
+            form: GridForm::Rate,
             spec: &self.grid,
             mass,
             dt: self.dt,
@@ -301,18 +287,18 @@ impl Rk4 {
                 unsafe { *gm.get(i as usize) = nodes[i as usize].mass };
             });
             let ctx = self.grid_context(grid_mass, at);
+            let effects = GridEffects::new(&self.effects, GridForm::Rate);
             active.par_iter().with_min_len(1024).for_each(|&i| {
                 let i = i as usize;
-                let [mut v, mut a] = transfer::quotient(&nodes[i]);
+                let [v, a] = transfer::quotient(&nodes[i]);
+                let mut motion = NodeMotion { v, a };
                 if nodes[i].mass > 0.0 {
-                    for &e in &self.rate_effects {
-                        self.effects[e].apply_rate(&ctx, i, &mut v, &mut a);
-                    }
+                    effects.apply(&ctx, i, &mut motion);
                 }
                 // SAFETY: active node indices are distinct.
                 unsafe {
-                    *gv.get(i) = v;
-                    *ga.get(i) = a;
+                    *gv.get(i) = motion.v;
+                    *ga.get(i) = motion.a;
                 }
             });
         }
@@ -472,28 +458,24 @@ impl Rk4 {
                 ..
             } = &mut fw.buf;
             let ctx = self.grid_context(grid_mass, at);
-            let width: usize = self.effects.iter().map(|e| e.num_params()).sum();
-            let mut node_params = vec![0.0; if width > 0 { active.len() * width } else { 0 }];
+            let effects = GridEffects::new(&self.effects, GridForm::Rate);
+            let width = effects.width();
+            let mut node_params = vec![0.0; active.len() * width];
             let gn = SharedMut::new(grad_nodes);
             let reverse_node = |i: usize, params: &mut [f64]| {
-                let q = transfer::quotient(&nodes[i]);
-                let (mut gv, mut ga) = (grad_v[i], grad_a[i]);
-                if nodes[i].mass > 0.0 && !self.rate_effects.is_empty() {
-                    let mut inputs = [(Vector3::zeros(), Vector3::zeros()); MAX_RATE_EFFECTS];
-                    let (mut v, mut a) = (q[0], q[1]);
-                    for (k, &e) in self.rate_effects.iter().enumerate() {
-                        inputs[k] = (v, a);
-                        self.effects[e].apply_rate(&ctx, i, &mut v, &mut a);
-                    }
-                    for (k, &e) in self.rate_effects.iter().enumerate().rev() {
-                        let offset: usize = self.effects[..e].iter().map(|e| e.num_params()).sum();
-                        let own = &mut params[offset..offset + self.effects[e].num_params()];
-                        let (v_in, a_in) = &inputs[k];
-                        self.effects[e].reverse_rate(&ctx, i, v_in, a_in, &mut gv, &mut ga, own);
-                    }
+                let [v, a] = transfer::quotient(&nodes[i]);
+                let mut grad = NodeMotion {
+                    v: grad_v[i],
+                    a: grad_a[i],
+                };
+                if nodes[i].mass > 0.0 {
+                    effects.reverse(&ctx, i, &NodeMotion { v, a }, &mut grad, params);
                 }
                 // SAFETY: active node indices are distinct.
-                unsafe { *gn.get(i) = transfer::quotient_reverse(nodes[i].mass, &q, &[gv, ga]) };
+                unsafe {
+                    *gn.get(i) =
+                        transfer::quotient_reverse(nodes[i].mass, &[v, a], &[grad.v, grad.a])
+                };
             };
             if width > 0 {
                 active
@@ -501,15 +483,7 @@ impl Rk4 {
                     .zip(node_params.par_chunks_mut(width))
                     .with_min_len(1024)
                     .for_each(|(&i, params)| reverse_node(i as usize, params));
-                for params in node_params.chunks(width) {
-                    let mut offset = 0;
-                    for g in effect_params.iter_mut() {
-                        for (a, b) in g.iter_mut().zip(&params[offset..]) {
-                            *a += b;
-                        }
-                        offset += g.len();
-                    }
-                }
+                effects.add_rows(&node_params, &mut effect_params);
             } else {
                 active
                     .par_iter()
