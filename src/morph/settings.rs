@@ -404,6 +404,15 @@ impl MorphSettings {
             Preset::Draft => (0, 0.0, 0.0, 1.0),
             Preset::Default | Preset::Final => (1, 1.0, 3.0e4, 0.1),
         };
+        // `default` starts each window's new segment from half the last control layer (the
+        // pulse at the segments' period falls to 0.03-0.05 on the five motion morphs) and
+        // brakes its held segments harder (they settle at 0.01-0.03 of their peak speed):
+        // docs/morph.md, "The carry and the brake". `final` keeps 0.8's, measured at its
+        // budget; `draft`'s quick look keeps its own.
+        let (carry_controls, arrival_weight) = match preset {
+            Preset::Default => (0.5, 0.1),
+            Preset::Draft | Preset::Final => (0.0, 0.03),
+        };
         MorphSettings {
             preset,
             resolution: 32,
@@ -428,13 +437,13 @@ impl MorphSettings {
                 gd_tol: 1e-3,
             },
             loss: MassLossKind::Log,
-            arrival_weight: 0.03,
+            arrival_weight,
             volume_weight: 400.0,
             path_weight,
             lookahead,
             waypoint_weight,
             control_smoothing,
-            carry_controls: 0.0,
+            carry_controls,
             fine_weight: 1.0,
             // An option for now (docs/morph.md, "Reach": it wins on six of seven morphs
             // measured and loses on a small one).
