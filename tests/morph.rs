@@ -310,6 +310,12 @@ fn command_line_errors() {
             "--carry-controls must be in 0..=1",
         ),
         (
+            vec!["--progress-timing", "1.5"],
+            2,
+            "--progress-timing must be in 0..=1",
+        ),
+        (vec!["--progress-timing", "nan"], 2, "--progress-timing"),
+        (
             vec!["--lookahead", "5"],
             2,
             "--lookahead must be between 0 and 4",

@@ -55,7 +55,8 @@ look-ahead; measured quality and time from docs/morph.md, 2 cores):
 {presets}
   Any of --resolution --particles --segments --steps --passes --iterations --levels
   --refine-iterations --lookahead --path-weight --waypoint-weight --control-smoothing
-  --carry-controls overrides its preset value (--resolution replaces a budget).
+  --carry-controls --inbetween --progress-timing overrides its preset value (--resolution
+  replaces a budget).
 
 EXIT CODES:
   0    success (every written file checked finite)
@@ -182,7 +183,7 @@ pub struct MorphArgs {
     control_smoothing: Option<f64>,
     #[arg(long, help = help("Weight of each earlier segment end inside a look-ahead window, against that segment's target (the window's end weighs 1), >= 0", None, by_preset(|s| s.waypoint_weight)))]
     waypoint_weight: Option<f64>,
-    #[arg(long, help = help("Where a look-ahead window's new segment starts: this share of the last control layer before it, 0..=1 (0: zeros; with --control-smoothing only)", None, defaults().carry_controls))]
+    #[arg(long, help = help("Where a look-ahead window's new segment starts: this share of the last control layer before it, 0..=1 (0: zeros; with --control-smoothing only)", None, by_preset(|s| s.carry_controls)))]
     carry_controls: Option<f64>,
     #[arg(long, help = help("Weight of the mass loss on a grid twice as fine as the simulation's, >= 0 (sees holes and clumps within a cell)", None, defaults().fine_weight))]
     fine_weight: Option<f64>,
@@ -240,8 +241,10 @@ pub struct MorphArgs {
     surface: Option<Surfaces>,
     #[arg(long, value_parser = choice(&RebuiltMethod::ALL), help = format!("How the rebuilt surface is made: deformed (each particle's kernel follows its deformation; smooth), lattice (0.2.0's narrow round kernels; shows the particles as bumps) or splashsurf (the fluid surfacer's pipeline, recommended settings; positions only) [default {}]", name(&defaults().rebuilt_method)))]
     rebuilt_method: Option<RebuiltMethod>,
-    #[arg(long, value_parser = choice(&Inbetween::ALL), help = format!("What a segment aims at between two keyframes: crossfade (their nodal masses faded into each other) or shape (their signed distances blended: a boundary that sweeps from one to the other) [default {}]", name(&defaults().inbetween)))]
+    #[arg(long, value_parser = choice(&Inbetween::ALL), help = format!("What a segment aims at between two keyframes: crossfade (their nodal masses faded into each other) or shape (their signed distances blended: a boundary that sweeps from one to the other) [{}]", by_preset(|s| name(&s.inbetween))))]
     inbetween: Option<Inbetween>,
+    #[arg(long, help = help("How far the schedule is re-timed so the shape in-between's own progress (its IoU gain toward the next keyframe) follows the easing curve, 0..=1 (0: the easing weight as it is)", None, by_preset(|s| s.progress_timing)))]
+    progress_timing: Option<f64>,
     #[arg(long, value_parser = choice(&UsdFormat::ALL), help = format!("The USD file of the whole sequence: usdc (binary, morph.usdc), usda (text, morph.usda; about five times larger) or none [default {}]", name(&defaults().usd)))]
     usd: Option<UsdFormat>,
     /// Write each frame's fill field (the field the rebuilt surface is made from; 1 inside the
@@ -465,6 +468,9 @@ impl MorphArgs {
         }
         if let Some(m) = self.inbetween {
             s.inbetween = m;
+        }
+        if let Some(t) = self.progress_timing {
+            s.progress_timing = t;
         }
         if let Some(m) = self.rebuilt_method {
             s.rebuilt_method = m;

@@ -80,6 +80,68 @@ pub fn in_between(nodes: [usize; 3], a: &[f64], b: &[f64], w: f64, full: f64) ->
     masses(0.5 * (lo + hi)).collect()
 }
 
+/// How far the in-between at each weight has come from shape `a` to shape `b`, as the
+/// progress a viewer sees: the gain in IoU of its inside (nodes at least half full) with
+/// `b`'s, 0 at `a` and 1 at `b`. Tabulated at `samples` weights, made non-decreasing.
+pub struct ProgressTiming {
+    /// `(w, progress)` pairs from `(0, 0)` to `(1, 1)`, progress non-decreasing.
+    table: Vec<(f64, f64)>,
+}
+
+impl ProgressTiming {
+    /// The table for shapes `a` and `b` (as [`in_between`] takes them); `None` when the
+    /// in-between does not gain on `b` (the same shape, or one with no boundary).
+    pub fn new(nodes: [usize; 3], a: &[f64], b: &[f64], full: f64, samples: usize) -> Option<Self> {
+        let inside = |m: &[f64]| -> Vec<bool> { m.iter().map(|&x| x >= 0.5 * full).collect() };
+        let target = inside(b);
+        let iou = |m: &[f64]| {
+            let (mut both, mut either) = (0usize, 0usize);
+            for (i, t) in inside(m).iter().zip(&target) {
+                both += (*i && *t) as usize;
+                either += (*i || *t) as usize;
+            }
+            if either == 0 { 1.0 } else { both as f64 / either as f64 }
+        };
+        let start = iou(a);
+        let gain = 1.0 - start;
+        if !(gain > 1e-3) {
+            return None;
+        }
+        let mut table = vec![(0.0, 0.0)];
+        let mut best: f64 = 0.0;
+        for k in 1..samples {
+            let w = k as f64 / samples as f64;
+            let p = ((iou(&in_between(nodes, a, b, w, full)) - start) / gain).clamp(0.0, 1.0);
+            best = best.max(p);
+            table.push((w, best));
+        }
+        table.push((1.0, 1.0));
+        Some(ProgressTiming { table })
+    }
+
+    /// The weight at which the in-between has come `progress` of the way (linear between
+    /// the table's samples; where progress stands still, the first weight that reaches it).
+    pub fn weight_for(&self, progress: f64) -> f64 {
+        let p = progress.clamp(0.0, 1.0);
+        let t = &self.table;
+        let i = t.iter().position(|&(_, q)| q >= p).unwrap_or(t.len() - 1);
+        if i == 0 {
+            return 0.0;
+        }
+        let ((w0, p0), (w1, p1)) = (t[i - 1], t[i]);
+        if p1 - p0 <= 0.0 { w1 } else { w0 + (w1 - w0) * (p - p0) / (p1 - p0) }
+    }
+
+    /// The progress at weight `w` (linear between samples), for reports and tests.
+    pub fn progress_at(&self, w: f64) -> f64 {
+        let w = w.clamp(0.0, 1.0);
+        let t = &self.table;
+        let i = t.iter().position(|&(x, _)| x >= w).unwrap_or(t.len() - 1).max(1);
+        let ((w0, p0), (w1, p1)) = (t[i - 1], t[i]);
+        p0 + (p1 - p0) * (w - w0) / (w1 - w0)
+    }
+}
+
 /// The share of a node's full mass at signed distance `s` (node spacings, negative inside)
 /// from a body's boundary: 1 deep inside, 1/2 on it, 0 beyond the kernel's reach (a smoothstep
 /// over 3 spacings, the width of the masses' own boundary layer).
@@ -331,5 +393,52 @@ mod tests {
         }
         let fade: Vec<f64> = a.iter().zip(&b).map(|(x, y)| 0.5 * (x + y)).collect();
         assert!(fade[(15.5_f64.round() as usize) * 400 + 9 * 20 + 9] < 0.1 * full);
+    }
+
+    /// The IoU gain of `m`'s inside (nodes at least half full) with `b`'s, from `a`'s.
+    fn progress(m: &[f64], a: &[f64], b: &[f64], full: f64) -> f64 {
+        let iou = |m: &[f64]| {
+            let (mut both, mut either) = (0.0, 0.0);
+            for (x, y) in m.iter().zip(b) {
+                let (i, t) = (*x >= 0.5 * full, *y >= 0.5 * full);
+                both += (i && t) as u8 as f64;
+                either += (i || t) as u8 as f64;
+            }
+            both / either
+        };
+        (iou(m) - iou(a)) / (1.0 - iou(a))
+    }
+
+    /// The distance blend's IoU with a ball that grows lags its weight (the gain comes late:
+    /// the union shrinks as the inside grows); re-timed, the in-between has come as far as
+    /// asked, and the table runs from (0, 0) to (1, 1) without stepping back.
+    #[test]
+    fn progress_timing_makes_the_in_between_come_as_far_as_asked() {
+        let nodes = [28, 28, 28];
+        let full = 1.0;
+        let a = ball(nodes, [11.0, 13.5, 13.5], 5.0, full);
+        let b = ball(nodes, [15.0, 13.5, 13.5], 9.0, full);
+        let t = ProgressTiming::new(nodes, &a, &b, full, 16).expect("the shapes differ");
+        assert_eq!(t.progress_at(0.0), 0.0);
+        assert_eq!(t.progress_at(1.0), 1.0);
+        let mut last = 0.0;
+        for k in 0..=20 {
+            let p = t.progress_at(k as f64 / 20.0);
+            assert!(p >= last, "step back at {k}: {p} < {last}");
+            last = p;
+        }
+        // The plain blend lags: halfway by weight is well short of halfway by progress.
+        let half = progress(&in_between(nodes, &a, &b, 0.5, full), &a, &b, full);
+        assert!(half < 0.48, "{half}");
+        for want in [0.25, 0.5, 0.75] {
+            let w = t.weight_for(want);
+            assert!(w > want, "re-timed ahead: {w} for {want}");
+            let got = progress(&in_between(nodes, &a, &b, w, full), &a, &b, full);
+            assert!((got - want).abs() < 0.05, "asked {want}, came {got} at w {w}");
+        }
+        assert_eq!(t.weight_for(0.0), 0.0);
+        assert_eq!(t.weight_for(1.0), 1.0);
+        // One shape twice: nothing to time.
+        assert!(ProgressTiming::new(nodes, &a, &a, full, 16).is_none());
     }
 }

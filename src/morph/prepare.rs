@@ -56,6 +56,9 @@ pub struct KeyframeSchedule {
     /// when nothing moves a body at rest (no gravity, no initial velocity): it stays where it
     /// starts.
     pub passive: Vec<(usize, Vec<Vector3<f64>>)>,
+    /// For each section (keyframe `i` to `i + 1`), how far its shape in-between has come at
+    /// each weight (simulation grid; made on first use).
+    pub timings: std::sync::OnceLock<Vec<Option<inbetween::ProgressTiming>>>,
 }
 
 impl Prepared {
@@ -339,6 +342,7 @@ impl Prepared {
                 steps,
                 keyframes,
                 passive,
+                timings: std::sync::OnceLock::new(),
             },
             tape_budget: usize::MAX,
             coarse,
@@ -516,6 +520,16 @@ impl Prepared {
         if w == 1.0 {
             return self.keyframe_masses(to, step, fine);
         }
+        // Re-timed so the in-between's own progress follows the easing curve, as far as the
+        // settings ask (docs/morph.md, "Progress timing").
+        let alpha = self.settings.progress_timing;
+        let w = match (alpha > 0.0).then(|| self.section_timings()).transpose()? {
+            Some(timings) => match &timings[from] {
+                Some(t) => (1.0 - alpha) * w + alpha * t.weight_for(w),
+                None => w,
+            },
+            None => w,
+        };
         let (a, a_fine) = self.keyframe_masses(from, step, fine)?;
         let (b, b_fine) = self.keyframe_masses(to, step, fine)?;
         let blend =
@@ -536,6 +550,24 @@ impl Prepared {
             _ => None,
         };
         Ok((coarse, fine))
+    }
+
+    /// Each section's progress timing (see [`KeyframeSchedule::timings`]), from the section's
+    /// first keyframe where it starts.
+    fn section_timings(&self) -> Result<&[Option<inbetween::ProgressTiming>], SimError> {
+        if let Some(t) = self.schedule.timings.get() {
+            return Ok(t);
+        }
+        let grid = &self.model().grid;
+        let full = self.full_nodal_mass(grid.dx);
+        let mut made = Vec::new();
+        for i in 0..self.schedule.steps.len() {
+            let start = if i == 0 { 0 } else { self.schedule.steps[i - 1] };
+            let (a, _) = self.keyframe_masses(i, start, false)?;
+            let (b, _) = self.keyframe_masses(i + 1, start, false)?;
+            made.push(inbetween::ProgressTiming::new(grid.nodes(), &a, &b, full, 16));
+        }
+        Ok(self.schedule.timings.get_or_init(|| made))
     }
 
     /// The nodal mass of a node deep inside the body at rest on a grid of spacing `dx`
