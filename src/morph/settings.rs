@@ -419,14 +419,14 @@ impl MorphSettings {
             Preset::Default => (0.5, 0.1),
             Preset::Draft | Preset::Final => (0.0, 0.03),
         };
-        // `default` aims each segment at the two shapes' distance blend, re-timed a quarter
-        // of the way to its own progress: every motion goal met on the five motion morphs,
-        // bob -> spot's fill 0.781 -> 0.894, the README job's 0.923 -> 0.896 (docs/morph.md,
-        // "Progress timing").
-        // `final` and `draft` keep the cross-fade: not measured with it yet.
+        // `default` and `final` aim each segment at the two shapes' distance blend, re-timed
+        // a quarter of the way to its own progress: every motion goal met on the five motion
+        // morphs at `default`, bob -> spot's fill 0.781 -> 0.894 there (the README job's
+        // 0.923 -> 0.896), and at `final` 0.858 -> 0.920 with spot and stanford-bunny level
+        // (docs/morph.md, "Progress timing"). `draft`'s quick look keeps the cross-fade.
         let (inbetween, progress_timing) = match preset {
-            Preset::Default => (Inbetween::Shape, 0.25),
-            Preset::Draft | Preset::Final => (Inbetween::Crossfade, 0.0),
+            Preset::Default | Preset::Final => (Inbetween::Shape, 0.25),
+            Preset::Draft => (Inbetween::Crossfade, 0.0),
         };
         MorphSettings {
             preset,
