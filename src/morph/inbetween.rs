@@ -100,7 +100,11 @@ impl ProgressTiming {
                 both += (*i && *t) as usize;
                 either += (*i || *t) as usize;
             }
-            if either == 0 { 1.0 } else { both as f64 / either as f64 }
+            if either == 0 {
+                1.0
+            } else {
+                both as f64 / either as f64
+            }
         };
         let start = iou(a);
         let gain = 1.0 - start;
@@ -129,14 +133,22 @@ impl ProgressTiming {
             return 0.0;
         }
         let ((w0, p0), (w1, p1)) = (t[i - 1], t[i]);
-        if p1 - p0 <= 0.0 { w1 } else { w0 + (w1 - w0) * (p - p0) / (p1 - p0) }
+        if p1 - p0 <= 0.0 {
+            w1
+        } else {
+            w0 + (w1 - w0) * (p - p0) / (p1 - p0)
+        }
     }
 
     /// The progress at weight `w` (linear between samples), for reports and tests.
     pub fn progress_at(&self, w: f64) -> f64 {
         let w = w.clamp(0.0, 1.0);
         let t = &self.table;
-        let i = t.iter().position(|&(x, _)| x >= w).unwrap_or(t.len() - 1).max(1);
+        let i = t
+            .iter()
+            .position(|&(x, _)| x >= w)
+            .unwrap_or(t.len() - 1)
+            .max(1);
         let ((w0, p0), (w1, p1)) = (t[i - 1], t[i]);
         p0 + (p1 - p0) * (w - w0) / (w1 - w0)
     }
@@ -434,7 +446,10 @@ mod tests {
             let w = t.weight_for(want);
             assert!(w > want, "re-timed ahead: {w} for {want}");
             let got = progress(&in_between(nodes, &a, &b, w, full), &a, &b, full);
-            assert!((got - want).abs() < 0.05, "asked {want}, came {got} at w {w}");
+            assert!(
+                (got - want).abs() < 0.05,
+                "asked {want}, came {got} at w {w}"
+            );
         }
         assert_eq!(t.weight_for(0.0), 0.0);
         assert_eq!(t.weight_for(1.0), 1.0);

@@ -562,10 +562,20 @@ impl Prepared {
         let full = self.full_nodal_mass(grid.dx);
         let mut made = Vec::new();
         for i in 0..self.schedule.steps.len() {
-            let start = if i == 0 { 0 } else { self.schedule.steps[i - 1] };
+            let start = if i == 0 {
+                0
+            } else {
+                self.schedule.steps[i - 1]
+            };
             let (a, _) = self.keyframe_masses(i, start, false)?;
             let (b, _) = self.keyframe_masses(i + 1, start, false)?;
-            made.push(inbetween::ProgressTiming::new(grid.nodes(), &a, &b, full, 16));
+            made.push(inbetween::ProgressTiming::new(
+                grid.nodes(),
+                &a,
+                &b,
+                full,
+                16,
+            ));
         }
         Ok(self.schedule.timings.get_or_init(|| made))
     }
