@@ -80,6 +80,10 @@ pub fn in_between(nodes: [usize; 3], a: &[f64], b: &[f64], w: f64, full: f64) ->
     masses(0.5 * (lo + hi)).collect()
 }
 
+/// Weights a [`ProgressTiming`] table samples between two keyframes (each one in-between:
+/// two distance transforms and a bisection).
+pub const TIMING_SAMPLES: usize = 16;
+
 /// How far the in-between at each weight has come from shape `a` to shape `b`, as the
 /// progress a viewer sees: the gain in IoU of its inside (nodes at least half full) with
 /// `b`'s, 0 at `a` and 1 at `b`. Tabulated at `samples` weights, made non-decreasing.

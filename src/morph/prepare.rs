@@ -574,7 +574,7 @@ impl Prepared {
                 &a,
                 &b,
                 full,
-                16,
+                inbetween::TIMING_SAMPLES,
             ));
         }
         Ok(self.schedule.timings.get_or_init(|| made))
