@@ -239,7 +239,7 @@ pub struct MorphArgs {
     at: Vec<usize>,
     #[arg(long, value_parser = choice(&Surfaces::ALL), help = format!("Surfaces per frame: carried (the source mesh itself, with its UVs and groups, following the body; carried/), rebuilt (a closed surface made from the particles, which follows any change of topology; meshes/), both, or none [default {}]", name(&defaults().surfaces)))]
     surface: Option<Surfaces>,
-    #[arg(long, value_parser = choice(&RebuiltMethod::ALL), help = format!("How the rebuilt surface is made: deformed (each particle's kernel follows its deformation; smooth), lattice (0.2.0's narrow round kernels; shows the particles as bumps) or splashsurf (the fluid surfacer's pipeline, recommended settings; positions only) [default {}]", name(&defaults().rebuilt_method)))]
+    #[arg(long, value_parser = choice(&RebuiltMethod::ALL), help = format!("How the rebuilt surface is made: sharp (deformed, with its vertices moved onto the source's planes the particles carry: sharp edges and corners), deformed (each particle's kernel follows its deformation; smooth, rounds edges), lattice (0.2.0's narrow round kernels; shows the particles as bumps) or splashsurf (the fluid surfacer's pipeline, recommended settings; positions only) [default {}]", name(&defaults().rebuilt_method)))]
     rebuilt_method: Option<RebuiltMethod>,
     #[arg(long, value_parser = choice(&Inbetween::ALL), help = format!("What a segment aims at between two keyframes: crossfade (their nodal masses faded into each other) or shape (their signed distances blended: a boundary that sweeps from one to the other) [{}]", by_preset(|s| name(&s.inbetween))))]
     inbetween: Option<Inbetween>,

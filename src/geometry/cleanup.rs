@@ -102,6 +102,17 @@ pub fn clean(mesh: &TriMesh, spacing: f64) -> (TriMesh, CleanReport) {
     (mesh, report)
 }
 
+/// Cleaning's collapses and flips alone (no smoothing): the slivers a vertex move left.
+pub fn tidy(mesh: &mut TriMesh, spacing: f64) -> (usize, usize) {
+    let (mut collapses, mut flips) = (0, 0);
+    for _ in 0..ROUNDS {
+        collapses += collapse_short_edges(mesh, COLLAPSE_SHARE * spacing);
+        *mesh = compact(mesh);
+        flips += flip_edges(mesh);
+    }
+    (collapses, flips)
+}
+
 /// Moves every vertex along its normal by one distance, the one that makes the surface
 /// enclose `volume` (to first order: the volume missing over the area; twice, for the
 /// second-order term). A smoothing kernel or smoothing steps shrink a convex body by a thin
@@ -383,9 +394,19 @@ fn collapse_short_edges(mesh: &mut TriMesh, min_length: f64) -> usize {
         // A cap (one angle near 180 degrees) has two short edges of about equal length: no
         // needle, and a flip cannot always take it (its neighbour bends away). It goes too.
         let cap = smallest < CAP_DEG.to_radians();
-        (edges[0].0 < min_length || needle || cap).then_some((edges[0].1, edges[0].2))
+        // Shortest first; a cap may go by either of its short edges.
+        let count = if cap {
+            2
+        } else {
+            usize::from(edges[0].0 < min_length || needle)
+        };
+        edges
+            .into_iter()
+            .take(count)
+            .map(|(_, a, b)| (a, b))
+            .collect::<Vec<_>>()
     };
-    if !mesh.triangles.iter().any(|t| wanted(mesh, *t).is_some()) {
+    if !mesh.triangles.iter().any(|t| !wanted(mesh, *t).is_empty()) {
         return 0;
     }
     let mut collapses = 0;
@@ -405,67 +426,74 @@ fn collapse_short_edges(mesh: &mut TriMesh, min_length: f64) -> usize {
         if removed[k] {
             continue;
         }
-        let Some((a, b)) = wanted(mesh, mesh.triangles[k]) else {
-            continue;
-        };
-        let shared = nb[a as usize].intersection(&nb[b as usize]).count();
-        if shared != 2 || nb[a as usize].len() <= 3 || nb[b as usize].len() <= 3 {
-            continue;
-        }
-        let mid = 0.5 * (mesh.vertices[a as usize] + mesh.vertices[b as usize]);
-        // No triangle that stays may turn over.
-        let turns_over = around[a as usize]
-            .iter()
-            .chain(&around[b as usize])
-            .filter(|&&j| !removed[j])
-            .any(|&j| {
-                let tri = mesh.triangles[j];
-                if tri.contains(&a) && tri.contains(&b) {
-                    return false;
+        for (a, b) in wanted(mesh, mesh.triangles[k]) {
+            let shared = nb[a as usize].intersection(&nb[b as usize]).count();
+            if shared != 2 || nb[a as usize].len() <= 3 || nb[b as usize].len() <= 3 {
+                continue;
+            }
+            // Where the joined vertex goes: the midpoint, or else one of the two ends (on a sharp
+            // edge the midpoint can turn a triangle over where an end keeps the edge). No
+            // triangle that stays may turn over.
+            let (va, vb) = (mesh.vertices[a as usize], mesh.vertices[b as usize]);
+            let turns_over = |to: Vector3<f64>| {
+                around[a as usize]
+                    .iter()
+                    .chain(&around[b as usize])
+                    .filter(|&&j| !removed[j])
+                    .any(|&j| {
+                        let tri = mesh.triangles[j];
+                        if tri.contains(&a) && tri.contains(&b) {
+                            return false;
+                        }
+                        let before = normal(mesh, tri);
+                        let corners = tri.map(|v| {
+                            if v == a || v == b {
+                                to
+                            } else {
+                                mesh.vertices[v as usize]
+                            }
+                        });
+                        let after = (corners[1] - corners[0]).cross(&(corners[2] - corners[0]));
+                        after.dot(&before) <= 0.0
+                    })
+            };
+            let Some(joined) = [0.5 * (va + vb), va, vb]
+                .into_iter()
+                .find(|&to| !turns_over(to))
+            else {
+                continue;
+            };
+            // Move a to where they join, send b's triangles to a, drop the two on the edge.
+            mesh.vertices[a as usize] = joined;
+            let b_tris = std::mem::take(&mut around[b as usize]);
+            for &j in &b_tris {
+                if removed[j] {
+                    continue;
                 }
-                let before = normal(mesh, tri);
-                let corners = tri.map(|v| {
-                    if v == a || v == b {
-                        mid
-                    } else {
-                        mesh.vertices[v as usize]
+                let tri = &mut mesh.triangles[j];
+                if tri.contains(&a) {
+                    removed[j] = true;
+                    continue;
+                }
+                for v in tri.iter_mut() {
+                    if *v == b {
+                        *v = a;
                     }
-                });
-                let after = (corners[1] - corners[0]).cross(&(corners[2] - corners[0]));
-                after.dot(&before) <= 0.0
-            });
-        if turns_over {
-            continue;
-        }
-        // Move a to the midpoint, send b's triangles to a, drop the two on the edge.
-        mesh.vertices[a as usize] = mid;
-        let b_tris = std::mem::take(&mut around[b as usize]);
-        for &j in &b_tris {
-            if removed[j] {
-                continue;
+                }
+                around[a as usize].push(j);
             }
-            let tri = &mut mesh.triangles[j];
-            if tri.contains(&a) {
-                removed[j] = true;
-                continue;
-            }
-            for v in tri.iter_mut() {
-                if *v == b {
-                    *v = a;
+            let b_nb: Vec<u32> = nb[b as usize].drain().collect();
+            for n in b_nb {
+                nb[n as usize].remove(&b);
+                if n != a {
+                    nb[n as usize].insert(a);
+                    nb[a as usize].insert(n);
                 }
             }
-            around[a as usize].push(j);
+            nb[a as usize].remove(&b);
+            collapses += 1;
+            break;
         }
-        let b_nb: Vec<u32> = nb[b as usize].drain().collect();
-        for n in b_nb {
-            nb[n as usize].remove(&b);
-            if n != a {
-                nb[n as usize].insert(a);
-                nb[a as usize].insert(n);
-            }
-        }
-        nb[a as usize].remove(&b);
-        collapses += 1;
     }
     mesh.triangles = mesh
         .triangles

@@ -62,7 +62,7 @@ impl Reference {
     }
 
     /// The closest point of the reference to `p`, and the normal there.
-    fn closest(&self, p: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
+    pub fn closest(&self, p: &Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
         let (proj, (face, _)) = self
             .mesh
             .project_local_point_and_get_location(PVector::new(p.x, p.y, p.z), false);

@@ -7,6 +7,10 @@ use rustc_hash::FxHashMap;
 use std::io::Write;
 use std::path::Path;
 
+/// Triangles bending more than this from each other meet at a crease in
+/// [`TriMesh::corner_normals`] (Blender's "smooth by angle" default is 30).
+pub const CREASE_DEG: f64 = 40.0;
+
 /// An indexed triangle mesh in f64.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct TriMesh {
@@ -433,10 +437,66 @@ impl TriMesh {
             .collect()
     }
 
-    /// [`TriMesh::write_obj`] with a smooth normal per vertex (`vn`, faces `f a//a`).
+    /// Normals per triangle corner that keep creases: a corner's normal is the area-weighted
+    /// mean of the triangles around its vertex that bend less than [`CREASE_DEG`] from its own
+    /// triangle (a renderer's "smooth by angle"), so a sharp edge renders sharp and a smooth
+    /// surface gets [`TriMesh::vertex_normals`]. Returns the distinct normals and each
+    /// triangle's three indices into them.
+    pub fn corner_normals(&self) -> (Vec<Vector3<f64>>, Vec<[u32; 3]>) {
+        let cos_crease = CREASE_DEG.to_radians().cos();
+        let faces: Vec<Vector3<f64>> = self
+            .triangles
+            .iter()
+            .map(|t| {
+                let [a, b, c] = self.corners(t);
+                (b - a).cross(&(c - a))
+            })
+            .collect();
+        let units: Vec<Vector3<f64>> = faces
+            .iter()
+            .map(|f| f.try_normalize(1e-300).unwrap_or_else(Vector3::zeros))
+            .collect();
+        let mut around: Vec<Vec<u32>> = vec![Vec::new(); self.vertices.len()];
+        for (k, t) in self.triangles.iter().enumerate() {
+            for &v in t {
+                around[v as usize].push(k as u32);
+            }
+        }
+        let mut normals = Vec::with_capacity(self.vertices.len());
+        // Per vertex, the normals made so far (bits -> index): equal groups share one.
+        let mut made: Vec<Vec<([u64; 3], u32)>> = vec![Vec::new(); self.vertices.len()];
+        let mut corners = Vec::with_capacity(self.triangles.len());
+        for (k, t) in self.triangles.iter().enumerate() {
+            let corner = t.map(|v| {
+                let n = around[v as usize]
+                    .iter()
+                    .filter(|&&j| units[j as usize].dot(&units[k]) >= cos_crease)
+                    .map(|&j| faces[j as usize])
+                    .sum::<Vector3<f64>>()
+                    .try_normalize(1e-300)
+                    .unwrap_or_else(Vector3::zeros);
+                let bits = [n.x.to_bits(), n.y.to_bits(), n.z.to_bits()];
+                let list = &mut made[v as usize];
+                match list.iter().find(|(b, _)| *b == bits) {
+                    Some(&(_, i)) => i,
+                    None => {
+                        normals.push(n);
+                        let i = (normals.len() - 1) as u32;
+                        list.push((bits, i));
+                        i
+                    }
+                }
+            });
+            corners.push(corner);
+        }
+        (normals, corners)
+    }
+
+    /// [`TriMesh::write_obj`] with normals that keep creases ([`TriMesh::corner_normals`]:
+    /// `vn`, faces `f a//n`).
     pub fn write_obj_with_normals(&self, path: &Path) -> std::io::Result<()> {
         finite_in_f32(&self.vertices, "vertex")?;
-        let normals = self.vertex_normals();
+        let (normals, corners) = self.corner_normals();
         write_atomically(path, |w| {
             writeln!(w, "# written by morph {}", env!("CARGO_PKG_VERSION"))?;
             for v in &self.vertices {
@@ -445,9 +505,10 @@ impl TriMesh {
             for n in &normals {
                 writeln!(w, "vn {} {} {}", n.x as f32, n.y as f32, n.z as f32)?;
             }
-            for t in &self.triangles {
-                let [a, b, c] = t.map(|i| i + 1);
-                writeln!(w, "f {a}//{a} {b}//{b} {c}//{c}")?;
+            for (t, c) in self.triangles.iter().zip(&corners) {
+                let [a, b, d] = t.map(|i| i + 1);
+                let [na, nb, nd] = c.map(|i| i + 1);
+                writeln!(w, "f {a}//{na} {b}//{nb} {d}//{nd}")?;
             }
             Ok(())
         })
@@ -964,5 +1025,34 @@ fn one_line(s: &str) -> String {
     match flat.split_once(" Error: ParseError") {
         Some((head, _)) => head.to_string(),
         None => flat,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::geometry::assets;
+
+    /// Crease-keeping normals: a cube's corner has one normal per face around it, each the
+    /// face's own; a smooth sphere gets one normal per vertex, the vertex normal's bits.
+    #[test]
+    fn corner_normals_keep_creases_and_nothing_else() {
+        let cube = assets::cube(2.0, 2);
+        let (normals, corners) = cube.corner_normals();
+        for (t, c) in cube.triangles.iter().zip(&corners) {
+            let [a, b, d] = cube.corners(t);
+            let face = (b - a).cross(&(d - a)).normalize();
+            for &i in c {
+                assert!((normals[i as usize] - face).norm() < 1e-12);
+            }
+        }
+        let sphere = assets::uv_sphere(1.0, 12, 24, |_, _| 1.0);
+        let (normals, corners) = sphere.corner_normals();
+        let smooth = sphere.vertex_normals();
+        assert_eq!(normals.len(), sphere.vertices.len());
+        for (t, c) in sphere.triangles.iter().zip(&corners) {
+            for (v, i) in t.iter().zip(c) {
+                assert_eq!(normals[*i as usize], smooth[*v as usize]);
+            }
+        }
     }
 }

@@ -6,6 +6,7 @@ pub mod assets;
 pub mod carried;
 pub mod cleanup;
 pub mod error;
+pub mod features;
 pub mod fidelity;
 pub mod mesh;
 pub mod placement;

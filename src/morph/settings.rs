@@ -258,9 +258,12 @@ impl Inbetween {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum RebuiltMethod {
-    /// Each particle's kernel deformed by its `F` (an ellipsoid that follows the material),
-    /// two spacings wide, and the volume kept (since 0.3.0).
+    /// `deformed`, then each vertex moved onto the source's tangent planes that the
+    /// particles near its surface carry and deform: sharp edges and corners (since 0.11.0).
     #[default]
+    Sharp,
+    /// Each particle's kernel deformed by its `F` (an ellipsoid that follows the material),
+    /// two spacings wide, and the volume kept (0.3.0 to 0.10.0).
     Deformed,
     /// A narrow round kernel of one spacing per particle (0.2.0: shows the particle lattice
     /// as bumps).
@@ -271,7 +274,8 @@ pub enum RebuiltMethod {
 
 impl RebuiltMethod {
     /// Every value, in declaration order (the command line lists them by their serde names).
-    pub const ALL: [RebuiltMethod; 3] = [
+    pub const ALL: [RebuiltMethod; 4] = [
+        RebuiltMethod::Sharp,
         RebuiltMethod::Deformed,
         RebuiltMethod::Lattice,
         RebuiltMethod::Splashsurf,

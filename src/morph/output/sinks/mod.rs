@@ -20,7 +20,9 @@ pub use usd::UsdSequence;
 pub use volume::VolumeVdb;
 
 use crate::geometry::carried::{CarriedStats, CarriedSurface};
+use crate::geometry::features::SourcePlanes;
 use crate::geometry::fidelity::Reference;
+use crate::morph::settings::RebuiltMethod;
 use crate::morph::{Frame, MorphError, Prepared, WorldFrame};
 use crate::mpm::State;
 use std::path::{Path, PathBuf};
@@ -171,6 +173,14 @@ pub fn for_folder(
             spacing,
             rest_volume: prep.geometry.source.volume,
             edge_weights: edge_weights.clone(),
+            planes: loaded
+                .as_ref()
+                .filter(|_| settings.rebuilt_method == RebuiltMethod::Sharp)
+                .map(|l| {
+                    let source = prep.geometry.placement.world_to_sim.apply_mesh(&l.mesh);
+                    Arc::new(SourcePlanes::new(&source, &prep.initial.x, spacing))
+                }),
+            rest: prep.initial.x.as_slice().into(),
             body_volume: prep.geometry.source_solid.volume / to_world.scale.powi(3),
             to_world,
             references,

@@ -6,6 +6,7 @@
 use super::{FrameRecord, FrameSink, SinkFrame, out_err};
 use crate::geometry::Similarity;
 use crate::geometry::cleanup::{CleanReport, SurfaceQuality, clean, keep_volume, quality};
+use crate::geometry::features::{SourcePlanes, sharpen};
 use crate::geometry::fidelity::{Fidelity, Reference, mesh_fidelity};
 use crate::geometry::splashsurf::extract_splashsurf_surface;
 use crate::geometry::surface::{FillField, SurfaceError, deformed_fill_field, fill_field};
@@ -52,7 +53,7 @@ pub(super) fn fill_field_of(
                 .collect();
             fill_field(&state.x, &volumes, spacing)
         }
-        RebuiltMethod::Deformed | RebuiltMethod::Splashsurf => {
+        RebuiltMethod::Sharp | RebuiltMethod::Deformed | RebuiltMethod::Splashsurf => {
             deformed_fill_field(&state.x, &state.f, rest_volume, Some(edge_weights), spacing)
         }
     }
@@ -67,6 +68,11 @@ pub struct RebuiltObj {
     pub rest_volume: f64,
     /// Each particle's weight in the deformed kernels' field (`MorphGeometry::source_edge_weights`).
     pub edge_weights: Arc<[f64]>,
+    /// The source's tangent planes carried by the particles near its surface, for `sharp`
+    /// ([`crate::geometry::features`]).
+    pub planes: Option<Arc<SourcePlanes>>,
+    /// The particles at rest (the planes' neighbourhoods are fitted against them).
+    pub rest: Arc<[nalgebra::Vector3<f64>]>,
     /// The source mesh's volume, simulation units.
     pub body_volume: f64,
     pub to_world: Similarity,
@@ -96,6 +102,15 @@ impl FrameSink for RebuiltObj {
         }
         .map_err(|e| MorphError::Output(e.to_string()))?;
         let (mut surface, cleanup) = clean(&raw, self.spacing);
+        if let Some(planes) = self.planes.as_deref() {
+            sharpen(
+                &mut surface,
+                &frame.state.x,
+                &self.rest,
+                planes,
+                self.spacing,
+            );
+        }
         if self.method != RebuiltMethod::Lattice {
             // A wide kernel (and smoothing) rounds the body by a thin layer: put it back
             // evenly, to the body's volume times the particles' mean volume change.
