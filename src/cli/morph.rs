@@ -187,7 +187,7 @@ pub struct MorphArgs {
     carry_controls: Option<f64>,
     #[arg(long, help = help("Weight of the mass loss on a grid twice as fine as the simulation's, >= 0 (sees holes and clumps within a cell)", None, defaults().fine_weight))]
     fine_weight: Option<f64>,
-    #[arg(long, help = help("Weight of the reach cost: where the body should have the final target's shape, each part of the target's surface farther than 0.75 spacings from every particle pulls the nearest one, >= 0 (0: off; 10 reaches horns and ears: docs/morph.md, \"Reach\")", None, defaults().reach_weight))]
+    #[arg(long, help = help("Weight of the reach cost: where the body should have the final target's shape, each part of the target's surface farther than 0.75 spacings from every particle pulls the nearest one, >= 0 (0: off; 10 reaches horns and ears: docs/morph.md, \"Reach\")", None, by_preset(|s| s.reach_weight)))]
     reach_weight: Option<f64>,
     #[arg(long, value_parser = choice(&TargetFit::ALL), help = format!("How each target is placed (on-ground needs a scene's ground) [default {}]", name(&defaults().target_fit)))]
     target_fit: Option<TargetFit>,
