@@ -21,9 +21,9 @@
 use super::cleanup::tidy;
 use super::fidelity::Reference;
 use super::mesh::TriMesh;
+use super::point_grid::PointGrid;
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use rayon::prelude::*;
-use rustc_hash::FxHashMap;
 
 /// Particles deeper than this many spacings inside the source carry no plane.
 pub const PLANE_DEPTH: f64 = 1.5;
@@ -87,11 +87,7 @@ impl SourcePlanes {
             return SourcePlanes { planes: Vec::new() };
         };
         let radius = FIT_RADIUS * spacing;
-        let key = |p: &Vector3<f64>| [0, 1, 2].map(|a| (p[a] / radius).floor() as i64);
-        let mut buckets: FxHashMap<[i64; 3], Vec<u32>> = FxHashMap::default();
-        for (i, x) in rest.iter().enumerate() {
-            buckets.entry(key(x)).or_default().push(i as u32);
-        }
+        let grid = PointGrid::new(rest, radius);
         let planes = (0..rest.len())
             .into_par_iter()
             .filter_map(|i| {
@@ -100,26 +96,15 @@ impl SourcePlanes {
                 if (q - x).norm() >= PLANE_DEPTH * spacing {
                     return None;
                 }
-                let c = key(&x);
                 let mut neighbours = Vec::new();
                 let mut gram = Matrix3::zeros();
-                for dx in -1..=1 {
-                    for dy in -1..=1 {
-                        for dz in -1..=1 {
-                            for &j in buckets
-                                .get(&[c[0] + dx, c[1] + dy, c[2] + dz])
-                                .into_iter()
-                                .flatten()
-                            {
-                                let d = rest[j as usize] - x;
-                                if j as usize != i && d.norm() <= radius {
-                                    neighbours.push(j);
-                                    gram += d * d.transpose();
-                                }
-                            }
-                        }
+                grid.for_each_within(&x, radius, |j| {
+                    if j != i {
+                        let d = rest[j] - x;
+                        neighbours.push(j as u32);
+                        gram += d * d.transpose();
                     }
-                }
+                });
                 // A particle whose neighbours do not span the space cannot be fitted.
                 let gram_inverse = gram.try_inverse().filter(|_| neighbours.len() >= 4)?;
                 Some(PlaneParticle {
@@ -155,7 +140,7 @@ pub fn sharpen(
     spacing: f64,
 ) -> usize {
     let carried = CarriedPlanes::new(positions, rest, source, spacing);
-    if carried.planes.is_empty() {
+    if carried.points.is_empty() {
         return 0;
     }
     let mut moves = 0;
@@ -166,11 +151,10 @@ pub fn sharpen(
     moves
 }
 
-/// One frame's planes (point, unit normal), bucketed in cubes of the snap radius.
+/// One frame's planes: points, unit normals and weights.
 struct CarriedPlanes {
-    /// Point, unit normal and weight.
-    planes: Vec<(Vector3<f64>, Vector3<f64>, f64)>,
-    buckets: FxHashMap<[i64; 3], Vec<u32>>,
+    points: Vec<Vector3<f64>>,
+    normals: Vec<(Vector3<f64>, f64)>,
     spacing: f64,
 }
 
@@ -213,32 +197,23 @@ impl CarriedPlanes {
                 Some((x + f * s.offset, normal, weight))
             })
             .collect();
-        let mut buckets: FxHashMap<[i64; 3], Vec<u32>> = FxHashMap::default();
-        for (i, (q, _, _)) in planes.iter().enumerate() {
-            buckets
-                .entry(Self::key(q, spacing))
-                .or_default()
-                .push(i as u32);
-        }
+        let (points, normals) = planes.into_iter().map(|(q, n, w)| (q, (n, w))).unzip();
         CarriedPlanes {
-            planes,
-            buckets,
+            points,
+            normals,
             spacing,
         }
     }
 
-    fn key(p: &Vector3<f64>, spacing: f64) -> [i64; 3] {
-        [0, 1, 2].map(|a| (p[a] / (SNAP_RADIUS * spacing)).floor() as i64)
-    }
-
     /// One round: every vertex to its planes' least squares; the vertices moved.
     fn snap(&self, mesh: &mut TriMesh) -> usize {
+        let grid = PointGrid::new(&self.points, SNAP_RADIUS * self.spacing);
         let normals = mesh.vertex_normals();
         let moved: Vec<Option<Vector3<f64>>> = mesh
             .vertices
             .par_iter()
             .zip(&normals)
-            .map(|(v, n)| self.solve(v, n))
+            .map(|(v, n)| self.solve(&grid, v, n))
             .collect();
         let mut count = 0;
         for (v, m) in mesh.vertices.iter_mut().zip(moved) {
@@ -253,32 +228,20 @@ impl CarriedPlanes {
     /// Where vertex `v` (normal `n`) goes: `v + sum_k e_k (e_k . r) / l_k` over the planes'
     /// quadric `A = sum w m m^T` (eigenpairs `l_k, e_k` above [`RANK_SHARE`] of the largest)
     /// and `r = sum w m (m . (q - v))`; `None` where no plane is near.
-    fn solve(&self, v: &Vector3<f64>, n: &Vector3<f64>) -> Option<Vector3<f64>> {
+    fn solve(&self, grid: &PointGrid, v: &Vector3<f64>, n: &Vector3<f64>) -> Option<Vector3<f64>> {
         let (radius, reach) = (SNAP_RADIUS * self.spacing, SNAP_REACH * self.spacing);
-        let c = Self::key(v, self.spacing);
         let mut a = Matrix3::zeros();
         let mut r = Vector3::zeros();
-        for dx in -1..=1 {
-            for dy in -1..=1 {
-                for dz in -1..=1 {
-                    let Some(list) = self.buckets.get(&[c[0] + dx, c[1] + dy, c[2] + dz]) else {
-                        continue;
-                    };
-                    for &i in list {
-                        let (q, m, strain) = self.planes[i as usize];
-                        let d = (q - v).norm();
-                        let off = m.dot(&(q - v));
-                        // A plane facing away is the far side of a thin part.
-                        if d >= radius || off.abs() >= reach || m.dot(n) <= 0.0 {
-                            continue;
-                        }
-                        let w = strain * (1.0 - (d / radius).powi(2)).powi(2);
-                        a += w * m * m.transpose();
-                        r += w * off * m;
-                    }
-                }
+        grid.for_each_within(v, radius, |i| {
+            let (q, (m, strain)) = (self.points[i], self.normals[i]);
+            let off = m.dot(&(q - v));
+            // A plane facing away is the far side of a thin part.
+            if off.abs() < reach && m.dot(n) > 0.0 {
+                let w = strain * (1.0 - ((q - v).norm() / radius).powi(2)).powi(2);
+                a += w * m * m.transpose();
+                r += w * off * m;
             }
-        }
+        });
         let eigen = SymmetricEigen::new(a);
         let largest = eigen.eigenvalues.max();
         if largest <= 0.0 {

@@ -66,6 +66,25 @@ impl<'a> PointGrid<'a> {
         best
     }
 
+    /// Calls `visit` with the index of every point within `radius` (at most one cell) of `q`,
+    /// cube by cube in a fixed order and in index order within a cube (sums over them come
+    /// out the same bits every time).
+    pub fn for_each_within(&self, q: &Vector3<f64>, radius: f64, mut visit: impl FnMut(usize)) {
+        let c = Self::key(q, self.cell);
+        for dx in -1..=1 {
+            for dy in -1..=1 {
+                for dz in -1..=1 {
+                    let key = [c[0] + dx, c[1] + dy, c[2] + dz];
+                    for &i in self.buckets.get(&key).into_iter().flatten() {
+                        if (self.points[i as usize] - q).norm() < radius {
+                            visit(i as usize);
+                        }
+                    }
+                }
+            }
+        }
+    }
+
     /// Whether some point lies within `radius` (at most one cell) of `q`.
     pub fn any_within(&self, q: &Vector3<f64>, radius: f64) -> bool {
         self.any_within_except(q, radius, usize::MAX)
