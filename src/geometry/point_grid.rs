@@ -66,21 +66,27 @@ impl<'a> PointGrid<'a> {
         best
     }
 
-    /// Calls `visit` with the index of every point within `radius` (at most one cell) of `q`,
-    /// cube by cube in a fixed order and in index order within a cube (sums over them come
-    /// out the same bits every time).
-    pub fn for_each_within(&self, q: &Vector3<f64>, radius: f64, mut visit: impl FnMut(usize)) {
+    /// The indices of the points in the 27 cubes around `q`'s, cube by cube in a fixed order
+    /// and in index order within a cube (sums over them come out the same bits every time).
+    fn around<'g>(&'g self, q: &Vector3<f64>) -> impl Iterator<Item = usize> + 'g {
         let c = Self::key(q, self.cell);
-        for dx in -1..=1 {
-            for dy in -1..=1 {
-                for dz in -1..=1 {
-                    let key = [c[0] + dx, c[1] + dy, c[2] + dz];
-                    for &i in self.buckets.get(&key).into_iter().flatten() {
-                        if (self.points[i as usize] - q).norm() < radius {
-                            visit(i as usize);
-                        }
-                    }
-                }
+        (-1..=1)
+            .flat_map(|dx| (-1..=1).flat_map(move |dy| (-1..=1).map(move |dz| [dx, dy, dz])))
+            .flat_map(move |[dx, dy, dz]| {
+                self.buckets
+                    .get(&[c[0] + dx, c[1] + dy, c[2] + dz])
+                    .into_iter()
+                    .flatten()
+                    .map(|&i| i as usize)
+            })
+    }
+
+    /// Calls `visit` with the index of every point closer than `radius` (at most one cell)
+    /// to `q`, in [`PointGrid::around`]'s order.
+    pub fn for_each_within(&self, q: &Vector3<f64>, radius: f64, mut visit: impl FnMut(usize)) {
+        for i in self.around(q) {
+            if (self.points[i] - q).norm() < radius {
+                visit(i);
             }
         }
     }
@@ -92,19 +98,7 @@ impl<'a> PointGrid<'a> {
 
     /// [`PointGrid::any_within`], not counting point `skip`.
     pub fn any_within_except(&self, q: &Vector3<f64>, radius: f64, skip: usize) -> bool {
-        let c = Self::key(q, self.cell);
-        for dx in -1..=1 {
-            for dy in -1..=1 {
-                for dz in -1..=1 {
-                    let key = [c[0] + dx, c[1] + dy, c[2] + dz];
-                    for &i in self.buckets.get(&key).into_iter().flatten() {
-                        if i as usize != skip && (self.points[i as usize] - q).norm() <= radius {
-                            return true;
-                        }
-                    }
-                }
-            }
-        }
-        false
+        self.around(q)
+            .any(|i| i != skip && (self.points[i] - q).norm() <= radius)
     }
 }
