@@ -94,11 +94,7 @@ pub fn clean(mesh: &TriMesh, spacing: f64) -> (TriMesh, CleanReport) {
     } else {
         0.0
     };
-    for _ in 0..ROUNDS {
-        report.collapses += collapse_short_edges(&mut mesh, COLLAPSE_SHARE * spacing);
-        mesh = compact(&mesh);
-        report.flips += flip_edges(&mut mesh);
-    }
+    (report.collapses, report.flips) = tidy(&mut mesh, spacing);
     (mesh, report)
 }
 
@@ -385,9 +381,8 @@ fn collapse_short_edges(mesh: &mut TriMesh, min_length: f64) -> usize {
         (mesh.vertices[a as usize] - mesh.vertices[b as usize]).norm()
     };
     let wanted = |mesh: &TriMesh, t: [u32; 3]| {
-        let mut edges: Vec<(f64, u32, u32)> = (0..3)
-            .map(|e| (length(mesh, t[e], t[(e + 1) % 3]), t[e], t[(e + 1) % 3]))
-            .collect();
+        let mut edges: [(f64, u32, u32); 3] =
+            std::array::from_fn(|e| (length(mesh, t[e], t[(e + 1) % 3]), t[e], t[(e + 1) % 3]));
         edges.sort_by(|x, y| x.0.total_cmp(&y.0));
         let smallest = min_angle(mesh, t);
         let needle = smallest < NEEDLE_DEG.to_radians() && edges[0].0 < 0.5 * edges[1].0;
@@ -400,13 +395,13 @@ fn collapse_short_edges(mesh: &mut TriMesh, min_length: f64) -> usize {
         } else {
             usize::from(edges[0].0 < min_length || needle)
         };
-        edges
-            .into_iter()
-            .take(count)
-            .map(|(_, a, b)| (a, b))
-            .collect::<Vec<_>>()
+        edges.into_iter().take(count).map(|(_, a, b)| (a, b))
     };
-    if !mesh.triangles.iter().any(|t| !wanted(mesh, *t).is_empty()) {
+    if !mesh
+        .triangles
+        .iter()
+        .any(|t| wanted(mesh, *t).next().is_some())
+    {
         return 0;
     }
     let mut collapses = 0;

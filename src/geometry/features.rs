@@ -7,8 +7,9 @@
 //! vertex where the tangent planes around it meet (Ju et al. 2002, "Dual contouring of
 //! Hermite data"). Here the planes are not sampled from the field but carried by the
 //! material: each particle near the source's surface keeps the source's closest point and
-//! normal there, in its rest frame, and on every frame they follow the particle's
-//! deformation (`q = x + F o`, `n ~ F^-T n0`). At rest they are the source's own planes.
+//! normal there, in its rest frame, and on every frame they follow the deformation fitted to
+//! its neighbourhood (`q = x + F o`, `n ~ F^-T n0`), fading out as that strains. At rest they
+//! are the source's own planes.
 //!
 //! [`sharpen`] keeps the marched mesh's connectivity (one closed manifold shell, as cleaned):
 //! each vertex solves the least squares of the planes around it (the quadric error function
@@ -67,6 +68,8 @@ fn green_strain(f: &Matrix3<f64>) -> f64 {
 /// The source's surface as the particles near it carry it, made once at rest.
 pub struct SourcePlanes {
     planes: Vec<PlaneParticle>,
+    /// Every particle at rest (the neighbourhoods are fitted against them).
+    rest: Vec<Vector3<f64>>,
 }
 
 /// A particle within [`PLANE_DEPTH`] spacings of the source's surface: `offset` from it to
@@ -84,7 +87,10 @@ impl SourcePlanes {
     /// For particles at rest at `rest` (`spacing` apart) inside `surface`, all in one frame.
     pub fn new(surface: &TriMesh, rest: &[Vector3<f64>], spacing: f64) -> SourcePlanes {
         let Some(reference) = Reference::new(surface) else {
-            return SourcePlanes { planes: Vec::new() };
+            return SourcePlanes {
+                planes: Vec::new(),
+                rest: rest.to_vec(),
+            };
         };
         let radius = FIT_RADIUS * spacing;
         let grid = PointGrid::new(rest, radius);
@@ -116,30 +122,23 @@ impl SourcePlanes {
                 })
             })
             .collect();
-        SourcePlanes { planes }
-    }
-
-    /// How many particles carry a plane.
-    pub fn len(&self) -> usize {
-        self.planes.len()
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.planes.is_empty()
+        SourcePlanes {
+            planes,
+            rest: rest.to_vec(),
+        }
     }
 }
 
 /// Moves the vertices of `mesh` onto the planes the particles carry (`positions` this frame,
-/// `rest` at rest, `source` from [`SourcePlanes::new`] on `rest`, `spacing` the particles'
-/// rest spacing), tidying after each round (the module doc). Returns the vertex moves made.
+/// `source` from [`SourcePlanes::new`], `spacing` the particles' rest spacing), tidying after
+/// each round (the module doc). Returns the vertex moves made.
 pub fn sharpen(
     mesh: &mut TriMesh,
     positions: &[Vector3<f64>],
-    rest: &[Vector3<f64>],
     source: &SourcePlanes,
     spacing: f64,
 ) -> usize {
-    let carried = CarriedPlanes::new(positions, rest, source, spacing);
+    let carried = CarriedPlanes::new(positions, source, spacing);
     if carried.points.is_empty() {
         return 0;
     }
@@ -159,12 +158,8 @@ struct CarriedPlanes {
 }
 
 impl CarriedPlanes {
-    fn new(
-        positions: &[Vector3<f64>],
-        rest: &[Vector3<f64>],
-        source: &SourcePlanes,
-        spacing: f64,
-    ) -> CarriedPlanes {
+    fn new(positions: &[Vector3<f64>], source: &SourcePlanes, spacing: f64) -> CarriedPlanes {
+        let rest = &source.rest;
         let planes: Vec<(Vector3<f64>, Vector3<f64>, f64)> = source
             .planes
             .par_iter()
@@ -273,15 +268,7 @@ mod tests {
 
     /// A cube's particles at rest, `deformation` applied to positions and `F` alike: the
     /// rebuilt surface (as the `deformed` method makes it, cleaned) and the planes.
-    fn cube_surface(
-        deformation: Matrix3<f64>,
-    ) -> (
-        TriMesh,
-        Vec<Vector3<f64>>,
-        Vec<Vector3<f64>>,
-        SourcePlanes,
-        f64,
-    ) {
+    fn cube_surface(deformation: Matrix3<f64>) -> (TriMesh, Vec<Vector3<f64>>, SourcePlanes, f64) {
         let cube = assets::cube(2.0, 8);
         let grid = GridSpec::centred_cube(16, 0.25);
         let particles = particles_in(&cube, &grid, 2, None);
@@ -296,7 +283,7 @@ mod tests {
         let f = vec![deformation; x.len()];
         let field = deformed_fill_field(&x, &f, particles.volume, Some(&weights), spacing).unwrap();
         let (mesh, _) = clean(&field.march(), spacing);
-        (mesh, x, particles.positions, planes, spacing)
+        (mesh, x, planes, spacing)
     }
 
     /// Share of the area whose face normal is within `deg` of a coordinate axis.
@@ -321,9 +308,9 @@ mod tests {
     /// a tenth of a spacing of the cube.
     #[test]
     fn a_cube_at_rest_gets_its_edges_back() {
-        let (mut mesh, x, rest, planes, spacing) = cube_surface(Matrix3::identity());
+        let (mut mesh, x, planes, spacing) = cube_surface(Matrix3::identity());
         let rounded = axis_aligned_share(&mesh, 10.0);
-        let moves = sharpen(&mut mesh, &x, &rest, &planes, spacing);
+        let moves = sharpen(&mut mesh, &x, &planes, spacing);
         let sharp = axis_aligned_share(&mesh, 10.0);
         assert!(moves > 0);
         assert!(rounded < 0.8, "{rounded}");
@@ -344,18 +331,18 @@ mod tests {
     fn planes_fade_out_with_the_strain_and_turn_with_the_body() {
         let stretch = Matrix3::from_diagonal(&Vector3::new(1.5, 1.0, 1.0));
         assert!(green_strain(&stretch) > FADE_STRAIN);
-        let (mut mesh, x, rest, planes, spacing) = cube_surface(stretch);
+        let (mut mesh, x, planes, spacing) = cube_surface(stretch);
         let before = mesh.clone();
-        assert_eq!(sharpen(&mut mesh, &x, &rest, &planes, spacing), 0);
+        assert_eq!(sharpen(&mut mesh, &x, &planes, spacing), 0);
         assert_eq!(mesh, before);
         let turn = *nalgebra::Rotation3::from_axis_angle(&Vector3::z_axis(), 0.3).matrix();
-        let (mut mesh, x, rest, planes, spacing) = cube_surface(turn);
+        let (mut mesh, x, planes, spacing) = cube_surface(turn);
         let unturned = |mesh: &TriMesh| TriMesh {
             vertices: mesh.vertices.iter().map(|v| turn.transpose() * v).collect(),
             triangles: mesh.triangles.clone(),
         };
         let rounded = axis_aligned_share(&unturned(&mesh), 10.0);
-        assert!(sharpen(&mut mesh, &x, &rest, &planes, spacing) > 0);
+        assert!(sharpen(&mut mesh, &x, &planes, spacing) > 0);
         // The lattice now crosses the edges at a slant: 0.9990 measured.
         let sharp = axis_aligned_share(&unturned(&mesh), 10.0);
         assert!(rounded < 0.8 && sharp > 0.995, "{rounded} -> {sharp}");

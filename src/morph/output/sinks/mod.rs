@@ -180,7 +180,6 @@ pub fn for_folder(
                     let source = prep.geometry.placement.world_to_sim.apply_mesh(&l.mesh);
                     Arc::new(SourcePlanes::new(&source, &prep.initial.x, spacing))
                 }),
-            rest: prep.initial.x.as_slice().into(),
             body_volume: prep.geometry.source_solid.volume / to_world.scale.powi(3),
             to_world,
             references,

@@ -71,8 +71,6 @@ pub struct RebuiltObj {
     /// The source's tangent planes carried by the particles near its surface, for `sharp`
     /// ([`crate::geometry::features`]).
     pub planes: Option<Arc<SourcePlanes>>,
-    /// The particles at rest (the planes' neighbourhoods are fitted against them).
-    pub rest: Arc<[nalgebra::Vector3<f64>]>,
     /// The source mesh's volume, simulation units.
     pub body_volume: f64,
     pub to_world: Similarity,
@@ -103,13 +101,7 @@ impl FrameSink for RebuiltObj {
         .map_err(|e| MorphError::Output(e.to_string()))?;
         let (mut surface, cleanup) = clean(&raw, self.spacing);
         if let Some(planes) = self.planes.as_deref() {
-            sharpen(
-                &mut surface,
-                &frame.state.x,
-                &self.rest,
-                planes,
-                self.spacing,
-            );
+            sharpen(&mut surface, &frame.state.x, planes, self.spacing);
         }
         if self.method != RebuiltMethod::Lattice {
             // A wide kernel (and smoothing) rounds the body by a thin layer: put it back
