@@ -797,30 +797,24 @@ fn bench_stages_times_every_stage() {
         .map(|l| serde_json::from_str(l).unwrap())
         .collect();
     let kind = |k: &str| lines.iter().filter(|l| l["bench"] == k).count();
-    assert_eq!(
-        (kind("colours"), kind("machine"), kind("stage")),
-        (2, 1, 10)
-    );
-    // The scatters' parallel efficiency: 1 on one thread, never more, falling with the
-    // threads, and a body of 310,000 particles keeps more of 16 threads busy than the
-    // reference ball's 17,000.
+    assert_eq!((kind("blocks"), kind("machine"), kind("stage")), (2, 1, 10));
+    // The scatters' parallel efficiency: 1 on one thread, never more, and a body of 310,000
+    // particles keeps at least as much of 16 threads busy as the reference ball's 17,000.
     let efficiency =
         |l: &serde_json::Value, t: &str| l["scatter_efficiency_by_threads"][t].as_f64().unwrap();
-    let colours: Vec<&serde_json::Value> =
-        lines.iter().filter(|l| l["bench"] == "colours").collect();
-    for l in &colours {
+    let balls: Vec<&serde_json::Value> = lines.iter().filter(|l| l["bench"] == "blocks").collect();
+    for l in &balls {
         assert_eq!(efficiency(l, "1"), 1.0, "{l}");
-        let e: Vec<f64> = ["2", "4", "8", "16", "32"]
-            .iter()
-            .map(|t| efficiency(l, t))
-            .collect();
         assert!(
-            e.windows(2).all(|w| w[1] <= w[0]) && e.iter().all(|&x| x > 0.0 && x <= 1.0),
+            ["2", "4", "8", "16", "32"]
+                .iter()
+                .all(|t| efficiency(l, t) > 0.0 && efficiency(l, t) <= 1.0),
             "{l}"
         );
     }
-    assert!(colours[1]["particles"].as_u64() > colours[0]["particles"].as_u64());
-    assert!(efficiency(colours[1], "16") > efficiency(colours[0], "16"));
+    assert!(balls[1]["particles"].as_u64() > balls[0]["particles"].as_u64());
+    assert!(balls[1]["blocks"].as_u64() > balls[0]["blocks"].as_u64());
+    assert!(efficiency(balls[1], "16") >= efficiency(balls[0], "16"));
     let machine = lines.iter().find(|l| l["bench"] == "machine").unwrap();
     assert!(machine["stream_triad_gb_s"].as_f64().unwrap() > 0.1);
     assert!(machine["peak_gflops"].as_f64().unwrap() > 0.1);

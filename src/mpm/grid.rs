@@ -3,11 +3,18 @@
 //! Scatters (P2G, and the transpose of G2P in the reverse pass) are where parallel MPM codes
 //! usually lose determinism: several threads add into the same node in whatever order they run.
 //! Here particles are sorted into blocks of `BLOCK^3` cells by a counting sort (stable, so each
-//! block keeps ascending particle order), and blocks are coloured by the parity of their block
-//! coordinates. Two blocks of one colour are `2 * BLOCK` nodes apart, more than the `BLOCK +
-//! N - 1` nodes one block's particles can touch, so blocks of one colour write disjoint nodes
-//! and can run in parallel. Every node therefore receives its contributions in an order fixed
-//! by the particle positions alone: results are bitwise identical for any thread count.
+//! block keeps ascending particle order). A scatter then runs in two phases:
+//!
+//! 1. **Tiles.** Every non-empty block, all of them in parallel, adds its particles (in
+//!    ascending order) into a tile of its own: the `TILE^3` nodes its particles' stencils can
+//!    reach, starting from zeros. No two tasks write the same memory, and there is no barrier
+//!    between blocks (GPU MPM codes do the same in shared memory).
+//! 2. **Sum.** Every grid node is written once, as the sum of the tiles that reach it, taken
+//!    in ascending block order (at most 8 tiles: the block the node lies in and its lower
+//!    neighbours along each axis), in parallel over columns of blocks.
+//!
+//! Every node therefore receives the same additions in the same order whatever the thread
+//! count: results are bitwise identical for any number of threads.
 
 use super::error::SimError;
 use nalgebra::Vector3;
@@ -16,6 +23,18 @@ use serde::{Deserialize, Serialize};
 
 /// Cells per block edge. Must be at least `N - 1` for the widest kernel (cubic, N = 4).
 pub const BLOCK: usize = 4;
+
+/// Nodes along each axis of a block's tile: the `BLOCK + N - 1` nodes its particles'
+/// stencils reach (7 for the cubic kernel), padded to 8 so that a node lies at most two
+/// tiles deep along an axis (its own block's and the block below).
+pub const TILE: usize = 8;
+/// Nodes in a tile.
+pub const TILE_NODES: usize = TILE * TILE * TILE;
+const _: () = assert!(TILE >= BLOCK + 4 - 1 && TILE <= 2 * BLOCK);
+/// Values from one channel of a tile to the next: a tile's nodes and two cache lines, so that
+/// a node's channels are not a multiple of 4 KiB apart (loads then wait on stores to another
+/// channel: "4K aliasing").
+const CHANNEL: usize = TILE_NODES + 16;
 
 /// Geometry of the grid: node `(i, j, k)` sits at `origin + dx * (i, j, k)`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -86,20 +105,69 @@ impl GridSpec {
     }
 }
 
-/// Half-open range of `Bins::order` holding one block's particles.
+/// One non-empty block: its particles (a half-open range of `Bins::order`) and its block
+/// coordinates (its first cell is `BLOCK * coords`).
 #[derive(Clone, Copy, Debug)]
-pub struct BlockRange {
+pub struct Block {
     pub start: u32,
     pub end: u32,
+    pub coords: [u32; 3],
 }
 
-/// Particles sorted into blocks, and the non-empty blocks grouped by colour.
+impl Block {
+    /// How many particles the block holds.
+    pub fn particle_count(&self) -> usize {
+        (self.end - self.start) as usize
+    }
+}
+
+/// Particles sorted into blocks.
 #[derive(Clone, Debug, Default)]
 pub struct Bins {
     /// Particle indices, grouped by block, ascending within a block.
     pub order: Vec<u32>,
-    /// Non-empty blocks of each of the 8 colours.
-    pub colours: [Vec<BlockRange>; 8],
+    /// The non-empty blocks, in ascending block index (x slowest).
+    pub blocks: Vec<Block>,
+    /// Blocks per axis (enough to cover every node).
+    dims: [usize; 3],
+    /// Nodes per axis.
+    nodes: [usize; 3],
+    /// For every block of the lattice, its place in `blocks`, or [`NO_BLOCK`].
+    slot: Vec<u32>,
+}
+
+const NO_BLOCK: u32 = u32::MAX;
+
+/// Where one block's scatter lands: its tile, `channels` arrays of [`TILE_NODES`] values
+/// (for example mass, then each field's three axes), the nodes of a row side by side.
+pub struct Tile<'a> {
+    data: &'a mut [f64],
+    /// The tile's first node as a flat index under [`Tile::STRIDES`].
+    offset: usize,
+}
+
+impl Tile<'_> {
+    /// Flat index strides within a tile (x slowest, z fastest).
+    pub const STRIDES: [usize; 3] = [TILE * TILE, TILE, 1];
+
+    /// The tile-local index of the first node of stencil `s` (whose particle is in this
+    /// tile's block).
+    #[inline(always)]
+    pub fn base<const N: usize>(&self, s: &super::kernel::Stencil<N>) -> usize {
+        s.base_index(&Self::STRIDES) - self.offset
+    }
+
+    /// Channel `c` of the tile.
+    #[inline(always)]
+    pub fn channel(&mut self, c: usize) -> &mut [f64] {
+        &mut self.data[c * CHANNEL..c * CHANNEL + TILE_NODES]
+    }
+
+    /// `len` nodes of channel `c` from tile-local index `start`.
+    #[inline(always)]
+    pub fn run(&mut self, c: usize, start: usize, len: usize) -> &mut [f64] {
+        &mut self.channel(c)[start..start + len]
+    }
 }
 
 impl Bins {
@@ -170,58 +238,145 @@ impl Bins {
             order[fill[b as usize] as usize] = p as u32;
             fill[b as usize] += 1;
         }
-        let mut colours: [Vec<BlockRange>; 8] = Default::default();
+        let mut blocks = Vec::new();
+        let mut slot = vec![NO_BLOCK; nblocks];
         for bx in 0..bdims[0] {
             for by in 0..bdims[1] {
                 for bz in 0..bdims[2] {
                     let b = (bx * bdims[1] + by) * bdims[2] + bz;
                     if start[b] < start[b + 1] {
-                        let colour = (bx % 2) * 4 + (by % 2) * 2 + bz % 2;
-                        colours[colour].push(BlockRange {
+                        slot[b] = blocks.len() as u32;
+                        blocks.push(Block {
                             start: start[b],
                             end: start[b + 1],
+                            coords: [bx as u32, by as u32, bz as u32],
                         });
                     }
                 }
             }
         }
-        Ok(Bins { order, colours })
+        Ok(Bins {
+            order,
+            blocks,
+            dims: bdims,
+            nodes,
+            slot,
+        })
     }
 
-    /// Calls `f(p)` for every particle, colour by colour; blocks of one colour run in parallel,
-    /// particles of a block in ascending order. `f` may add into the grid nodes of particle
-    /// `p`'s stencil (and write particle `p`'s own data) through [`SharedMut`].
-    pub fn for_each_coloured(&self, f: impl Fn(usize) + Sync) {
-        for blocks in &self.colours {
-            blocks.par_iter().for_each(|r| {
-                for &p in &self.order[r.start as usize..r.end as usize] {
-                    f(p as usize);
-                }
-            });
+    /// The particles of `block`, ascending.
+    pub fn particles(&self, block: &Block) -> impl Iterator<Item = usize> + '_ {
+        self.order[block.start as usize..block.end as usize]
+            .iter()
+            .map(|&p| p as usize)
+    }
+
+    /// A scatter into `out` (its `channels` grid arrays, one value a node): `f(tile,
+    /// block)` adds block `block`'s particles into `tile` (zeros to start with; see
+    /// [`Tile`]), for every non-empty block, in parallel when `parallel`; then every node of
+    /// `out` is overwritten with the sum of the tiles that reach it, in ascending block order
+    /// (zero where none does). `tiles` is scratch (kept by the caller to spare allocating it
+    /// each time). The same bits whatever the thread count, and with `parallel` off.
+    pub fn scatter(
+        &self,
+        parallel: bool,
+        tiles: &mut Vec<f64>,
+        out: &mut [&mut [f64]],
+        f: impl Fn(&mut Tile, &Block) + Sync,
+    ) {
+        let channels = out.len();
+        let per_tile = channels * CHANNEL;
+        // Grown when short, and zeroed tile by tile in the tasks (a serial fill of a large
+        // body's tiles would cost a tenth of a parallel scatter).
+        let need = self.blocks.len() * per_tile;
+        if tiles.len() < need {
+            tiles.resize(need, 0.0);
         }
+        let tiles = &mut tiles[..need];
+        let one = |(data, block): (&mut [f64], &Block)| {
+            data.fill(0.0);
+            let c = block.coords.map(|c| c as usize * BLOCK);
+            let mut tile = Tile {
+                data,
+                offset: c[0] * Tile::STRIDES[0] + c[1] * Tile::STRIDES[1] + c[2],
+            };
+            f(&mut tile, block);
+        };
+        if parallel {
+            tiles
+                .par_chunks_mut(per_tile)
+                .zip(self.blocks.par_iter())
+                .with_max_len(1)
+                .for_each(one);
+        } else {
+            tiles.chunks_mut(per_tile).zip(&self.blocks).for_each(one);
+        }
+        self.sum_tiles(parallel, tiles, out);
     }
 
-    /// [`Bins::for_each_coloured`] when `parallel`, else every particle on this thread in the
-    /// very same order (so both give identical sums in every node).
-    pub fn visit_coloured(&self, parallel: bool, f: impl Fn(usize) + Sync) {
-        if parallel {
-            self.for_each_coloured(f);
-        } else {
-            for blocks in &self.colours {
-                for r in blocks {
-                    for &p in &self.order[r.start as usize..r.end as usize] {
-                        f(p as usize);
+    /// Phase 2 of [`Bins::scatter`]: each node of `out` from the tiles, in parallel over
+    /// columns of blocks (`x`, `y`), which write disjoint nodes.
+    fn sum_tiles(&self, parallel: bool, tiles: &[f64], out: &mut [&mut [f64]]) {
+        let channels = out.len();
+        let per_tile = channels * CHANNEL;
+        let [nx, ny, nz] = self.nodes;
+        let strides = [ny * nz, nz, 1];
+        for o in out.iter() {
+            assert_eq!(o.len(), nx * ny * nz, "a scatter's grid array");
+        }
+        let shared: Vec<SharedMut<f64>> = out.iter_mut().map(|o| SharedMut::new(o)).collect();
+        let dims = self.dims;
+        let column = |col: usize| {
+            let (bx, by) = (col / dims[1], col % dims[1]);
+            // The tiles that reach this column's nodes, per block along z: at most 8, in
+            // ascending block order, each with its block coordinates.
+            let mut reach: Vec<(usize, [usize; 3])> = Vec::with_capacity(8);
+            for bz in 0..dims[2] {
+                reach.clear();
+                for ox in bx.saturating_sub(1)..=bx {
+                    for oy in by.saturating_sub(1)..=by {
+                        for oz in bz.saturating_sub(1)..=bz {
+                            let s = self.slot[(ox * dims[1] + oy) * dims[2] + oz];
+                            if s != NO_BLOCK {
+                                reach.push((s as usize, [ox, oy, oz]));
+                            }
+                        }
+                    }
+                }
+                let z0 = bz * BLOCK;
+                let len = BLOCK.min(nz - z0);
+                for x in bx * BLOCK..(bx * BLOCK + BLOCK).min(nx) {
+                    for y in by * BLOCK..(by * BLOCK + BLOCK).min(ny) {
+                        let row = x * strides[0] + y * strides[1] + z0;
+                        for (c, out) in shared.iter().enumerate() {
+                            let mut sum = [0.0; BLOCK];
+                            for &(s, o) in &reach {
+                                let local = (x - o[0] * BLOCK) * Tile::STRIDES[0]
+                                    + (y - o[1] * BLOCK) * Tile::STRIDES[1]
+                                    + (z0 - o[2] * BLOCK);
+                                let t = &tiles[s * per_tile + c * CHANNEL + local..][..BLOCK];
+                                for r in 0..BLOCK {
+                                    sum[r] += t[r];
+                                }
+                            }
+                            // SAFETY: a column's nodes belong to it alone.
+                            unsafe { out.run(row, len) }.copy_from_slice(&sum[..len]);
+                        }
                     }
                 }
             }
+        };
+        let columns = dims[0] * dims[1];
+        if parallel {
+            (0..columns).into_par_iter().for_each(column);
+        } else {
+            (0..columns).for_each(column);
         }
     }
 }
 
-/// A mutable slice shared across the threads of a coloured scatter.
-///
-/// Safety rests on the colouring in [`Bins::for_each_coloured`]: concurrent calls only touch
-/// disjoint nodes (stencils of blocks of one colour do not overlap) and distinct particles.
+/// A mutable slice shared across threads that write disjoint elements (distinct particles,
+/// disjoint nodes): each use states why its elements are its own.
 pub struct SharedMut<'a, T> {
     ptr: *mut T,
     len: usize,
@@ -258,5 +413,89 @@ impl<'a, T> SharedMut<'a, T> {
     pub unsafe fn run(&self, start: usize, len: usize) -> &mut [T] {
         assert!(start + len <= self.len);
         unsafe { std::slice::from_raw_parts_mut(self.ptr.add(start), len) }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mpm::kernel::Stencil;
+
+    /// Particles scattered by blocks into tiles: every node holds the sum of its particles'
+    /// weighted masses (as a plain loop over the particles gives, up to rounding), the same
+    /// bits on one thread, on several and sequentially, and zeros where no particle reaches.
+    #[test]
+    fn scatter_sums_every_particle_whatever_the_threads() {
+        let spec = GridSpec {
+            origin: [-1.0, -0.5, -2.0],
+            dx: 0.25,
+            cells: [13, 9, 17],
+        };
+        let mut rng = 0x2545_f491_4f6c_dd1du64;
+        let mut next = || {
+            rng ^= rng << 13;
+            rng ^= rng >> 7;
+            rng ^= rng << 17;
+            (rng >> 11) as f64 / (1u64 << 53) as f64
+        };
+        // Away from the walls (a cubic stencil needs a cell and a half), unevenly dense.
+        let (lo, hi) = (
+            2.0 * spec.dx,
+            [13.0, 9.0, 17.0].map(|c| (c - 2.0) * spec.dx),
+        );
+        let x: Vec<Vector3<f64>> = (0..3000)
+            .map(|_| {
+                let u = [next(), next().powi(2), next()];
+                Vector3::from_fn(|a, _| spec.origin[a] + lo + u[a] * (hi[a] - lo))
+            })
+            .collect();
+        let m: Vec<f64> = (0..x.len()).map(|_| 0.5 + next()).collect();
+        let bins = Bins::build(&spec, &x, 4, 0).unwrap();
+        assert!(bins.blocks.len() > 8);
+        let (origin, dx) = (spec.origin_vec(), spec.dx);
+        let scatter = |parallel: bool| {
+            let mut out = vec![f64::NAN; spec.node_count()];
+            let mut twice = vec![f64::NAN; spec.node_count()];
+            bins.scatter(
+                parallel,
+                &mut Vec::new(),
+                &mut [&mut out, &mut twice],
+                |t, block| {
+                    for p in bins.particles(block) {
+                        let s = Stencil::<4>::new(&x[p], &origin, dx);
+                        let (t0, ts) = (t.base(&s), Tile::STRIDES);
+                        s.for_each_node(&ts, |_, w, _, (a, b, c)| {
+                            let i = t0 + a * ts[0] + b * ts[1] + c;
+                            t.channel(0)[i] += w * m[p];
+                            t.channel(1)[i] += 2.0 * w * m[p];
+                        });
+                    }
+                },
+            );
+            (out, twice)
+        };
+        let (par, twice) = scatter(true);
+        let one = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap()
+            .install(|| scatter(true));
+        let (seq, _) = scatter(false);
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&par), bits(&seq));
+        assert_eq!(bits(&par), bits(&one.0));
+        let mut plain = vec![0.0; spec.node_count()];
+        for (p, x) in x.iter().enumerate() {
+            Stencil::<4>::new(x, &origin, dx)
+                .for_each_node(&spec.strides(), |i, w, _, _| plain[i] += w * m[p]);
+        }
+        let total: f64 = m.iter().sum();
+        for (i, (&a, &b)) in par.iter().zip(&plain).enumerate() {
+            assert!((a - b).abs() <= 1e-12 * total, "node {i}: {a} against {b}");
+            assert_eq!(twice[i], 2.0 * a, "node {i}");
+            assert_eq!(a == 0.0, b == 0.0, "node {i}");
+        }
+        assert!(par.iter().filter(|&&v| v == 0.0).count() > 100);
+        assert!((par.iter().sum::<f64>() - total).abs() < 1e-9 * total);
     }
 }

@@ -8,11 +8,11 @@ use std::time::Instant;
 /// The stages timed, forward then reverse.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Stage {
-    /// Sorting particles into coloured blocks.
+    /// Sorting particles into blocks.
     Bins,
     /// P1: control, stress (batched SVDs), affine momentum.
     Stress,
-    /// P2G: the coloured scatter of mass and momentum.
+    /// P2G: the tiled scatter of mass and momentum.
     P2g,
     /// G: grid velocity, grid effects, clamps.
     Grid,
@@ -22,7 +22,7 @@ pub enum Stage {
     G2p,
     /// Reverse set-up: the elastic gradients and the grid effects replayed.
     RevSetup,
-    /// Reverse of P2 and G2P: the coloured scatter of the grid velocity adjoint.
+    /// Reverse of P2 and G2P: the tiled scatter of the grid velocity adjoint.
     RevG2p,
     /// Reverse of G: effects backwards, then `v = p / m`.
     RevGrid,

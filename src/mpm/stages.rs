@@ -200,14 +200,14 @@ pub fn stress_reverse<'m>(
 }
 
 /// P2G: each particle's mass and its `K` affine fields (`fields(p)`) scattered to the grid
-/// nodes through its stencil, in the colour order of `bins` (in parallel, or on this thread
-/// in the very same order: identical sums in every node either way), into `nodes`.
+/// nodes through its stencil, block by block into tiles and then summed (in parallel, or on
+/// this thread in the very same order: identical sums in every node either way; see
+/// [`Bins::scatter`]), into `nodes`.
 #[allow(clippy::too_many_arguments)]
 pub fn p2g<const N: usize, const K: usize>(
     simd: SimdLevel,
     bins: &Bins,
     stencils: &[Stencil<N>],
-    strides: &[usize; 3],
     mass: &[f64],
     parallel: bool,
     fields: impl Fn(usize) -> [Affine; K] + Sync,
@@ -215,12 +215,8 @@ pub fn p2g<const N: usize, const K: usize>(
     nodes: &mut Vec<Node<K>>,
     node_count: usize,
 ) {
-    axes.set_zero(node_count);
-    {
-        let shared = axes.shared();
-        bins.visit_coloured(parallel, |p| {
-            transfer::scatter(simd, &stencils[p], strides, mass[p], &fields(p), &shared);
-        });
-    }
+    axes.scatter(bins, parallel, node_count, |tile, p| {
+        transfer::scatter(simd, &stencils[p], mass[p], &fields(p), tile);
+    });
     axes.write_nodes(nodes);
 }

@@ -330,7 +330,7 @@ impl Euler {
         );
         laps.lap(Stage::Stress);
 
-        // P2G (coloured scatter).
+        // P2G (a tiled scatter).
         let retention = self.momentum_retention(step);
         let body = values.map(|v| self.body_accelerations(v));
         let stencils = stages::stencils::<N>(self.simd, &state.x, &origin, dx, 1, &mut ws.stencils);
@@ -339,7 +339,6 @@ impl Euler {
             self.simd,
             &ws.bins,
             stencils,
-            &strides,
             &self.mass,
             true,
             |p| {
@@ -592,13 +591,12 @@ impl Euler {
         let grid_v = &rws.grid_axes;
         laps.lap(Stage::RevSetup);
 
-        // P2 reverse and G2P reverse, fused per particle (coloured: it scatters into the grid
-        // velocity adjoint). A clamped particle's velocity is its prescribed one: its adjoint
-        // goes to the control (`grad_u`), not to the gather.
+        // P2 reverse and G2P reverse, fused per particle (a scatter into the grid velocity
+        // adjoint, block by block into tiles). A clamped particle's velocity is its
+        // prescribed one: its adjoint goes to the control (`grad_u`), not to the gather.
         let clamped = |p: usize| values.is_some() && self.is_clamped(p);
         let mut grad_u = vec![Vector3::zeros(); if values.is_some() { n } else { 0 }];
         rws.grad_fe.resize(n, Matrix3::zeros());
-        rws.grad_axes.set_zero(nodes);
         let StateGrad {
             x: ax,
             v: av,
@@ -606,14 +604,13 @@ impl Euler {
             f: af,
         } = adj;
         {
-            let ggv = rws.grad_axes.shared();
             let gx = SharedMut::new(ax);
             let gfe = SharedMut::new(&mut rws.grad_fe);
             let gu = SharedMut::new(&mut grad_u);
             let (av, ac, af) = (&*av, &*ac, &*af);
             let stencils =
                 stages::stencils::<N>(self.simd, &pre.x, &origin, dx, 1, &mut rws.stencils);
-            tape.bins.for_each_coloured(|p| {
+            rws.grad_axes.scatter(&tape.bins, true, nodes, |tile, p| {
                 // SAFETY: each particle is visited exactly once.
                 let (x_adj, fe_adj) = unsafe { (gx.get(p), gfe.get(p)) };
                 let g = advance_reverse(&fe[p], &post.c[p], dt, x_adj, &av[p], &ac[p], &af[p]);
@@ -630,7 +627,7 @@ impl Euler {
                     (g.vel, post.v[p])
                 };
                 *x_adj += transfer::gather_affine_reverse(
-                    self.simd, s, &strides, grid_v, inv_d, &grad_vel, &g.c, &gathered, &ggv,
+                    self.simd, s, &strides, grid_v, inv_d, &grad_vel, &g.c, &gathered, tile,
                 );
             });
         }

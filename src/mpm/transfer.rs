@@ -4,16 +4,16 @@
 //!   `q_k(x_i) = value_k + slope_k (x_i - x_p)` over its stencil: `m_i += w m_p`,
 //!   `q_ik += w q_k(x_i)`. The Euler step scatters one field (APIC momentum
 //!   `m v + A (x_i - x_p)`, with the stress folded into `A`); the ODE form two (momentum, and
-//!   force `m b + K (x_i - x_p)`). Run under the colouring of [`super::grid::Bins`]; its
-//!   reverse is a per-particle gather.
+//!   force `m b + K (x_i - x_p)`). Each block's particles add into the block's tile
+//!   ([`super::grid::Bins::scatter`]); its reverse is a per-particle gather.
 //! - **Grid quotient** (G): `v_ik = q_ik / m_i` on nodes with mass.
 //! - **Gather** (G2P): [`gather_affine`] gives `v_p = sum w v_i` and the velocity gradient
 //!   `C_p = D^-1 sum w v_i (x_i - x_p)^T`; [`interpolate`] gives `sum w a_i` alone. Their
-//!   reverses scatter under the colouring.
+//!   reverses scatter into tiles.
 //! - **Mass only** (for losses on the nodal mass grid).
 
 use super::error::SimError;
-use super::grid::{Bins, GridSpec, SharedMut};
+use super::grid::{Bins, GridSpec, Tile};
 use super::kernel::{KernelKind, Stencil};
 use crate::lanes::{RowKernel, Rows, SimdLevel, dispatch_rows};
 use nalgebra::{Matrix3, Vector3};
@@ -45,6 +45,8 @@ impl<const K: usize> Default for Node<K> {
 #[derive(Clone, Debug, Default)]
 pub struct AxisField {
     pub axes: [Vec<f64>; 3],
+    /// Scratch for the scatters into this field ([`Bins::scatter`]'s tiles).
+    pub tiles: Vec<f64>,
 }
 
 impl AxisField {
@@ -81,18 +83,26 @@ impl AxisField {
         );
     }
 
-    /// Shared for a coloured scatter.
-    pub fn shared(&mut self) -> SharedAxes<'_> {
-        let [x, y, z] = &mut self.axes;
-        SharedAxes {
-            axes: [SharedMut::new(x), SharedMut::new(y), SharedMut::new(z)],
+    /// `n` nodes from a scatter over `bins` (tile channels 0, 1, 2: the axes; see
+    /// [`Bins::scatter`]): `f(tile, particle)` for each particle.
+    pub fn scatter(
+        &mut self,
+        bins: &Bins,
+        parallel: bool,
+        n: usize,
+        f: impl Fn(&mut Tile, usize) + Sync,
+    ) {
+        let AxisField { axes, tiles } = self;
+        for axis in axes.iter_mut() {
+            axis.resize(n, 0.0);
         }
+        let [x, y, z] = axes;
+        bins.scatter(parallel, tiles, &mut [x, y, z], |tile, block| {
+            for p in bins.particles(block) {
+                f(tile, p);
+            }
+        });
     }
-}
-
-/// An [`AxisField`] shared across the threads of a coloured scatter.
-pub struct SharedAxes<'a> {
-    pub axes: [SharedMut<'a, f64>; 3],
 }
 
 /// Grid nodes stored by axis: the masses, and each of the `K` fields as an [`AxisField`].
@@ -100,6 +110,8 @@ pub struct SharedAxes<'a> {
 pub struct AxisNodes<const K: usize> {
     pub mass: Vec<f64>,
     pub fields: [AxisField; K],
+    /// Scratch for the scatters into these nodes ([`Bins::scatter`]'s tiles).
+    pub tiles: Vec<f64>,
 }
 
 impl<const K: usize> Default for AxisNodes<K> {
@@ -107,6 +119,7 @@ impl<const K: usize> Default for AxisNodes<K> {
         AxisNodes {
             mass: Vec::new(),
             fields: std::array::from_fn(|_| AxisField::default()),
+            tiles: Vec::new(),
         }
     }
 }
@@ -145,21 +158,34 @@ impl<const K: usize> AxisNodes<K> {
         }));
     }
 
-    /// Shared for a coloured scatter.
-    pub fn shared(&mut self) -> SharedNodes<'_, K> {
-        let AxisNodes { mass, fields } = self;
-        let mut fields = fields.iter_mut().map(AxisField::shared);
-        SharedNodes {
-            mass: SharedMut::new(mass),
-            fields: std::array::from_fn(|_| fields.next().expect("K fields")),
+    /// `n` nodes from a scatter over `bins`: `f(tile, particle)` for each particle, into
+    /// tile channel 0 (mass) and `1 + 3 k + j` (field `k`'s axis `j`); see [`Bins::scatter`].
+    pub fn scatter(
+        &mut self,
+        bins: &Bins,
+        parallel: bool,
+        n: usize,
+        f: impl Fn(&mut Tile, usize) + Sync,
+    ) {
+        let AxisNodes {
+            mass,
+            fields,
+            tiles,
+        } = self;
+        mass.resize(n, 0.0);
+        let mut out: Vec<&mut [f64]> = vec![mass];
+        for field in fields.iter_mut() {
+            for axis in field.axes.iter_mut() {
+                axis.resize(n, 0.0);
+                out.push(axis);
+            }
         }
+        bins.scatter(parallel, tiles, &mut out, |tile, block| {
+            for p in bins.particles(block) {
+                f(tile, p);
+            }
+        });
     }
-}
-
-/// [`AxisNodes`] shared across the threads of a coloured scatter.
-pub struct SharedNodes<'a, const K: usize> {
-    pub mass: SharedMut<'a, f64>,
-    pub fields: [SharedAxes<'a>; K],
 }
 
 /// A field that varies linearly across a particle's stencil: `value + slope (x_i - x_p)`.
@@ -178,39 +204,37 @@ fn grad_w<const N: usize>(s: &Stencil<N>, a: usize, b: usize, c: usize) -> Vecto
     )
 }
 
-/// Forward scatter of one particle, on four-lane stencil rows (the row's nodes are the
-/// lanes): every node receives `w m` and `w q_k(x_i)`, each formed and added as in a
-/// node-by-node loop, so its bits do not depend on the lanes. Safety: the caller runs it
-/// under [`super::grid::Bins::for_each_coloured`] (or sequentially).
+/// Forward scatter of one particle into its block's tile (channel 0 the mass, `1 + 3 k + j`
+/// field `k`'s axis `j`), on four-lane stencil rows (the row's nodes are the lanes): every
+/// node receives `w m` and `w q_k(x_i)`, each formed and added as in a node-by-node loop, so
+/// its bits do not depend on the lanes.
 #[inline]
 pub fn scatter<const N: usize, const K: usize>(
     simd: SimdLevel,
     s: &Stencil<N>,
-    strides: &[usize; 3],
     mass: f64,
     fields: &[Affine; K],
-    nodes: &SharedNodes<'_, K>,
+    tile: &mut Tile,
 ) {
-    struct Kernel<'a, const N: usize, const K: usize> {
+    struct Kernel<'a, 't, const N: usize, const K: usize> {
         s: &'a Stencil<N>,
-        strides: &'a [usize; 3],
         mass: f64,
         fields: &'a [Affine; K],
-        nodes: &'a SharedNodes<'a, K>,
+        tile: &'a mut Tile<'t>,
     }
-    impl<const N: usize, const K: usize> RowKernel for Kernel<'_, N, K> {
+    impl<const N: usize, const K: usize> RowKernel for Kernel<'_, '_, N, K> {
         type Output = ();
         #[inline(always)]
         #[allow(clippy::needless_range_loop)]
         fn run<R: Rows>(self, r: R) {
             let Kernel {
                 s,
-                strides,
                 mass,
                 fields,
-                nodes,
+                tile,
             } = self;
-            let i0 = s.base_index(strides);
+            let strides = &Tile::STRIDES;
+            let i0 = tile.base(s);
             let (wc, dc) = (r.load_first(&s.w[2], N), r.load_first(&s.dpos[2], N));
             let mass = r.splat(mass);
             let slope_z = slopes_along_rows(r, fields);
@@ -222,16 +246,12 @@ pub fn scatter<const N: usize, const K: usize>(
                 for b in 0..N {
                     let row = i0 + a * strides[0] + b * strides[1];
                     let w = r.mul(r.splat(s.w[0][a] * s.w[1][b]), wc);
-                    // SAFETY: the colouring gives this thread exclusive use of the stencil's
-                    // nodes (the row's first N).
-                    r.add_into(unsafe { nodes.mass.run(row, N) }, r.mul(w, mass));
+                    r.add_into(tile.run(0, row, N), r.mul(w, mass));
                     for k in 0..K {
                         let qab = qa[k] + fields[k].slope.column(1) * s.dpos[1][b];
                         for j in 0..3 {
                             let q = r.add_mul(r.splat(qab[j]), slope_z[k][j], dc);
-                            // SAFETY: as above.
-                            let out = unsafe { nodes.fields[k].axes[j].run(row, N) };
-                            r.add_into(out, r.mul(w, q));
+                            r.add_into(tile.run(1 + 3 * k + j, row, N), r.mul(w, q));
                         }
                     }
                 }
@@ -242,10 +262,9 @@ pub fn scatter<const N: usize, const K: usize>(
         simd,
         Kernel {
             s,
-            strides,
             mass,
             fields,
-            nodes,
+            tile,
         },
     );
 }
@@ -492,7 +511,7 @@ fn gather_affine_rows<R: Rows, const N: usize>(
 }
 
 /// Reverse of [`gather_affine`]: given dL/dv_p and dL/dC_p (and the forward `v_p`), adds
-/// dL/dv_i into `grad_grid_v` (under the colouring) and returns this gather's part of dL/dx_p:
+/// dL/dv_i into the tile's channels 0, 1, 2 (the axes) and returns this gather's part of dL/dx_p:
 /// `sum_i grad w_ip (v_i . u_i) - D^-1 gC^T v_p` with `u_i = gv + D^-1 gC (x_i - x_p)`.
 /// On stencil rows, as the forward gather: the weight gradient's sums are kept per lane and
 /// weighted by the row's `w_c` (or `w_c'`) at the end.
@@ -507,17 +526,17 @@ pub fn gather_affine_reverse<const N: usize>(
     grad_vel: &Vector3<f64>,
     grad_c: &Matrix3<f64>,
     vel: &Vector3<f64>,
-    grad_grid_v: &SharedAxes,
+    grad_grid_v: &mut Tile,
 ) -> Vector3<f64> {
-    struct Kernel<'a, const N: usize> {
+    struct Kernel<'a, 't, const N: usize> {
         s: &'a Stencil<N>,
         strides: &'a [usize; 3],
         grid_v: &'a AxisField,
         gc: Matrix3<f64>,
         grad_vel: &'a Vector3<f64>,
-        grad_grid_v: &'a SharedAxes<'a>,
+        grad_grid_v: &'a mut Tile<'t>,
     }
-    impl<const N: usize> RowKernel for Kernel<'_, N> {
+    impl<const N: usize> RowKernel for Kernel<'_, '_, N> {
         type Output = Vector3<f64>;
         #[inline(always)]
         #[allow(clippy::needless_range_loop)] // index loops: the lane code's form
@@ -531,6 +550,8 @@ pub fn gather_affine_reverse<const N: usize>(
                 grad_grid_v,
             } = self;
             let i0 = s.base_index(strides);
+            let t0 = grad_grid_v.base(s);
+            let ts = &Tile::STRIDES;
             let zero = r.zero();
             let wc = r.load_first(&s.w[2], N);
             let dwc = r.load_first(&s.dw[2], N);
@@ -561,10 +582,9 @@ pub fn gather_affine_reverse<const N: usize>(
                     }
                     // dL/dv_i += w_i u_i.
                     let w = r.mul(r.splat(s.w[0][a] * s.w[1][b]), wc);
+                    let t_row = t0 + a * ts[0] + b * ts[1];
                     for k in 0..3 {
-                        // SAFETY: exclusive stencil access under the colouring.
-                        let out = unsafe { grad_grid_v.axes[k].run(row, N) };
-                        r.add_into(out, r.mul(w, u[k]));
+                        r.add_into(grad_grid_v.run(k, t_row, N), r.mul(w, u[k]));
                     }
                     e_w = r.add_mul(e_w, r.splat(s.w[1][b]), vu);
                     e_dw1 = r.add_mul(e_dw1, r.splat(s.dw[1][b]), vu);
@@ -603,36 +623,39 @@ pub fn interpolate<const N: usize>(
     out
 }
 
-/// Reverse of [`interpolate`]: scatters `w g` into `grad_field` (under the colouring) and
-/// returns dL/dx_p = `sum_i grad w_ip (a_i . g)`.
+/// Reverse of [`interpolate`]: scatters `w g` into the tile's channels `c0 .. c0 + 3` (the
+/// axes) and returns dL/dx_p = `sum_i grad w_ip (a_i . g)`.
 #[inline]
 pub fn interpolate_reverse<const N: usize>(
     s: &Stencil<N>,
     strides: &[usize; 3],
     field: &[Vector3<f64>],
     grad: &Vector3<f64>,
-    grad_field: &SharedMut<Vector3<f64>>,
+    grad_field: &mut Tile,
+    c0: usize,
 ) -> Vector3<f64> {
     let mut grad_x = Vector3::zeros();
-    s.for_each_node(strides, |i, w, _, (a, b, c)| {
+    s.for_each_node(strides, |i, _, _, (a, b, c)| {
         grad_x += grad_w(s, a, b, c) * field[i].dot(grad);
-        // SAFETY: exclusive stencil access under the colouring.
-        unsafe { *grad_field.get(i) += w * grad };
+    });
+    let (t0, ts) = (grad_field.base(s), Tile::STRIDES);
+    s.for_each_node(&ts, |_, w, _, (a, b, c)| {
+        let t = t0 + a * ts[0] + b * ts[1] + c;
+        for j in 0..3 {
+            grad_field.channel(c0 + j)[t] += w * grad[j];
+        }
     });
     grad_x
 }
 
-/// Mass-only scatter (for losses on the nodal mass grid): `m_i += w_ip m_p`.
+/// Mass-only scatter (for losses on the nodal mass grid) into the tile's channel 0:
+/// `m_i += w_ip m_p`.
 #[inline]
-pub fn scatter_mass<const N: usize>(
-    s: &Stencil<N>,
-    strides: &[usize; 3],
-    mass: f64,
-    grid_mass: &SharedMut<f64>,
-) {
-    s.for_each_node(strides, |i, w, _, _| {
-        // SAFETY: exclusive stencil access under the colouring.
-        unsafe { *grid_mass.get(i) += w * mass };
+pub fn scatter_mass<const N: usize>(s: &Stencil<N>, mass: f64, tile: &mut Tile) {
+    let t0 = tile.base(s);
+    let ts = Tile::STRIDES;
+    s.for_each_node(&ts, |_, w, _, (a, b, c)| {
+        tile.channel(0)[t0 + a * ts[0] + b * ts[1] + c] += w * mass;
     });
 }
 
@@ -659,7 +682,7 @@ pub fn scatter_mass_reverse<const N: usize>(
 
 /// Nodal masses `m_i = sum_p w_ip m_p` of any particle set on `grid` (e.g. the target
 /// shape's particles, which need not match the simulated ones). Deterministic: the
-/// coloured scatter adds into each node in an order fixed by the positions.
+/// tiled scatter adds into each node in an order fixed by the positions.
 pub fn mass_grid(
     grid: &GridSpec,
     kernel: KernelKind,
@@ -680,14 +703,13 @@ fn mass_grid_impl<const N: usize>(
 ) -> Result<Vec<f64>, SimError> {
     let bins = Bins::build(grid, positions, N, 0)?;
     let mut out = vec![0.0; grid.node_count()];
-    let (strides, origin, dx) = (grid.strides(), grid.origin_vec(), grid.dx);
-    {
-        let g = SharedMut::new(&mut out);
-        bins.for_each_coloured(|p| {
+    let (origin, dx) = (grid.origin_vec(), grid.dx);
+    bins.scatter(true, &mut Vec::new(), &mut [&mut out], |tile, block| {
+        for p in bins.particles(block) {
             let s = Stencil::<N>::new(&positions[p], &origin, dx);
-            scatter_mass(&s, &strides, masses[p], &g);
-        });
-    }
+            scatter_mass(&s, masses[p], tile);
+        }
+    });
     Ok(out)
 }
 

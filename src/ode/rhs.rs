@@ -259,7 +259,6 @@ impl Rk4 {
                 self.simd,
                 &bins,
                 stencils,
-                &strides,
                 &self.mass,
                 par,
                 |p| self.scatter_fields(s, values, &stress_force, &body, p),
@@ -393,54 +392,71 @@ impl Rk4 {
                 grad_a,
                 grid_v_axes: grid_axes,
                 grad_v_axes: grad_axes,
-                active,
+                grad_a_axes,
                 ..
             } = &mut fw.buf;
-            grad_axes.set_zero(grid_v.len());
-            let ggv = grad_axes.shared();
-            let gga = SharedMut::new(grad_a);
-            active.par_iter().with_min_len(1024).for_each(|&i| {
-                // SAFETY: active node indices are distinct.
-                unsafe { *gga.get(i as usize) = Vector3::zeros() };
-            });
             let gx = SharedMut::new(&mut grad.x);
             let gf = SharedMut::new(&mut grad.f);
             let gu = SharedMut::new(&mut grad_u);
             let gathered = &fw.gathered;
-            fw.bins.visit_coloured(par, |p| {
-                let g_out = &gathered[p];
-                let g_df = grad_out.f[p];
-                let mut g = Gathered {
-                    velocity: grad_out.x[p],
-                    acceleration: grad_out.v[p],
-                    grad_v: g_df * s.f[p].transpose(),
-                };
-                if self.is_clamped(p) {
-                    // SAFETY: each particle is visited exactly once.
-                    unsafe { *gu.get(p) += g.velocity };
-                    g.velocity = Vector3::zeros();
-                    g.acceleration = Vector3::zeros();
-                }
-                let st = &stencils[p];
-                let d =
-                    transfer::gather_affine_reverse(
-                        self.simd,
-                        st,
-                        &strides,
-                        grid_axes,
-                        inv_d,
-                        &g.velocity,
-                        &g.grad_v,
-                        &g_out.velocity,
-                        &ggv,
-                    ) + transfer::interpolate_reverse(st, &strides, grid_a, &g.acceleration, &gga);
-                // SAFETY: each particle is visited exactly once.
-                unsafe {
-                    *gx.get(p) += d;
-                    *gf.get(p) += g_out.grad_v.transpose() * g_df;
-                }
-            });
+            let bins = &fw.bins;
+            // Tile channels 0-2: dL/dv's axes; 3-5: dL/da's.
+            let nodes = grid_v.len();
+            let AxisField { axes: gv, tiles } = grad_axes;
+            let ga = &mut grad_a_axes.axes;
+            for axis in gv.iter_mut().chain(ga.iter_mut()) {
+                axis.resize(nodes, 0.0);
+            }
+            let [gv0, gv1, gv2] = gv;
+            let [ga0, ga1, ga2] = ga;
+            bins.scatter(
+                par,
+                tiles,
+                &mut [gv0, gv1, gv2, ga0, ga1, ga2],
+                |tile, block| {
+                    for p in bins.particles(block) {
+                        let g_out = &gathered[p];
+                        let g_df = grad_out.f[p];
+                        let mut g = Gathered {
+                            velocity: grad_out.x[p],
+                            acceleration: grad_out.v[p],
+                            grad_v: g_df * s.f[p].transpose(),
+                        };
+                        if self.is_clamped(p) {
+                            // SAFETY: each particle is visited exactly once.
+                            unsafe { *gu.get(p) += g.velocity };
+                            g.velocity = Vector3::zeros();
+                            g.acceleration = Vector3::zeros();
+                        }
+                        let st = &stencils[p];
+                        let d = transfer::gather_affine_reverse(
+                            self.simd,
+                            st,
+                            &strides,
+                            grid_axes,
+                            inv_d,
+                            &g.velocity,
+                            &g.grad_v,
+                            &g_out.velocity,
+                            tile,
+                        ) + transfer::interpolate_reverse(
+                            st,
+                            &strides,
+                            grid_a,
+                            &g.acceleration,
+                            tile,
+                            3,
+                        );
+                        // SAFETY: each particle is visited exactly once.
+                        unsafe {
+                            *gx.get(p) += d;
+                            *gf.get(p) += g_out.grad_v.transpose() * g_df;
+                        }
+                    }
+                },
+            );
             grad_axes.write_vectors(grad_v);
+            grad_a_axes.write_vectors(grad_a);
         }
 
         // Grid reverse: the effects backwards (each given its inputs, replayed from the
@@ -586,6 +602,7 @@ struct Buffers {
     node_axes: AxisNodes<2>,
     grid_v_axes: AxisField,
     grad_v_axes: AxisField,
+    grad_a_axes: AxisField,
     grad_node_axes: AxisNodes<2>,
     /// Every particle's stencil, built once an evaluation.
     stencils: StencilCache,
@@ -608,6 +625,7 @@ impl Buffers {
             node_axes: AxisNodes::default(),
             grid_v_axes: AxisField::default(),
             grad_v_axes: AxisField::default(),
+            grad_a_axes: AxisField::default(),
             grad_node_axes: AxisNodes::default(),
             stencils: StencilCache::default(),
             mark: vec![0; nodes],

@@ -195,22 +195,19 @@ fn stage_seconds(
     Ok((particles, nodes, secs))
 }
 
-/// The share of `threads` threads a coloured scatter over `bins` keeps busy: the particles
-/// over `threads`, against the sum over the colours of the longest thread's load when each
-/// colour's blocks are shared out largest first to the least loaded thread (rayon's work
-/// stealing does about as well; a block is never split). 1 on one thread.
+/// The share of `threads` threads a scatter's tile phase over `bins` keeps busy: the
+/// particles over `threads`, against the longest thread's load when the blocks are shared
+/// out largest first to the least loaded thread (rayon's work stealing does about as well; a
+/// block is never split). 1 on one thread.
 pub fn scatter_efficiency(bins: &crate::mpm::grid::Bins, threads: usize) -> f64 {
-    let mut span = 0usize;
-    for blocks in &bins.colours {
-        let mut sizes: Vec<usize> = blocks.iter().map(|r| (r.end - r.start) as usize).collect();
-        sizes.sort_unstable_by(|a, b| b.cmp(a));
-        let mut load = vec![0usize; threads.max(1)];
-        for size in sizes {
-            let least = load.iter_mut().min().expect("at least one thread");
-            *least += size;
-        }
-        span += load.into_iter().max().unwrap_or(0);
+    let mut sizes: Vec<usize> = bins.blocks.iter().map(|b| b.particle_count()).collect();
+    sizes.sort_unstable_by(|a, b| b.cmp(a));
+    let mut load = vec![0usize; threads.max(1)];
+    for size in sizes {
+        let least = load.iter_mut().min().expect("at least one thread");
+        *least += size;
     }
+    let span = load.into_iter().max().unwrap_or(0);
     let particles = bins.order.len();
     if span == 0 {
         1.0
@@ -223,22 +220,22 @@ pub fn scatter_efficiency(bins: &crate::mpm::grid::Bins, threads: usize) -> f64 
 /// ([`super::REFERENCE_RADIUS`] is the reference): JSON lines on stdout, a markdown table on
 /// stderr.
 pub fn run(radius: f64, steps: usize, repeats: usize, threads: &[usize]) -> anyhow::Result<()> {
-    // The parallelism the coloured scatters offer: non-empty 4^3-cell blocks per colour, and
-    // how well they can share out among more threads than this machine has (the model's
-    // input for a larger machine, docs/engine.md): the reference ball and a ball of about
-    // 300,000 particles.
+    // The parallelism the scatters offer: non-empty 4^3-cell blocks (each a task of the
+    // tile phase), and how well they can share out among more threads than this machine has
+    // (the model's input for a larger machine, docs/engine.md): the reference ball and a
+    // ball of about 300,000 particles.
     for ball in [super::REFERENCE_RADIUS, 21.0] {
         let grid = super::ball_grid(ball);
         let (x, _) = crate::scene::ball_particles(&grid, Vector3::zeros(), ball, 2);
         let bins = crate::mpm::grid::Bins::build(&grid, &x, 4, 0)?;
-        let blocks: Vec<usize> = bins.colours.iter().map(|c| c.len()).collect();
+        let blocks = bins.blocks.len();
         let efficiency: serde_json::Map<String, serde_json::Value> = [1, 2, 4, 8, 16, 32]
             .iter()
             .map(|&t| (t.to_string(), json!(scatter_efficiency(&bins, t))))
             .collect();
         println!(
             "{}",
-            json!({"bench": "colours", "particles": x.len(), "blocks_per_colour": blocks,
+            json!({"bench": "blocks", "particles": x.len(), "blocks": blocks,
                    "scatter_efficiency_by_threads": efficiency})
         );
     }
