@@ -264,16 +264,10 @@ impl Bins {
         })
     }
 
-    /// The particles of `block`, ascending.
-    pub fn particles(&self, block: &Block) -> impl Iterator<Item = usize> + '_ {
-        self.order[block.start as usize..block.end as usize]
-            .iter()
-            .map(|&p| p as usize)
-    }
-
-    /// A scatter into `out` (its `channels` grid arrays, one value a node): `f(tile,
-    /// block)` adds block `block`'s particles into `tile` (zeros to start with; see
-    /// [`Tile`]), for every non-empty block, in parallel when `parallel`; then every node of
+    /// A scatter into `out` (its `channels` grid arrays, one value a node): `f(tile, p)`
+    /// adds particle `p` into its block's `tile` (zeros to start with; see [`Tile`]), a
+    /// block's particles in ascending order, every non-empty block in parallel when
+    /// `parallel`; then every node of
     /// `out` is overwritten with the sum of the tiles that reach it, in ascending block order
     /// (zero where none does). `tiles` is scratch (kept by the caller to spare allocating it
     /// each time). The same bits whatever the thread count, and with `parallel` off.
@@ -282,7 +276,7 @@ impl Bins {
         parallel: bool,
         tiles: &mut Vec<f64>,
         out: &mut [&mut [f64]],
-        f: impl Fn(&mut Tile, &Block) + Sync,
+        f: impl Fn(&mut Tile, usize) + Sync,
     ) {
         let channels = out.len();
         let per_tile = channels * CHANNEL;
@@ -300,7 +294,9 @@ impl Bins {
                 data,
                 offset: c[0] * Tile::STRIDES[0] + c[1] * Tile::STRIDES[1] + c[2],
             };
-            f(&mut tile, block);
+            for &p in &self.order[block.start as usize..block.end as usize] {
+                f(&mut tile, p as usize);
+            }
         };
         if parallel {
             tiles
@@ -470,16 +466,14 @@ mod tests {
                 parallel,
                 &mut Vec::new(),
                 &mut [&mut out, &mut twice],
-                |t, block| {
-                    for p in bins.particles(block) {
-                        let s = Stencil::<4>::new(&x[p], &origin, dx);
-                        let (t0, ts) = (t.base(&s), Tile::STRIDES);
-                        s.for_each_node(&ts, |_, w, _, (a, b, c)| {
-                            let i = t0 + a * ts[0] + b * ts[1] + c;
-                            t.channel(0)[i] += w * m[p];
-                            t.channel(1)[i] += 2.0 * w * m[p];
-                        });
-                    }
+                |t, p| {
+                    let s = Stencil::<4>::new(&x[p], &origin, dx);
+                    let (t0, ts) = (t.base(&s), Tile::STRIDES);
+                    s.for_each_node(&ts, |_, w, _, (a, b, c)| {
+                        let i = t0 + a * ts[0] + b * ts[1] + c;
+                        t.channel(0)[i] += w * m[p];
+                        t.channel(1)[i] += 2.0 * w * m[p];
+                    });
                 },
             );
             (out, twice)

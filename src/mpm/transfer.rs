@@ -97,11 +97,7 @@ impl AxisField {
             axis.resize(n, 0.0);
         }
         let [x, y, z] = axes;
-        bins.scatter(parallel, tiles, &mut [x, y, z], |tile, block| {
-            for p in bins.particles(block) {
-                f(tile, p);
-            }
-        });
+        bins.scatter(parallel, tiles, &mut [x, y, z], f);
     }
 }
 
@@ -180,11 +176,7 @@ impl<const K: usize> AxisNodes<K> {
                 out.push(axis);
             }
         }
-        bins.scatter(parallel, tiles, &mut out, |tile, block| {
-            for p in bins.particles(block) {
-                f(tile, p);
-            }
-        });
+        bins.scatter(parallel, tiles, &mut out, f);
     }
 }
 
@@ -635,11 +627,9 @@ pub fn interpolate_reverse<const N: usize>(
     c0: usize,
 ) -> Vector3<f64> {
     let mut grad_x = Vector3::zeros();
-    s.for_each_node(strides, |i, _, _, (a, b, c)| {
-        grad_x += grad_w(s, a, b, c) * field[i].dot(grad);
-    });
     let (t0, ts) = (grad_field.base(s), Tile::STRIDES);
-    s.for_each_node(&ts, |_, w, _, (a, b, c)| {
+    s.for_each_node(strides, |i, w, _, (a, b, c)| {
+        grad_x += grad_w(s, a, b, c) * field[i].dot(grad);
         let t = t0 + a * ts[0] + b * ts[1] + c;
         for j in 0..3 {
             grad_field.channel(c0 + j)[t] += w * grad[j];
@@ -704,11 +694,9 @@ fn mass_grid_impl<const N: usize>(
     let bins = Bins::build(grid, positions, N, 0)?;
     let mut out = vec![0.0; grid.node_count()];
     let (origin, dx) = (grid.origin_vec(), grid.dx);
-    bins.scatter(true, &mut Vec::new(), &mut [&mut out], |tile, block| {
-        for p in bins.particles(block) {
-            let s = Stencil::<N>::new(&positions[p], &origin, dx);
-            scatter_mass(&s, masses[p], tile);
-        }
+    bins.scatter(true, &mut Vec::new(), &mut [&mut out], |tile, p| {
+        let s = Stencil::<N>::new(&positions[p], &origin, dx);
+        scatter_mass(&s, masses[p], tile);
     });
     Ok(out)
 }

@@ -413,45 +413,43 @@ impl Rk4 {
                 par,
                 tiles,
                 &mut [gv0, gv1, gv2, ga0, ga1, ga2],
-                |tile, block| {
-                    for p in bins.particles(block) {
-                        let g_out = &gathered[p];
-                        let g_df = grad_out.f[p];
-                        let mut g = Gathered {
-                            velocity: grad_out.x[p],
-                            acceleration: grad_out.v[p],
-                            grad_v: g_df * s.f[p].transpose(),
-                        };
-                        if self.is_clamped(p) {
-                            // SAFETY: each particle is visited exactly once.
-                            unsafe { *gu.get(p) += g.velocity };
-                            g.velocity = Vector3::zeros();
-                            g.acceleration = Vector3::zeros();
-                        }
-                        let st = &stencils[p];
-                        let d = transfer::gather_affine_reverse(
-                            self.simd,
-                            st,
-                            &strides,
-                            grid_axes,
-                            inv_d,
-                            &g.velocity,
-                            &g.grad_v,
-                            &g_out.velocity,
-                            tile,
-                        ) + transfer::interpolate_reverse(
-                            st,
-                            &strides,
-                            grid_a,
-                            &g.acceleration,
-                            tile,
-                            3,
-                        );
+                |tile, p| {
+                    let g_out = &gathered[p];
+                    let g_df = grad_out.f[p];
+                    let mut g = Gathered {
+                        velocity: grad_out.x[p],
+                        acceleration: grad_out.v[p],
+                        grad_v: g_df * s.f[p].transpose(),
+                    };
+                    if self.is_clamped(p) {
                         // SAFETY: each particle is visited exactly once.
-                        unsafe {
-                            *gx.get(p) += d;
-                            *gf.get(p) += g_out.grad_v.transpose() * g_df;
-                        }
+                        unsafe { *gu.get(p) += g.velocity };
+                        g.velocity = Vector3::zeros();
+                        g.acceleration = Vector3::zeros();
+                    }
+                    let st = &stencils[p];
+                    let d = transfer::gather_affine_reverse(
+                        self.simd,
+                        st,
+                        &strides,
+                        grid_axes,
+                        inv_d,
+                        &g.velocity,
+                        &g.grad_v,
+                        &g_out.velocity,
+                        tile,
+                    ) + transfer::interpolate_reverse(
+                        st,
+                        &strides,
+                        grid_a,
+                        &g.acceleration,
+                        tile,
+                        3,
+                    );
+                    // SAFETY: each particle is visited exactly once.
+                    unsafe {
+                        *gx.get(p) += d;
+                        *gf.get(p) += g_out.grad_v.transpose() * g_df;
                     }
                 },
             );
