@@ -713,7 +713,7 @@ impl Prepared {
         };
         let judge = quality::Judge::new(mesh, spacing, positions);
         let j: Vec<f64> = state.f.iter().map(|f| f.determinant()).collect();
-        judge.judge(&state.x, &j)
+        judge.judge(&self.initial.x, &state.x, &j)
     }
 
     /// A progress measure toward each target in keyframe order (see [`motion`]).

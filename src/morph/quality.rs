@@ -8,6 +8,11 @@
 //! - **fill** is `IoU(covered, inside)` divided by the IoU that a perfect fill reaches: the
 //!   target's own particle lattice at the same spacing, judged the same way. 1 is perfect.
 //!
+//! - **material fill** is the same for the body's material: a point is covered when it lies in
+//!   a particle's rest cell carried by the deformation fitted to its rest neighbours, divided by
+//!   what the target lattice reaches that way. Stretched material whose particle layers have
+//!   parted is whole by this measure and holed by `fill`.
+//!
 //! Also: the **ejected** share (particles farther than `2 h` outside the target: no target
 //! lattice particle within `2.5 h`), the **surface gap** (area-weighted mean distance from the
 //! target's surface to the nearest particle, in spacings), min/mean/max `J = det F` with the
@@ -18,7 +23,7 @@
 
 use crate::geometry::point_grid::PointGrid;
 use crate::geometry::{Lattice, TriMesh, voxelize};
-use nalgebra::Vector3;
+use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
@@ -50,6 +55,14 @@ const GAP_CAP: f64 = 8.0;
 pub struct Quality {
     /// `iou / perfect_iou`: 1 is as good as a lattice fill of the target.
     pub fill: f64,
+    /// The fill of the body's material rather than of its particles: a judge point is covered
+    /// when it lies in a particle's rest cell carried by the deformation fitted to its rest
+    /// neighbours, normalised by the target lattice's own (docs/morph.md, "Material fill").
+    /// Where a morph stretches the body, its particle layers part (1.6 spacings apart
+    /// along the README job's lobes) and `fill` counts the material between them as missed;
+    /// this does not. 0 in reports older than 0.13.0.
+    #[serde(default)]
+    pub material_fill: f64,
     pub iou: f64,
     pub perfect_iou: f64,
     /// Share of particles farther than two spacings outside the target.
@@ -121,6 +134,114 @@ impl Progress {
     }
 }
 
+/// The material cover's half-width: a particle stands for its rest cell (`h` wide), widened
+/// by a tenth so that neighbouring deformed cells, fitted apart, leave no cracks.
+pub const MATERIAL_HALF_WIDTH: f64 = 0.55;
+/// Rest neighbours within this many spacings fit a particle's deformation.
+const MATERIAL_FIT_RADIUS: f64 = 1.5;
+/// A fit whose rms residual is above this many spacings (neighbours that parted or mixed)
+/// is not a continuum there: the particle covers its undeformed cell.
+const MATERIAL_FIT_RESIDUAL: f64 = 0.25;
+/// A fitted cell reaching further than this many spacings from its particle along an axis is
+/// not trusted either (the same fallback).
+const MATERIAL_MAX_REACH: f64 = 4.0;
+
+/// The deformation of the material around each particle, fitted by least squares to its rest
+/// neighbours' offsets (`rest` and `x` in the same particle order, `spacing` apart at rest):
+/// the total deformation since rest, which the particle's own `F` is not once the plastic
+/// control has folded the flow into the rest shape. The identity where no fit holds.
+fn fitted_deformation(
+    rest: &[Vector3<f64>],
+    x: &[Vector3<f64>],
+    spacing: f64,
+) -> Vec<Matrix3<f64>> {
+    let radius = MATERIAL_FIT_RADIUS * spacing;
+    let grid = PointGrid::new(rest, radius);
+    (0..rest.len())
+        .into_par_iter()
+        .map(|i| {
+            let (mut gram, mut cross, mut count) = (Matrix3::zeros(), Matrix3::zeros(), 0usize);
+            grid.for_each_within(&rest[i], radius, |j| {
+                if j != i {
+                    let d = rest[j] - rest[i];
+                    gram += d * d.transpose();
+                    cross += (x[j] - x[i]) * d.transpose();
+                    count += 1;
+                }
+            });
+            let Some(f) = gram.try_inverse().filter(|_| count >= 4).map(|g| cross * g) else {
+                return Matrix3::identity();
+            };
+            let mut residual = 0.0;
+            grid.for_each_within(&rest[i], radius, |j| {
+                if j != i {
+                    residual += ((x[j] - x[i]) - f * (rest[j] - rest[i])).norm_squared();
+                }
+            });
+            let rms = (residual / count as f64).sqrt();
+            let fits = rms <= MATERIAL_FIT_RESIDUAL * spacing
+                && f.determinant() > 0.0
+                && f.iter().all(|v| v.is_finite());
+            if fits { f } else { Matrix3::identity() }
+        })
+        .collect()
+}
+
+/// Which points of `lattice` lie in a particle's material: its rest cell ([`MATERIAL_HALF_WIDTH`]
+/// spacings either side) carried by the deformation `f` fitted around it, centred on it.
+fn materially_covered(
+    lattice: &Lattice,
+    x: &[Vector3<f64>],
+    f: &[Matrix3<f64>],
+    spacing: f64,
+) -> Vec<bool> {
+    let half = MATERIAL_HALF_WIDTH * spacing;
+    let d = lattice.dims;
+    let hits: Vec<Vec<usize>> = x
+        .par_iter()
+        .zip(f)
+        .map(|(p, f)| {
+            let mut f = *f;
+            let mut reach = Vector3::from_fn(|a, _| f.row(a).abs().sum() * half);
+            if reach.max() > MATERIAL_MAX_REACH * spacing {
+                f = Matrix3::identity();
+                reach = Vector3::repeat(half);
+            }
+            let Some(inverse) = f.try_inverse() else {
+                return Vec::new();
+            };
+            let range = |a: usize| {
+                let lo = ((p[a] - reach[a] - lattice.origin[a]) / lattice.spacing - 0.5).ceil();
+                let hi = ((p[a] + reach[a] - lattice.origin[a]) / lattice.spacing - 0.5).floor();
+                let lo = lo.max(0.0) as usize;
+                let hi = hi.min(d[a] as f64 - 1.0);
+                (lo, hi)
+            };
+            let ((i0, i1), (j0, j1), (k0, k1)) = (range(0), range(1), range(2));
+            let mut inside = Vec::new();
+            if i1 < 0.0 || j1 < 0.0 || k1 < 0.0 {
+                return inside;
+            }
+            for i in i0..=i1 as usize {
+                for j in j0..=j1 as usize {
+                    for k in k0..=k1 as usize {
+                        let rest = inverse * (lattice.point(i, j, k) - p);
+                        if rest.amax() <= half {
+                            inside.push((i * d[1] + j) * d[2] + k);
+                        }
+                    }
+                }
+            }
+            inside
+        })
+        .collect();
+    let mut covered = vec![false; lattice.len()];
+    for index in hits.into_iter().flatten() {
+        covered[index] = true;
+    }
+    covered
+}
+
 /// Which points of `lattice` lie within `radius` of a particle.
 fn covered(lattice: &Lattice, particles: &[Vector3<f64>], radius: f64) -> Vec<bool> {
     let grid = PointGrid::new(particles, radius);
@@ -145,6 +266,8 @@ pub struct Judge {
     spacing: f64,
     /// The perfect fill's IoU: the target lattice particles judged the same way.
     perfect_iou: f64,
+    /// The same for the material cover (the target lattice at rest: every `F` the identity).
+    perfect_material_iou: f64,
     target_lattice: Vec<Vector3<f64>>,
 }
 
@@ -185,9 +308,15 @@ impl Judge {
             surface,
             spacing,
             perfect_iou: 1.0,
+            perfect_material_iou: 1.0,
             target_lattice: target_lattice.to_vec(),
         };
         judge.perfect_iou = iou(&judge.covered(target_lattice), &judge.inside);
+        let at_rest = vec![Matrix3::identity(); target_lattice.len()];
+        judge.perfect_material_iou = iou(
+            &materially_covered(&judge.lattice, target_lattice, &at_rest, spacing),
+            &judge.inside,
+        );
         judge
     }
 
@@ -196,9 +325,16 @@ impl Judge {
         covered(&self.lattice, particles, COVER_RADIUS * self.spacing)
     }
 
-    /// Judges final particle positions `x` with volume ratios `j`.
-    pub fn judge(&self, x: &[Vector3<f64>], j: &[f64]) -> Quality {
+    /// Judges final particle positions `x` with volume ratios `j`, the particles at rest at
+    /// `rest` (same order).
+    pub fn judge(&self, rest: &[Vector3<f64>], x: &[Vector3<f64>], j: &[f64]) -> Quality {
+        assert_eq!(rest.len(), x.len(), "one rest position per particle");
         let iou_final = iou(&self.covered(x), &self.inside);
+        let deformation = fitted_deformation(rest, x, self.spacing);
+        let material_iou = iou(
+            &materially_covered(&self.lattice, x, &deformation, self.spacing),
+            &self.inside,
+        );
         // Ejected: no target lattice particle within 2.5 spacings.
         let target = PointGrid::new(&self.target_lattice, self.spacing);
         let ejected = x
@@ -224,6 +360,7 @@ impl Judge {
         let n = x.len().max(1) as f64;
         Quality {
             fill: iou_final / self.perfect_iou.max(1e-300),
+            material_fill: material_iou / self.perfect_material_iou.max(1e-300),
             iou: iou_final,
             perfect_iou: self.perfect_iou,
             ejected: ejected as f64 / n,
@@ -263,8 +400,8 @@ mod tests {
         let ball = particles_in(&plain, &grid, 2, None).positions;
         let lattice = particles_in(&horned, &grid, 2, None).positions;
         let judge = Judge::new(&horned, 0.5, &lattice);
-        let missed = judge.judge(&ball, &vec![1.0; ball.len()]);
-        let reached = judge.judge(&lattice, &vec![1.0; lattice.len()]);
+        let missed = judge.judge(&ball, &ball, &vec![1.0; ball.len()]);
+        let reached = judge.judge(&lattice, &lattice, &vec![1.0; lattice.len()]);
         assert!(missed.reach_max > 4.0, "{missed:?}");
         assert!(reached.reach_max < 1.5, "{reached:?}");
         assert!(reached.reach_p99 <= reached.reach_max, "{reached:?}");
@@ -278,26 +415,55 @@ mod tests {
         let lattice = particles_in(&mesh, &grid, 2, None).positions;
         let judge = Judge::new(&mesh, 0.5, &lattice);
         let ones = vec![1.0; lattice.len()];
-        let q = judge.judge(&lattice, &ones);
+        let q = judge.judge(&lattice, &lattice, &ones);
         assert!((q.fill - 1.0).abs() < 1e-12, "{q:?}");
+        assert!((q.material_fill - 1.0).abs() < 1e-12, "{q:?}");
         assert!(q.perfect_iou > 0.8, "{q:?}");
         assert_eq!(q.ejected, 0.0);
         assert!(q.surface_gap < 1.0, "{q:?}");
         // The same particles squeezed to 80% of the size: a worse fill and a larger gap.
         let small: Vec<_> = lattice.iter().map(|p| 0.8 * p).collect();
-        let s = judge.judge(&small, &ones);
+        let s = judge.judge(&lattice, &small, &ones);
         assert!(s.fill < 0.7 * q.fill, "{s:?}");
+        assert!(s.material_fill < 0.7, "{s:?}");
         assert!(s.surface_gap > q.surface_gap + 1.0, "{s:?}");
         // Moved far away: every particle ejected, nothing covered.
         let away: Vec<_> = lattice
             .iter()
             .map(|p| p + Vector3::new(20.0, 0.0, 0.0))
             .collect();
-        let a = judge.judge(&away, &ones);
+        let a = judge.judge(&lattice, &away, &ones);
         assert_eq!(a.ejected, 1.0);
         assert_eq!(a.fill, 0.0);
+        assert_eq!(a.material_fill, 0.0);
         assert_eq!(a.surface_gap, GAP_CAP);
         assert_eq!(q.close_share, 0.0);
+    }
+
+    /// A sphere's particles stretched 1.6 times along x (and 1/sqrt(1.6) across, the volume
+    /// kept) into the ellipsoid of the same map: every bit of the ellipsoid is material, but
+    /// its particle layers are 1.6 spacings apart along x, so the particle cover misses the
+    /// judge points between them. The material cover does not; a body that fails to reach
+    /// the ellipsoid's tips (the sphere's particles merely moved) still loses it.
+    #[test]
+    fn the_material_fill_sees_a_stretched_body_as_whole() {
+        let (mesh, grid) = sphere();
+        let rest = particles_in(&mesh, &grid, 2, None).positions;
+        let across = 1.6f64.sqrt().recip();
+        let stretch = Matrix3::from_diagonal(&Vector3::new(1.6, across, across));
+        let ellipsoid = TriMesh {
+            vertices: mesh.vertices.iter().map(|v| stretch * v).collect(),
+            triangles: mesh.triangles.clone(),
+        };
+        let target_lattice = particles_in(&ellipsoid, &grid, 2, None).positions;
+        let judge = Judge::new(&ellipsoid, 0.5, &target_lattice);
+        let stretched: Vec<_> = rest.iter().map(|p| stretch * p).collect();
+        let ones = vec![1.0; rest.len()];
+        let q = judge.judge(&rest, &stretched, &ones);
+        assert!(q.fill < 0.9, "{q:?}");
+        assert!(q.material_fill > 0.97, "{q:?}");
+        let unmoved = judge.judge(&rest, &rest, &ones);
+        assert!(unmoved.material_fill < 0.8, "{unmoved:?}");
     }
 
     #[test]
@@ -322,7 +488,7 @@ mod tests {
         let mut j = vec![1.0; lattice.len()];
         j[0] = -0.5;
         j[1] = 2.0;
-        let q = judge.judge(&lattice, &j);
+        let q = judge.judge(&lattice, &lattice, &j);
         assert_eq!((q.min_j, q.max_j), (-0.5, 2.0));
         assert!((q.inverted - 1.0 / lattice.len() as f64).abs() < 1e-15);
     }
