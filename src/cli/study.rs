@@ -142,11 +142,12 @@ pub fn run(args: &StudyArgs) -> ExitCode {
                         )
                     });
                     println!(
-                        "[{}/{of}] {}: IoU {:.3}, fill {:.3}, surface gap {:.2}, reach {:.2}/{:.2}{motion}, {} particles, {:.1} s wall, {} evaluations",
+                        "[{}/{of}] {}: IoU {:.3}, fill {:.3} (material {:.3}), surface gap {:.2}, reach {:.2}/{:.2}{motion}, {} particles, {:.1} s wall, {} evaluations",
                         index + 1,
                         row.id,
                         q.iou,
                         q.fill,
+                        q.material_fill,
                         q.surface_gap,
                         q.reach_p99,
                         q.reach_max,

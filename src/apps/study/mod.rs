@@ -251,7 +251,7 @@ pub struct StudyRow {
 }
 
 /// The CSV columns, in order.
-pub const CSV_COLUMNS: [&str; 32] = [
+pub const CSV_COLUMNS: [&str; 33] = [
     "id",
     "preset",
     "resolution",
@@ -270,6 +270,7 @@ pub const CSV_COLUMNS: [&str; 32] = [
     "evaluations",
     "final_loss",
     "fill",
+    "material_fill",
     "iou",
     "ejected",
     "surface_gap",
@@ -313,6 +314,7 @@ impl StudyRow {
             self.evaluations.to_string(),
             opt(self.final_loss),
             quality(|q| q.fill),
+            quality(|q| q.material_fill),
             quality(|q| q.iou),
             quality(|q| q.ejected),
             quality(|q| q.surface_gap),
