@@ -22,6 +22,7 @@
 use super::cleanup::tidy;
 use super::fidelity::Reference;
 use super::mesh::TriMesh;
+use super::neighbourhood::RestNeighbourhood;
 use super::point_grid::PointGrid;
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use rayon::prelude::*;
@@ -79,8 +80,7 @@ struct PlaneParticle {
     particle: u32,
     offset: Vector3<f64>,
     normal: Vector3<f64>,
-    neighbours: Vec<u32>,
-    gram_inverse: Matrix3<f64>,
+    neighbourhood: RestNeighbourhood,
 }
 
 impl SourcePlanes {
@@ -102,23 +102,13 @@ impl SourcePlanes {
                 if (q - x).norm() >= PLANE_DEPTH * spacing {
                     return None;
                 }
-                let mut neighbours = Vec::new();
-                let mut gram = Matrix3::zeros();
-                grid.for_each_within(&x, radius, |j| {
-                    if j != i {
-                        let d = rest[j] - x;
-                        neighbours.push(j as u32);
-                        gram += d * d.transpose();
-                    }
-                });
                 // A particle whose neighbours do not span the space cannot be fitted.
-                let gram_inverse = gram.try_inverse().filter(|_| neighbours.len() >= 4)?;
+                let neighbourhood = RestNeighbourhood::new(rest, &grid, i, radius)?;
                 Some(PlaneParticle {
                     particle: i as u32,
                     offset: q - x,
                     normal,
-                    neighbours,
-                    gram_inverse,
+                    neighbourhood,
                 })
             })
             .collect();
@@ -165,24 +155,9 @@ impl CarriedPlanes {
             .par_iter()
             .filter_map(|s| {
                 let i = s.particle as usize;
-                let (x, x0) = (positions[i], rest[i]);
-                // The neighbourhood's deformation: the least-squares F with
-                // x_j - x_i = F (X_j - X_i).
-                let mut moment = Matrix3::zeros();
-                for &j in &s.neighbours {
-                    moment += (positions[j as usize] - x) * (rest[j as usize] - x0).transpose();
-                }
-                let f = moment * s.gram_inverse;
-                let residual = (s
-                    .neighbours
-                    .iter()
-                    .map(|&j| {
-                        ((positions[j as usize] - x) - f * (rest[j as usize] - x0)).norm_squared()
-                    })
-                    .sum::<f64>()
-                    / s.neighbours.len() as f64)
-                    .sqrt()
-                    / spacing;
+                let x = positions[i];
+                let (f, residual) = s.neighbourhood.fit(rest, positions, i);
+                let residual = residual / spacing;
                 let weight = fade(green_strain(&f), FADE_STRAIN) * fade(residual, FADE_RESIDUAL);
                 if weight <= 0.0 {
                     return None;

@@ -9,6 +9,7 @@ pub mod error;
 pub mod features;
 pub mod fidelity;
 pub mod mesh;
+pub mod neighbourhood;
 pub mod placement;
 pub mod point_grid;
 pub mod splashsurf;

@@ -21,6 +21,7 @@
 //! initial lattice, 41% for uniformly random points at the same density; a body whose
 //! particles clump leaves gaps elsewhere that a renderer sees.
 
+use crate::geometry::neighbourhood::RestNeighbourhood;
 use crate::geometry::point_grid::PointGrid;
 use crate::geometry::{Lattice, TriMesh, voxelize};
 use nalgebra::{Matrix3, Vector3};
@@ -146,10 +147,8 @@ const MATERIAL_FIT_RESIDUAL: f64 = 0.25;
 /// not trusted either (the same fallback).
 const MATERIAL_MAX_REACH: f64 = 4.0;
 
-/// The deformation of the material around each particle, fitted by least squares to its rest
-/// neighbours' offsets (`rest` and `x` in the same particle order, `spacing` apart at rest):
-/// the total deformation since rest, which the particle's own `F` is not once the plastic
-/// control has folded the flow into the rest shape. The identity where no fit holds.
+/// The deformation of the material around each particle since rest ([`RestNeighbourhood`]):
+/// the identity where no fit holds.
 fn fitted_deformation(
     rest: &[Vector3<f64>],
     x: &[Vector3<f64>],
@@ -160,26 +159,11 @@ fn fitted_deformation(
     (0..rest.len())
         .into_par_iter()
         .map(|i| {
-            let (mut gram, mut cross, mut count) = (Matrix3::zeros(), Matrix3::zeros(), 0usize);
-            grid.for_each_within(&rest[i], radius, |j| {
-                if j != i {
-                    let d = rest[j] - rest[i];
-                    gram += d * d.transpose();
-                    cross += (x[j] - x[i]) * d.transpose();
-                    count += 1;
-                }
-            });
-            let Some(f) = gram.try_inverse().filter(|_| count >= 4).map(|g| cross * g) else {
+            let Some(neighbourhood) = RestNeighbourhood::new(rest, &grid, i, radius) else {
                 return Matrix3::identity();
             };
-            let mut residual = 0.0;
-            grid.for_each_within(&rest[i], radius, |j| {
-                if j != i {
-                    residual += ((x[j] - x[i]) - f * (rest[j] - rest[i])).norm_squared();
-                }
-            });
-            let rms = (residual / count as f64).sqrt();
-            let fits = rms <= MATERIAL_FIT_RESIDUAL * spacing
+            let (f, residual) = neighbourhood.fit(rest, x, i);
+            let fits = residual <= MATERIAL_FIT_RESIDUAL * spacing
                 && f.determinant() > 0.0
                 && f.iter().all(|v| v.is_finite());
             if fits { f } else { Matrix3::identity() }

@@ -1,0 +1,59 @@
+//! The deformation of the material around a particle, fitted to its rest neighbours: the
+//! least-squares `F` with `x_j - x_i = F (X_j - X_i)` over the neighbours `j` within a radius
+//! at rest, and the fit's rms residual (large where the neighbours parted or mixed). It is the
+//! total deformation since rest, which a particle's own `F` is not once the plastic control
+//! has folded the flow into the rest shape. The sharp surface's planes follow it
+//! (`features.rs`) and the judge's material cover is made from it (`morph/quality.rs`).
+
+use super::point_grid::PointGrid;
+use nalgebra::{Matrix3, Vector3};
+
+/// A particle's rest neighbours and their rest offsets' inverse Gram matrix, made once.
+pub struct RestNeighbourhood {
+    pub neighbours: Vec<u32>,
+    gram_inverse: Matrix3<f64>,
+}
+
+impl RestNeighbourhood {
+    /// Particle `i`'s neighbours within `radius` at rest (`grid` over `rest`, its cells at
+    /// least `radius` wide); `None` where they are fewer than four or do not span the space.
+    pub fn new(
+        rest: &[Vector3<f64>],
+        grid: &PointGrid,
+        i: usize,
+        radius: f64,
+    ) -> Option<RestNeighbourhood> {
+        let mut neighbours = Vec::new();
+        let mut gram = Matrix3::zeros();
+        grid.for_each_within(&rest[i], radius, |j| {
+            if j != i {
+                let d = rest[j] - rest[i];
+                neighbours.push(j as u32);
+                gram += d * d.transpose();
+            }
+        });
+        let gram_inverse = gram.try_inverse().filter(|_| neighbours.len() >= 4)?;
+        Some(RestNeighbourhood {
+            neighbours,
+            gram_inverse,
+        })
+    }
+
+    /// The fitted deformation of particle `i` from `rest` to `x` and the fit's rms residual
+    /// (in the positions' units).
+    pub fn fit(&self, rest: &[Vector3<f64>], x: &[Vector3<f64>], i: usize) -> (Matrix3<f64>, f64) {
+        let (xi, ri) = (x[i], rest[i]);
+        let mut moment = Matrix3::zeros();
+        for &j in &self.neighbours {
+            moment += (x[j as usize] - xi) * (rest[j as usize] - ri).transpose();
+        }
+        let f = moment * self.gram_inverse;
+        let residual = self
+            .neighbours
+            .iter()
+            .map(|&j| ((x[j as usize] - xi) - f * (rest[j as usize] - ri)).norm_squared())
+            .sum::<f64>()
+            / self.neighbours.len() as f64;
+        (f, residual.sqrt())
+    }
+}
