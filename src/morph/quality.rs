@@ -185,6 +185,10 @@ fn materially_covered(
         .par_iter()
         .zip(f)
         .map(|(p, f)| {
+            // A particle that is not anywhere covers nothing (and must not sweep the lattice).
+            if !p.iter().all(|c| c.is_finite()) {
+                return Vec::new();
+            }
             let mut f = *f;
             let mut reach = Vector3::from_fn(|a, _| f.row(a).abs().sum() * half);
             if reach.max() > MATERIAL_MAX_REACH * spacing {
