@@ -10,7 +10,7 @@ use nalgebra::{Matrix3, Vector3};
 
 /// A particle's rest neighbours and their rest offsets' inverse Gram matrix, made once.
 pub struct RestNeighbourhood {
-    pub neighbours: Vec<u32>,
+    neighbours: Vec<u32>,
     gram_inverse: Matrix3<f64>,
 }
 
