@@ -1626,3 +1626,56 @@ fn outputs_of_earlier_versions_are_refused_saying_why() {
     );
     assert!(out.join("frames/frame_0001.ply").is_file());
 }
+
+/// Case 5 (farm): killed after the manifest is written, while the finished run removes its
+/// checkpoint or before the folder is moved into place: --resume computes nothing again and
+/// puts the complete folder in place, without the checkpoint's leftovers. (A kill in the
+/// middle of that removal once left a checkpoint naming files already deleted.)
+#[test]
+fn killed_while_a_finished_run_tidies_up_then_resume_moves_it_into_place() {
+    let reference = reference("tidy-ref", SMALL);
+    let (s, t) = (asset("sphere.obj"), asset("two-lobes.obj"));
+    for cut in [
+        "before the checkpoint is removed",
+        "halfway through removing it",
+    ] {
+        let dir = scratch(&format!("tidy-{}", cut.len()));
+        assert_eq!(
+            interrupted_after_checkpoint(&dir, "INT").status.code(),
+            Some(130)
+        );
+        // The staging folder as the finished run leaves it: every file and the manifest.
+        let staging = dir.join("out.partial");
+        for f in files(&reference.join("ref")) {
+            let to = staging.join(&f);
+            std::fs::create_dir_all(to.parent().unwrap()).unwrap();
+            std::fs::copy(reference.join("ref").join(&f), &to).unwrap();
+        }
+        let checkpoint = staging.join("checkpoint");
+        if cut.starts_with("halfway") {
+            std::fs::remove_file(checkpoint.join("progress.json")).unwrap();
+            for f in files(&checkpoint).iter().step_by(2) {
+                std::fs::remove_file(checkpoint.join(f)).unwrap();
+            }
+        }
+        let mut args = SMALL.to_vec();
+        args.push("--resume");
+        let o = run(&dir, &morph_args(&s, &t, "out", &args));
+        let said = format!("{}{}", String::from_utf8_lossy(&o.stdout), stderr(&o));
+        assert_eq!(o.status.code(), Some(0), "{cut}: {said}");
+        // Nothing was computed again: the manifest (with its timings) is the finished run's.
+        assert!(
+            std::fs::read(dir.join("out/manifest.json")).unwrap()
+                == std::fs::read(reference.join("ref/manifest.json")).unwrap(),
+            "{cut}"
+        );
+        assert_same_results(&reference.join("ref"), &dir.join("out"));
+        assert!(!dir.join("out/checkpoint").exists(), "{cut}");
+        assert!(!staging.exists(), "{cut}");
+        assert_eq!(
+            files(&dir.join("out")),
+            files(&reference.join("ref")),
+            "{cut}"
+        );
+    }
+}

@@ -24,6 +24,7 @@
 //! Every file is written to a temporary name and renamed; `progress.json` is written last and
 //! names the files it belongs with, so a run killed at any instant leaves either the old or
 //! the new checkpoint whole. Files no longer named are removed after the new one is in place.
+//! A finished run removes `progress.json` before the rest ([`remove`]).
 
 use super::{IterationRecord, MorphError, RunProgress, SegmentRecord, segment::Layers};
 use crate::io::write_atomically;
@@ -260,6 +261,24 @@ pub fn save(dir: &Path, run_id: &str, p: &RunProgress, changed: usize) -> Result
         }
     }
     Ok(())
+}
+
+/// Removes the checkpoint of a complete run. `progress.json` goes first: it is what makes
+/// the folder a checkpoint, so a run killed while the rest is being deleted leaves no
+/// checkpoint naming files that are gone (a `--resume` then finds the finished folder).
+pub fn remove(dir: &Path) -> Result<(), MorphError> {
+    let folder = dir.join(FOLDER);
+    let progress = folder.join(PROGRESS);
+    match std::fs::remove_file(&progress) {
+        Ok(()) => {}
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {}
+        Err(e) => return Err(io_err("remove", &progress, e)),
+    }
+    match std::fs::remove_dir_all(&folder) {
+        Ok(()) => Ok(()),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(()),
+        Err(e) => Err(io_err("remove", &folder, e)),
+    }
 }
 
 /// Whether the staging folder holds a checkpoint.

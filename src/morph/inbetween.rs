@@ -112,7 +112,7 @@ impl ProgressTiming {
         };
         let start = iou(a);
         let gain = 1.0 - start;
-        if !(gain > 1e-3) {
+        if gain.is_nan() || gain <= 1e-3 {
             return None;
         }
         let mut table = vec![(0.0, 0.0)];

@@ -233,6 +233,19 @@ pub fn morph_to_folder(
             )));
         }
     }
+    // Killed after its manifest was written (while its checkpoint was being removed, or
+    // before the folder was moved into place): every file is there, only the move is left.
+    if resuming && let Some(m) = finished_staging(&staging.dir, &run_id) {
+        checkpoint::remove(&staging.dir)?;
+        staging.commit(&plan).map_err(MorphError::Output)?;
+        return Ok(Summary {
+            seconds: clock.elapsed().as_secs_f64(),
+            resumed_from: Some(
+                "nothing left to compute: the interrupted run had written every file".into(),
+            ),
+            ..Summary::of(&m, &plan.out)
+        });
+    }
     let had_checkpoint = staging.previous == Previous::Run;
     let prepared = (|| {
         let src = crate::geometry::load_mesh(source)?;
@@ -333,6 +346,13 @@ pub fn morph_to_folder(
             })
         }
     }
+}
+
+/// The manifest of staging folder `dir` when it is run `run_id`'s and every file it lists is
+/// there: the run finished and only moving the folder into place was left.
+fn finished_staging(dir: &Path, run_id: &str) -> Option<Manifest> {
+    let m = read_manifest(&dir.join(MANIFEST))?;
+    (m.run_id == run_id && m.files.iter().all(|f| dir.join(f).is_file())).then_some(m)
 }
 
 fn read_manifest(path: &Path) -> Option<Manifest> {

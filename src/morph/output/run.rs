@@ -117,8 +117,7 @@ pub(super) fn write_run(
     crate::io::write_atomically(&manifest_path, |w| std::io::Write::write_all(w, &json))
         .map_err(|e| out_err("manifest", &manifest_path, e))?;
     // The folder is complete: the checkpoint has served its purpose.
-    let ck = dir.join(checkpoint::FOLDER);
-    std::fs::remove_dir_all(&ck).map_err(|e| out_err("(removing) checkpoint", &ck, e))?;
+    checkpoint::remove(dir)?;
     Ok(Summary {
         seconds: total_s,
         resumed_from,
