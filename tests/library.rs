@@ -204,3 +204,24 @@ fn a_keyframed_job_matches_the_command_line_bitwise() {
         "the library's final masses differ from the CLI's"
     );
 }
+
+/// The controls' continuity weighs a jump of plastic flow by the elastic energy it stores:
+/// ten times the shear modulus, ten times the weight (the presets' material: the setting's
+/// own weight, to the bit), and none on the held segments at any stiffness.
+#[test]
+fn the_continuity_weight_follows_the_stiffness() {
+    let mut job = job();
+    job.settings.control_smoothing = 3.0e4;
+    job.settings.segments = 10;
+    let soft = job.prepare().unwrap();
+    assert_eq!(
+        job.settings.material.mu,
+        morph::settings::TUNED_SHEAR_MODULUS
+    );
+    assert_eq!(soft.segment_smoothing(0), 3.0e4);
+    job.settings.material.mu *= 10.0;
+    let stiff = job.prepare().unwrap();
+    assert!((stiff.segment_smoothing(0) / soft.segment_smoothing(0) - 10.0).abs() < 1e-12);
+    let last = job.settings.segments - 1;
+    assert_eq!(stiff.segment_smoothing(last), 0.0);
+}

@@ -179,7 +179,7 @@ pub struct MorphArgs {
     path_weight: Option<f64>,
     #[arg(long, help = help("Look-ahead: optimize each segment together with the next N, scored at each of their ends, and keep its own controls (the body answers its controls a segment late; docs/morph.md)", Some(limits::LOOKAHEAD), by_preset(|s| s.lookahead)))]
     lookahead: Option<usize>,
-    #[arg(long, help = help("Weight of the controls' continuity in time: each control layer against the one before it, across segment boundaries too, >= 0 (0: off)", None, by_preset(|s| s.control_smoothing)))]
+    #[arg(long, help = help("Weight of the controls' continuity in time: each control layer against the one before it, across segment boundaries too, scaled by the material's shear modulus over the presets' material's, >= 0 (0: off)", None, by_preset(|s| s.control_smoothing)))]
     control_smoothing: Option<f64>,
     #[arg(long, help = help("Weight of each earlier segment end inside a look-ahead window, against that segment's target (the window's end weighs 1), >= 0", None, by_preset(|s| s.waypoint_weight)))]
     waypoint_weight: Option<f64>,

@@ -456,14 +456,14 @@ impl Prepared {
         if self.segment_holds(k) {
             0.0
         } else {
-            self.settings.control_smoothing
+            self.settings.control_smoothing * self.weight_scale().smoothing
         }
     }
 
     /// What the settings' weights are multiplied by on this grid, so that they weigh the same
     /// against the mass loss at any resolution (see [`WeightScale`]).
     pub fn weight_scale(&self) -> WeightScale {
-        WeightScale::at(self.settings.resolution)
+        WeightScale::at(self.settings.resolution, self.settings.material.mu)
     }
 
     /// The volume cost's weight on this grid.
@@ -787,16 +787,24 @@ impl Prepared {
 pub struct WeightScale {
     pub volume: f64,
     pub arrival: f64,
+    /// The controls' continuity, by the body's stiffness: a control is a rate of plastic
+    /// flow, and a jump in it leaves the body strained by the jump, storing elastic energy
+    /// in proportion to the shear modulus (the flow keeps volume), which the body gives back
+    /// as a surge of motion. Weighed by the modulus, a jump costs what it would make a
+    /// viewer see (docs/morph.md, "Continuity by stiffness").
+    pub smoothing: f64,
 }
 
 impl WeightScale {
-    pub fn at(resolution: usize) -> WeightScale {
+    /// The scales on a grid of `resolution` cells for a body of shear modulus `mu`.
+    pub fn at(resolution: usize, mu: f64) -> WeightScale {
         // Never up: on coarser grids the scaled-up weights made more iterations judge worse
         // (24 cells, 2 / 4 / 8 evaluations: fill 0.716, 0.827, 0.760).
         let ratio = (settings::TUNED_RESOLUTION as f64 / resolution as f64).min(1.0);
         WeightScale {
             volume: ratio.powi(3),
             arrival: ratio.powi(3),
+            smoothing: mu / settings::TUNED_SHEAR_MODULUS,
         }
     }
 }

@@ -376,6 +376,11 @@ impl Default for WallSettings {
 /// weigh the same against the mass loss ([`super::WeightScale`]).
 pub const TUNED_RESOLUTION: usize = 32;
 
+/// The shear modulus the controls' continuity was tuned at (the presets' material): for a
+/// stiffer or softer body its weight is scaled by `mu / TUNED_SHEAR_MODULUS`
+/// ([`super::WeightScale`]).
+pub const TUNED_SHEAR_MODULUS: f64 = 38888.9;
+
 /// The frame the last target is reached by default: 80% of the way through the sequence,
 /// leaving the rest to hold the shape and settle.
 pub fn default_arrival(frames: usize) -> usize {
@@ -474,7 +479,7 @@ impl MorphSettings {
             integrator: IntegratorKind::Euler,
             material: MaterialConfig {
                 model: Default::default(),
-                mu: 38888.9,
+                mu: TUNED_SHEAR_MODULUS,
                 lambda: 58333.0,
                 density: 40.0,
             },
