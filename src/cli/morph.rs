@@ -695,13 +695,15 @@ pub fn run(args: &MorphArgs) -> ExitCode {
                 );
                 if let Some(q) = &summary.quality {
                     say!(
-                        "quality: IoU with the target {:.3}, fill {:.3} (1 = a lattice fill of the target; of its material {:.3}), surface gap {:.2} spacings, reach {:.2} (99%) and {:.2} (most) spacings, ejected {:.2}%, close neighbours {:.1}%, J {:.2} to {:.2} (mean {:.2}, {:.2}% inverted)",
+                        "quality: IoU with the target {:.3}, fill {:.3} (1 = a lattice fill of the target; of its material {:.3}), surface gap {:.2} spacings, reach {:.2} (99%) and {:.2} (most) spacings (a lattice fill's {:.2} and {:.2}), ejected {:.2}%, close neighbours {:.1}%, J {:.2} to {:.2} (mean {:.2}, {:.2}% inverted)",
                         q.iou,
                         q.fill,
                         q.material_fill,
                         q.surface_gap,
                         q.reach_p99,
                         q.reach_max,
+                        q.perfect_reach_p99,
+                        q.perfect_reach_max,
                         100.0 * q.ejected,
                         100.0 * q.close_share,
                         q.min_j,

@@ -77,6 +77,14 @@ pub struct Quality {
     pub reach_p99: f64,
     #[serde(default)]
     pub reach_max: f64,
+    /// The reach of a perfect fill: the target's own particle lattice judged the same way
+    /// (99th percentile and largest). Lattice particles stand up to about a spacing from a
+    /// curved surface, so this is the floor `reach_p99` is read against (sphere -> spot at
+    /// `final`: 1.00). 0 in reports older than 0.13.0.
+    #[serde(default)]
+    pub perfect_reach_p99: f64,
+    #[serde(default)]
+    pub perfect_reach_max: f64,
     pub min_j: f64,
     #[serde(default)]
     pub mean_j: f64,
@@ -256,6 +264,8 @@ pub struct Judge {
     perfect_iou: f64,
     /// The same for the material cover (the target lattice at rest: every `F` the identity).
     perfect_material_iou: f64,
+    /// The target lattice's reach (p99, max).
+    perfect_reach: (f64, f64),
     target_lattice: Vec<Vector3<f64>>,
 }
 
@@ -297,6 +307,7 @@ impl Judge {
             spacing,
             perfect_iou: 1.0,
             perfect_material_iou: 1.0,
+            perfect_reach: (0.0, 0.0),
             target_lattice: target_lattice.to_vec(),
         };
         judge.perfect_iou = iou(&judge.covered(target_lattice), &judge.inside);
@@ -305,7 +316,24 @@ impl Judge {
             &materially_covered(&judge.lattice, target_lattice, &at_rest, spacing),
             &judge.inside,
         );
+        judge.perfect_reach = reach(judge.surface_gaps(target_lattice));
         judge
+    }
+
+    /// Each target surface sample's distance to the nearest of `particles` (in spacings,
+    /// capped at [`GAP_CAP`]) and the area it stands for.
+    fn surface_gaps(&self, particles: &[Vector3<f64>]) -> Vec<(f64, f64)> {
+        let grid = PointGrid::new(particles, self.spacing);
+        let rings = GAP_CAP.ceil() as i64;
+        self.surface
+            .par_iter()
+            .map(|(c, a)| {
+                let d = grid
+                    .nearest(c, rings)
+                    .map_or(GAP_CAP, |d| (d / self.spacing).min(GAP_CAP));
+                (d, *a)
+            })
+            .collect()
     }
 
     /// Which judge points lie within [`COVER_RADIUS`] spacings of a particle.
@@ -330,18 +358,7 @@ impl Judge {
             .filter(|p| target.nearest(p, 3).is_none_or(|d| d > 2.5 * self.spacing))
             .count();
         // Surface gap: the area-weighted mean distance to the nearest particle.
-        let particles = PointGrid::new(x, self.spacing);
-        let rings = GAP_CAP.ceil() as i64;
-        let gaps: Vec<(f64, f64)> = self
-            .surface
-            .par_iter()
-            .map(|(c, a)| {
-                let d = particles
-                    .nearest(c, rings)
-                    .map_or(GAP_CAP, |d| (d / self.spacing).min(GAP_CAP));
-                (d, *a)
-            })
-            .collect();
+        let gaps = self.surface_gaps(x);
         let area: f64 = gaps.iter().map(|g| g.1).sum();
         let weighted: f64 = gaps.iter().map(|(d, a)| d * a).sum();
         let (reach_p99, reach_max) = reach(gaps);
@@ -355,6 +372,8 @@ impl Judge {
             surface_gap: weighted / area.max(1e-300),
             reach_p99,
             reach_max,
+            perfect_reach_p99: self.perfect_reach.0,
+            perfect_reach_max: self.perfect_reach.1,
             min_j: j.iter().copied().fold(f64::INFINITY, f64::min),
             mean_j: j.iter().sum::<f64>() / n,
             close_share: close_neighbour_share(x, self.spacing),
@@ -395,6 +414,15 @@ mod tests {
         assert!(reached.reach_p99 <= reached.reach_max, "{reached:?}");
         // The mean hardly moves: what the horn costs is in the reach.
         assert!(missed.surface_gap < 1.0, "{missed:?}");
+        // The floor to read reach against: the lattice's own, whatever is judged, and
+        // about a spacing (lattice particles stand back from a curved surface).
+        assert_eq!(reached.reach_p99, reached.perfect_reach_p99);
+        assert_eq!(reached.reach_max, reached.perfect_reach_max);
+        assert_eq!(missed.perfect_reach_p99, reached.perfect_reach_p99);
+        assert!(
+            (0.5..1.2).contains(&reached.perfect_reach_p99),
+            "{reached:?}"
+        );
     }
 
     #[test]

@@ -251,7 +251,7 @@ pub struct StudyRow {
 }
 
 /// The CSV columns, in order.
-pub const CSV_COLUMNS: [&str; 33] = [
+pub const CSV_COLUMNS: [&str; 34] = [
     "id",
     "preset",
     "resolution",
@@ -276,6 +276,7 @@ pub const CSV_COLUMNS: [&str; 33] = [
     "surface_gap",
     "reach_p99",
     "reach_max",
+    "perfect_reach_p99",
     "min_j",
     "max_j",
     "pulse",
@@ -320,6 +321,7 @@ impl StudyRow {
             quality(|q| q.surface_gap),
             quality(|q| q.reach_p99),
             quality(|q| q.reach_max),
+            quality(|q| q.perfect_reach_p99),
             quality(|q| q.min_j),
             quality(|q| q.max_j),
             motion(|m| Some(m.pulse)),
