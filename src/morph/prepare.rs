@@ -460,8 +460,8 @@ impl Prepared {
         }
     }
 
-    /// What the settings' weights are multiplied by on this grid, so that they weigh the same
-    /// against the mass loss at any resolution (see [`WeightScale`]).
+    /// What the settings' weights are multiplied by on this grid and for this material, so
+    /// that they weigh the same at any resolution and stiffness (see [`WeightScale`]).
     pub fn weight_scale(&self) -> WeightScale {
         WeightScale::at(self.settings.resolution, self.settings.material.mu)
     }
