@@ -79,8 +79,8 @@ pub struct Quality {
     pub reach_max: f64,
     /// The reach of a perfect fill: the target's own particle lattice judged the same way
     /// (99th percentile and largest). Lattice particles stand up to about a spacing from a
-    /// curved surface, so this is the floor `reach_p99` is read against (sphere -> spot at
-    /// `final`: 1.00). 0 in reports older than 0.13.0.
+    /// curved surface, so this is the floor `reach_p99` is read against (sphere -> spot: about
+    /// 1.0). 0 in reports older than 0.13.0.
     #[serde(default)]
     pub perfect_reach_p99: f64,
     #[serde(default)]
