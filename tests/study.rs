@@ -10,7 +10,8 @@ fn scratch(name: &str) -> Scratch {
     Scratch::empty("morph-study-tests", name)
 }
 
-fn study(out: &PathBuf, extra: &[&str]) -> std::process::Output {
+/// `morph study` of sphere -> two-lobes into `out` with `grid` (the axes) and `extra`.
+fn study_with(out: &PathBuf, grid: &[&str], extra: &[&str]) -> std::process::Output {
     let root = env!("CARGO_MANIFEST_DIR");
     Command::new(env!("CARGO_BIN_EXE_morph"))
         .args([
@@ -20,20 +21,20 @@ fn study(out: &PathBuf, extra: &[&str]) -> std::process::Output {
         ])
         .arg("-o")
         .arg(out)
-        .args([
-            "--quick",
-            "--resolutions",
-            "10,12",
-            "--iterations",
-            "1",
-            "--segments",
-            "1",
-            "--kernels",
-            "quadratic",
-        ])
+        .args(grid)
         .args(extra)
         .output()
         .expect("run morph study")
+}
+
+/// The tiny grid: resolutions 10 and 12, one segment of one iteration.
+fn study(out: &PathBuf, extra: &[&str]) -> std::process::Output {
+    let grid = ["--quick", "--resolutions", "10,12", "--iterations", "1"];
+    study_with(
+        out,
+        &grid,
+        &[&["--segments", "1", "--kernels", "quadratic"], extra].concat(),
+    )
 }
 
 #[test]
@@ -210,20 +211,9 @@ fn bad_budgets_and_reach_weights_are_refused() {
 fn a_small_configuration_after_a_large_one_reports_its_own_peak() {
     let out = scratch("peaks");
     let _ = std::fs::remove_dir_all(&out);
-    let root = env!("CARGO_MANIFEST_DIR");
-    let r = Command::new(env!("CARGO_BIN_EXE_morph"))
-        .args([
-            "study",
-            &format!("{root}/assets/sphere.obj"),
-            &format!("{root}/assets/two-lobes.obj"),
-        ])
-        .arg("-o")
-        .arg(&out)
-        // The large grid first: configurations run in the order asked.
-        .args(["--quick", "--resolutions", "40,10", "--iterations", "1"])
-        .args(["--segments", "1", "--kernels", "quadratic"])
-        .output()
-        .expect("run morph study");
+    // The large grid first: configurations run in the order asked.
+    let grid = ["--quick", "--resolutions", "40,10", "--iterations", "1"];
+    let r = study_with(&out, &grid, &["--segments", "1", "--kernels", "quadratic"]);
     assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
     let json: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("study.json")).unwrap()).unwrap();
