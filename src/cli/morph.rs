@@ -736,6 +736,9 @@ pub fn run(args: &MorphArgs) -> ExitCode {
                         f.frames_inverted,
                         100.0 * f.max_close_share
                     );
+                    if let Some(line) = f.surfaces.as_ref().and_then(surfaces_line) {
+                        say!("surfaces: {line}");
+                    }
                     if f.frames_inverted > 0 {
                         eprintln!(
                             "morph: warning: particles turned inside out (J <= 0) in {} frames; see the frames' min_j in manifest.json",
@@ -784,6 +787,46 @@ pub fn run(args: &MorphArgs) -> ExitCode {
             fail_run(args, code, &e.to_string())
         }
     }
+}
+
+/// The summary's surfaces line: each surface against its reference (normal deviation, share
+/// beyond 20 degrees), the carried surface's folds and the rebuilt one's creases against frame
+/// 1's; `None` where no surface was measured.
+fn surfaces_line(s: &morph::output::SurfaceSummary) -> Option<String> {
+    let against = |what: &str, f: &Option<morph::geometry::fidelity::Fidelity>| {
+        f.map(|f| {
+            format!(
+                "{what} {:.1} deg ({:.1}% beyond 20)",
+                f.mean_normal_deg,
+                100.0 * f.off_share
+            )
+        })
+    };
+    let parts: Vec<String> = [
+        against("rebuilt frame 1 from the source", &s.rebuilt_first),
+        against("rebuilt last frame from the target", &s.rebuilt_last),
+        against("carried last frame", &s.carried_last),
+        s.max_carried_fold_share.map(|m| {
+            let source = s.source_fold_share.unwrap_or(0.0);
+            format!(
+                "carried folds at most {:.2}% (the source {:.2}%)",
+                100.0 * m,
+                100.0 * source
+            )
+        }),
+        s.max_rebuilt_crease_share.map(|m| {
+            let first = s.rebuilt_first_crease_share.unwrap_or(0.0);
+            format!(
+                "rebuilt creases at most {:.2}% (frame 1 {:.2}%)",
+                100.0 * m,
+                100.0 * first
+            )
+        }),
+    ]
+    .into_iter()
+    .flatten()
+    .collect();
+    (!parts.is_empty()).then(|| parts.join(", "))
 }
 
 /// A failed run: the one-line error (and with `--json` its event, with `--progress openjd` the

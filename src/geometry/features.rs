@@ -129,7 +129,7 @@ pub fn sharpen(
     spacing: f64,
 ) -> usize {
     let carried = CarriedPlanes::new(positions, source, spacing);
-    if carried.points.is_empty() {
+    if carried.normals.iter().all(|&(_, weight)| weight <= 0.0) {
         return 0;
     }
     let mut moves = 0;
@@ -158,10 +158,8 @@ impl CarriedPlanes {
                 let x = positions[i];
                 let (f, residual) = s.neighbourhood.fit(rest, positions, i);
                 let residual = residual / spacing;
+                // A faded plane (weight 0) stays: it still counts in a vertex's confidence.
                 let weight = fade(green_strain(&f), FADE_STRAIN) * fade(residual, FADE_RESIDUAL);
-                if weight <= 0.0 {
-                    return None;
-                }
                 // Normals are covectors: they follow F^-T.
                 let normal = (f.try_inverse()?.transpose() * s.normal).try_normalize(1e-300)?;
                 Some((x + f * s.offset, normal, weight))
@@ -202,14 +200,18 @@ impl CarriedPlanes {
         let (radius, reach) = (SNAP_RADIUS * self.spacing, SNAP_REACH * self.spacing);
         let mut a = Matrix3::zeros();
         let mut r = Vector3::zeros();
+        let (mut faded, mut full) = (0.0, 0.0);
         grid.for_each_within(v, radius, |i| {
             let (q, (m, strain)) = (self.points[i], self.normals[i]);
             let off = m.dot(&(q - v));
             // A plane facing away is the far side of a thin part.
             if off.abs() < reach && m.dot(n) > 0.0 {
-                let w = strain * (1.0 - ((q - v).norm() / radius).powi(2)).powi(2);
+                let near = (1.0 - ((q - v).norm() / radius).powi(2)).powi(2);
+                let w = strain * near;
                 a += w * m * m.transpose();
                 r += w * off * m;
+                faded += w;
+                full += near;
             }
         });
         let eigen = SymmetricEigen::new(a);
@@ -225,6 +227,11 @@ impl CarriedPlanes {
                 step += e * (e.dot(&r) / l);
             }
         }
+        // The least squares is the same for any scale of the weights, so the fade alone would
+        // move a vertex whose planes are all nearly faded as far as one at rest; scaled by the
+        // planes' mean fade the move fades with them, and the surface has no step where the
+        // planes give out.
+        step *= faded / full;
         let len = step.norm();
         if len > MAX_MOVE * self.spacing {
             step *= MAX_MOVE * self.spacing / len;
@@ -321,5 +328,60 @@ mod tests {
         // The lattice now crosses the edges at a slant: 0.9990 measured.
         let sharp = axis_aligned_share(&unturned(&mesh), 10.0);
         assert!(rounded < 0.8 && sharp > 0.995, "{rounded} -> {sharp}");
+    }
+
+    /// A vertex moves as far as its planes are trusted. Planes half a spacing above a flat
+    /// sheet pull it all the way at full weight, a tenth of the way faded to a tenth, and
+    /// with the weight ramping down across the sheet the surface ramps down with it. (Before,
+    /// the least squares, blind to the weights' scale, moved every vertex all the way while
+    /// any plane was left, and the surface stepped where the planes gave out: the creases
+    /// mid-shot of docs/geometry.md.)
+    #[test]
+    fn a_vertex_moves_as_far_as_its_planes_are_trusted() {
+        let (n, spacing) = (21usize, 0.1);
+        let at = |i: usize| Vector3::new((i % n) as f64 * spacing, (i / n) as f64 * spacing, 0.0);
+        let mut triangles = Vec::new();
+        for y in 0..n - 1 {
+            for x in 0..n - 1 {
+                let (v, m) = ((y * n + x) as u32, n as u32);
+                triangles.extend([[v, v + 1, v + m + 1], [v, v + m + 1, v + m]]);
+            }
+        }
+        let sheet = TriMesh {
+            vertices: (0..n * n).map(at).collect(),
+            triangles,
+        };
+        let lift = 0.5 * spacing;
+        let snapped = |weight: &dyn Fn(f64) -> f64| {
+            let planes = CarriedPlanes {
+                points: (0..n * n).map(|i| at(i) + Vector3::z() * lift).collect(),
+                normals: (0..n * n)
+                    .map(|i| (Vector3::z(), weight(at(i).x)))
+                    .collect(),
+                spacing,
+            };
+            let mut mesh = sheet.clone();
+            planes.snap(&mut mesh);
+            mesh
+        };
+        // Interior vertices (the snapping radius inside the edges).
+        let inner = |i: &usize| (3..n - 3).contains(&(i % n)) && (3..n - 3).contains(&(i / n));
+        for w in [1.0, 0.1] {
+            let mesh = snapped(&|_| w);
+            for i in (0..n * n).filter(inner) {
+                let z = mesh.vertices[i].z;
+                assert!((z - w * lift).abs() < 1e-9 * spacing, "weight {w}: {z}");
+            }
+        }
+        let width = (n - 1) as f64 * spacing;
+        let mesh = snapped(&|x| 1.0 - x / width);
+        for i in (0..n * n).filter(inner) {
+            let (z, x) = (mesh.vertices[i].z, mesh.vertices[i].x);
+            // The weights' mean over the snapping radius: within a few percent of the ramp.
+            assert!(
+                (z - (1.0 - x / width) * lift).abs() < 0.05 * lift,
+                "at x {x}: {z}"
+            );
+        }
     }
 }

@@ -6,7 +6,9 @@
 //!   share of the area beyond 20 degrees, and the largest distance over faces and vertices.
 //!   Distances are in particle spacings, what a viewer compares a bump with.
 //! - [`fold_share`]: the share of faces whose normal turns more than 60 degrees from the mean
-//!   normal of their edge neighbours: a crease or a fold, not a smooth bend.
+//!   normal of their edge neighbours: a crease or a fold, not a smooth bend; and
+//!   [`crease_share`], the same past 30 degrees, where a rendered surface already shows a
+//!   crack-like line (measured on the rebuilt surface, which has no source mesh to fold from).
 //!
 //! The closest-point queries go through parry's bounding-volume hierarchy (`parry3d-f64`,
 //! the dimforge collision library beside nalgebra).
@@ -23,6 +25,10 @@ use serde::{Deserialize, Serialize};
 pub const OFF_DEGREES: f64 = 20.0;
 /// A face whose normal turns more than this from its neighbours' mean is a fold.
 pub const FOLD_DEGREES: f64 = 60.0;
+/// A face whose normal turns more than this from its neighbours' mean shows as a crease when
+/// rendered (docs/geometry.md, "Creases mid-shot"): a smooth surface marched at the particle
+/// spacing turns by a few degrees from face to face.
+pub const CREASE_DEGREES: f64 = 30.0;
 
 /// A reference surface ready for closest-point queries.
 pub struct Reference {
@@ -167,6 +173,27 @@ pub fn fold_share(
     triangles: &[[usize; 3]],
     neighbours: &[Vec<usize>],
 ) -> f64 {
+    turned_share(vertices, triangles, neighbours, FOLD_DEGREES)
+}
+
+/// [`fold_share`] past [`CREASE_DEGREES`], of a [`TriMesh`].
+pub fn crease_share(mesh: &TriMesh) -> f64 {
+    let triangles: Vec<[usize; 3]> = mesh
+        .triangles
+        .iter()
+        .map(|t| t.map(|i| i as usize))
+        .collect();
+    let neighbours = edge_neighbours(&triangles);
+    turned_share(&mesh.vertices, &triangles, &neighbours, CREASE_DEGREES)
+}
+
+/// Share of the faces whose normal turns more than `degrees` from their edge neighbours' mean.
+fn turned_share(
+    vertices: &[Vector3<f64>],
+    triangles: &[[usize; 3]],
+    neighbours: &[Vec<usize>],
+    degrees: f64,
+) -> f64 {
     let normals: Vec<Option<Vector3<f64>>> = triangles
         .iter()
         .map(|t| {
@@ -174,8 +201,8 @@ pub fn fold_share(
             (b - a).cross(&(c - a)).try_normalize(0.0)
         })
         .collect();
-    let cos_fold = FOLD_DEGREES.to_radians().cos();
-    let (mut counted, mut folded) = (0usize, 0usize);
+    let cos_turn = degrees.to_radians().cos();
+    let (mut counted, mut turned) = (0usize, 0usize);
     for (f, near) in neighbours.iter().enumerate() {
         let Some(n) = normals[f] else { continue };
         let mean: Vector3<f64> = near.iter().filter_map(|&g| normals[g]).sum();
@@ -183,11 +210,11 @@ pub fn fold_share(
             continue;
         };
         counted += 1;
-        if n.dot(&mean) < cos_fold {
-            folded += 1;
+        if n.dot(&mean) < cos_turn {
+            turned += 1;
         }
     }
-    folded as f64 / counted.max(1) as f64
+    turned as f64 / counted.max(1) as f64
 }
 
 #[cfg(test)]
@@ -249,5 +276,40 @@ mod tests {
         sheet[5 * n + 5].x += 1.6;
         let share = fold_share(&sheet, &tris, &near);
         assert!(share > 0.0 && share < 0.1, "{share}");
+    }
+
+    /// A sheet bent sharply along a line creases there and only there; bent gently, nowhere.
+    #[test]
+    fn a_sharp_bend_creases_and_a_gentle_one_does_not() {
+        let sheet = |bend_deg: f64| {
+            let n = 12;
+            let slope = bend_deg.to_radians().tan();
+            let vertices = (0..n * n)
+                .map(|i| {
+                    let (x, y) = ((i % n) as f64, (i / n) as f64);
+                    Vector3::new(x, y, (x - 6.0).max(0.0) * slope)
+                })
+                .collect();
+            let mut triangles = Vec::new();
+            for y in 0..n - 1 {
+                for x in 0..n - 1 {
+                    let v = (y * n + x) as u32;
+                    let m = n as u32;
+                    triangles.extend([[v, v + 1, v + m + 1], [v, v + m + 1, v + m]]);
+                }
+            }
+            TriMesh {
+                vertices,
+                triangles,
+            }
+        };
+        assert_eq!(crease_share(&sheet(0.0)), 0.0);
+        assert_eq!(crease_share(&sheet(20.0)), 0.0);
+        // Only faces along the bend, in the two columns that meet there (2 of 11 at most); a
+        // face with one neighbour across a clean bend sees a third of it, so only a bend
+        // past about 70 degrees (or a jagged crack) counts.
+        let share = crease_share(&sheet(80.0));
+        assert!(share > 0.0 && share <= 2.0 / 11.0, "{share}");
+        assert_eq!(crease_share(&sheet(60.0)), 0.0);
     }
 }

@@ -108,6 +108,12 @@ pub struct SurfaceSummary {
     pub source_fold_share: Option<f64>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub max_carried_fold_share: Option<f64>,
+    /// The rebuilt surface's crease share (past 30 degrees) on the first frame, the body at
+    /// rest, and the largest over the frames.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub rebuilt_first_crease_share: Option<f64>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub max_rebuilt_crease_share: Option<f64>,
     /// Seconds the carried and the rebuilt surfaces took over all frames (this process's).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub carried_s: Option<f64>,
@@ -226,6 +232,11 @@ impl FramesSummary {
             carried_last: last.carried.and_then(|c| c.fidelity),
             source_fold_share: first.carried.map(|c| c.fold_share),
             max_carried_fold_share: s.carried.map(|c| c.fold_share),
+            rebuilt_first_crease_share: first.rebuilt.and_then(|r| r.crease_share),
+            max_rebuilt_crease_share: stats
+                .iter()
+                .filter_map(|f| f.rebuilt.and_then(|r| r.crease_share))
+                .reduce(f64::max),
             carried_s: first.carried.map(|_| {
                 stats
                     .iter()

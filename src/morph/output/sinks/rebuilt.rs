@@ -7,7 +7,7 @@ use super::{FrameRecord, FrameSink, SinkFrame, out_err};
 use crate::geometry::Similarity;
 use crate::geometry::cleanup::{CleanReport, SurfaceQuality, clean, keep_volume, quality};
 use crate::geometry::features::{SourcePlanes, sharpen};
-use crate::geometry::fidelity::{Fidelity, Reference, mesh_fidelity};
+use crate::geometry::fidelity::{Fidelity, Reference, crease_share, mesh_fidelity};
 use crate::geometry::splashsurf::extract_splashsurf_surface;
 use crate::geometry::surface::{FillField, SurfaceError, deformed_fill_field, fill_field};
 use crate::morph::MorphError;
@@ -27,6 +27,10 @@ pub struct RebuiltStats {
     /// first frame, the target on the last ([`crate::geometry::fidelity`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fidelity: Option<Fidelity>,
+    /// Share of its faces that turn past [`crate::geometry::fidelity::CREASE_DEGREES`] from
+    /// their neighbours: crack-like lines a render shows (every frame).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub crease_share: Option<f64>,
     /// Seconds spent making, cleaning, writing and measuring it (the frame writer's thread).
     #[serde(default)]
     pub seconds: f64,
@@ -126,6 +130,7 @@ impl FrameSink for RebuiltObj {
             after: quality(&surface),
             cleanup,
             fidelity: reference.map(|r| mesh_fidelity(&world, r, world_spacing)),
+            crease_share: Some(crease_share(&surface)),
             seconds: clock.elapsed().as_secs_f64(),
         });
         record.surface_volume = Some(world.signed_volume());
