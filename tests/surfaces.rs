@@ -240,7 +240,7 @@ fn a_body_at_rest_is_rebuilt_true_to_its_mesh() {
 #[test]
 fn the_surfaces_do_not_fold_or_crease_under_compression() {
     let out = scratch_in("surface-tests", "fold");
-    ok(&morph(&[
+    let run = morph(&[
         "assets/sphere.obj",
         "../shared/meshes/fandisk.obj",
         "-o",
@@ -251,8 +251,8 @@ fn the_surfaces_do_not_fold_or_crease_under_compression() {
         "both",
         "--usd",
         "none",
-        "--quiet",
-    ]));
+    ]);
+    ok(&run);
     let m = manifest(&out);
     let s = &m["frames_summary"]["surfaces"];
     let (source, most) = (
@@ -282,6 +282,11 @@ fn the_surfaces_do_not_fold_or_crease_under_compression() {
     };
     assert_eq!(largest("carried", "fold_share"), most);
     assert_eq!(largest("rebuilt", "crease_share"), creased);
+    // The summary says the same.
+    let stdout = String::from_utf8_lossy(&run.stdout);
+    let line = lines(&stdout, "surfaces:");
+    let said = format!("rebuilt creases at most {:.2}%", 100.0 * creased);
+    assert!(line.len() == 1 && line[0].contains(&said), "{stdout}");
     for (k, f) in frames.iter().enumerate().step_by(4) {
         let path = out.join(format!("meshes/frame_{:04}.obj", k + 1));
         let mesh = morph::geometry::load_mesh(&path).unwrap().mesh;

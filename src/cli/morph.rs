@@ -802,26 +802,33 @@ fn surfaces_line(s: &morph::output::SurfaceSummary) -> Option<String> {
             )
         })
     };
+    // The largest share over the frames, beside the body at rest's.
+    let worst = |what: &str, most: Option<f64>, rest: &str, at_rest: Option<f64>| {
+        most.map(|m| {
+            let r = at_rest.unwrap_or(0.0);
+            format!(
+                "{what} at most {:.2}% ({rest} {:.2}%)",
+                100.0 * m,
+                100.0 * r
+            )
+        })
+    };
     let parts: Vec<String> = [
         against("rebuilt frame 1 from the source", &s.rebuilt_first),
         against("rebuilt last frame from the target", &s.rebuilt_last),
-        against("carried last frame", &s.carried_last),
-        s.max_carried_fold_share.map(|m| {
-            let source = s.source_fold_share.unwrap_or(0.0);
-            format!(
-                "carried folds at most {:.2}% (the source {:.2}%)",
-                100.0 * m,
-                100.0 * source
-            )
-        }),
-        s.max_rebuilt_crease_share.map(|m| {
-            let first = s.rebuilt_first_crease_share.unwrap_or(0.0);
-            format!(
-                "rebuilt creases at most {:.2}% (frame 1 {:.2}%)",
-                100.0 * m,
-                100.0 * first
-            )
-        }),
+        against("carried last frame from the target", &s.carried_last),
+        worst(
+            "carried folds",
+            s.max_carried_fold_share,
+            "the source",
+            s.source_fold_share,
+        ),
+        worst(
+            "rebuilt creases",
+            s.max_rebuilt_crease_share,
+            "frame 1",
+            s.rebuilt_first_crease_share,
+        ),
     ]
     .into_iter()
     .flatten()
