@@ -347,6 +347,17 @@ fn command_line_errors() {
         (vec!["--frames", "1"], 2, "--frames"),
         (vec!["--arrive", "0"], 2, "--at: keyframe 1 at frame 0"),
         (vec!["--arrive", "5000"], 2, "at most the last frame, 73"),
+        (vec!["--begin", "0"], 2, "--begin 0 must be at least 1"),
+        (
+            vec!["--begin", "40", "--arrive", "30"],
+            2,
+            "--begin 40 must be at least 1 and before the first keyframe, frame 30",
+        ),
+        (
+            vec!["--begin", "70"],
+            2,
+            "before the first keyframe, frame 59",
+        ),
         (
             vec!["--at", "20,40"],
             2,

@@ -199,6 +199,19 @@ fn the_examples_run() {
             "three-keyframes.toml" => _ = check_keyframes(&out, &[25, 55]),
             "fall-onto-floor.toml" => {
                 check_keyframes(&out, &[60]);
+                // The drop and the landing are left to physics: the four segments before the
+                // change begins (frame 25) run without controls, not optimized, and the body
+                // moves in them.
+                assert_eq!(m["settings"]["begin"], 25);
+                assert_eq!(m["motion"]["first_frame"], 25);
+                let segments = m["segments"].as_array().unwrap();
+                let evaluations: Vec<u64> = segments
+                    .iter()
+                    .map(|s| s["evaluations"].as_u64().unwrap())
+                    .collect();
+                assert_eq!(&evaluations[..4], &[1, 1, 1, 1], "{evaluations:?}");
+                assert!(evaluations[4..].iter().all(|&e| e > 1), "{evaluations:?}");
+                assert!(m["frames"][8]["rms_speed"].as_f64().unwrap() > 0.1);
                 // The body lands and stays on the ground: on the last frame no particle is
                 // more than a particle spacing below it, and the lowest is within two cells.
                 let ground = m["settings"]["ground"]["height"].as_f64().unwrap();

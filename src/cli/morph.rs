@@ -237,6 +237,12 @@ pub struct MorphArgs {
     /// target at 80% of the frames, earlier ones evenly before it].
     #[arg(long, visible_alias = "arrive", value_delimiter = ',')]
     at: Vec<usize>,
+    /// The frame the shape change begins on (1 = the rest shape). Before it the body runs
+    /// without controls: it holds still, or falls and lands under the scene's gravity; the
+    /// easing curve toward the first keyframe starts here, and the motion measures count from
+    /// here [default: 1].
+    #[arg(long)]
+    begin: Option<usize>,
     #[arg(long, value_parser = choice(&Surfaces::ALL), help = format!("Surfaces per frame: carried (the source mesh itself, with its UVs and groups, following the body; carried/), rebuilt (a closed surface made from the particles, which follows any change of topology; meshes/), both, or none [default {}]", name(&defaults().surfaces)))]
     surface: Option<Surfaces>,
     #[arg(long, value_parser = choice(&RebuiltMethod::ALL), help = format!("How the rebuilt surface is made: sharp (deformed, with its vertices moved onto the source's planes the particles carry: sharp edges and corners), deformed (each particle's kernel follows its deformation; smooth, rounds edges), lattice (0.2.0's narrow round kernels; shows the particles as bumps) or splashsurf (the fluid surfacer's pipeline, recommended settings; positions only) [default {}]", name(&defaults().rebuilt_method)))]
@@ -456,6 +462,9 @@ impl MorphArgs {
         }
         if !self.at.is_empty() {
             s.at = self.at.clone();
+        }
+        if let Some(b) = self.begin {
+            s.begin = b;
         }
         if let Some(seed) = self.seed {
             s.seed = seed;
@@ -716,8 +725,16 @@ pub fn run(args: &MorphArgs) -> ExitCode {
                     let ease = m
                         .ease_error
                         .map_or("n/a".to_string(), |e| format!("{e:.2}"));
+                    let from = if m.first_frame > 1 {
+                        format!(
+                            " (from frame {}, where the shape change begins)",
+                            m.first_frame
+                        )
+                    } else {
+                        String::new()
+                    };
                     say!(
-                        "motion: pulse {:.2}, dip {:.2}, wobble {:.2}, settle {:.2}, ease error {ease}, {} frozen frames",
+                        "motion: pulse {:.2}, dip {:.2}, wobble {:.2}, settle {:.2}, ease error {ease}, {} frozen frames{from}",
                         m.pulse,
                         m.dip,
                         m.wobble,

@@ -239,8 +239,11 @@ fn chain<I: Integrator>(
             let seg_clock = Instant::now();
             // Segment k alone: what is kept, replayed and written.
             let (loss, fine_loss) = prep.segment_losses(k)?;
+            // A segment before the shape change begins runs without controls: evaluated once,
+            // not optimized, with no window reaching past it.
+            let before_begin = prep.segment_before_begin(k);
             // The scheduled path of segment k, then of the rest of its look-ahead window.
-            let end = prep.window_end(k);
+            let end = if before_begin { k } else { prep.window_end(k) };
             let mut path = prep.segment_path(k)?;
             let own_path = path.len();
             for j in k + 1..=end {
@@ -290,10 +293,12 @@ fn chain<I: Integrator>(
                 waypoints: &waypoints,
                 ..segment
             });
+            let zeros = |j: usize| {
+                vec![vec![Matrix3::zeros(); prep.initial.len()]; prep.segment_layers()[j]]
+            };
             let start_of = |j: usize, progress: &RunProgress| match (&progress.controls[j], warm) {
-                (l, None) if l.is_empty() => {
-                    vec![vec![Matrix3::zeros(); prep.initial.len()]; prep.segment_layers()[j]]
-                }
+                _ if before_begin => zeros(j),
+                (l, None) if l.is_empty() => zeros(j),
                 (l, Some(w)) if l.is_empty() => w.prolongation.apply(&w.controls[j]),
                 (l, _) => l.clone(),
             };
@@ -316,7 +321,16 @@ fn chain<I: Integrator>(
             let optimized = window.as_ref().unwrap_or(&segment);
             let mut stop = observer.stop_requested();
             let iterations = &mut progress.iterations;
-            let result = optimized.optimize(init, &optimizer, |iteration, loss| {
+            let evaluate_only = OptimizerSettings {
+                iterations: 1,
+                ..optimizer.clone()
+            };
+            let settings = if before_begin {
+                &evaluate_only
+            } else {
+                &optimizer
+            };
+            let result = optimized.optimize(init, settings, |iteration, loss| {
                 let at = seconds(&clock);
                 iterations.push(IterationRecord {
                     pass,

@@ -34,6 +34,14 @@ pub struct MotionMeasures {
     /// Frames measured, and the frames per segment the pulse and dip look for.
     pub frames: usize,
     pub frames_per_segment: f64,
+    /// The first frame measured (1-based; the frame the shape change begins on for a whole
+    /// run, the previous keyframe's for a later section).
+    #[serde(default = "first_frame")]
+    pub first_frame: usize,
+}
+
+fn first_frame() -> usize {
+    1
 }
 
 /// Measures frames `speeds[i]` (frame `i + 1`), with `iou[i]` the IoU with the target's
@@ -146,6 +154,7 @@ pub fn measure(
         frozen_frames: first.min(n),
         frames: n,
         frames_per_segment,
+        first_frame: 1,
     }
 }
 

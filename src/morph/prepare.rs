@@ -47,6 +47,9 @@ pub struct Prepared {
 pub struct KeyframeSchedule {
     /// Morph step by which each target is reached, in order (the last is the final target).
     pub steps: Vec<usize>,
+    /// Morph step the shape change begins at ([`MorphSettings::begin`]): the easing toward
+    /// the first keyframe starts here, and the segments that end by it run without controls.
+    pub begin: usize,
     /// The nodal masses (simulation grid, fine loss grid) of each keyframe target before the
     /// last, in order; the last one's are the loss's target.
     pub keyframes: Vec<(Vec<f64>, Option<Vec<f64>>)>,
@@ -295,6 +298,12 @@ impl Prepared {
                 }
                 ends.push(end);
             }
+            // The body's place where the shape change begins: the first section starts there.
+            let begin = (settings.begin - 1) * settings.frame_every;
+            if begin > 0 && !ends.contains(&begin) {
+                ends.push(begin);
+                ends.sort_unstable();
+            }
             ends.retain(|&s| s < steps[0]);
             if let Some(&last) = ends.last() {
                 let mut state = initial.clone();
@@ -340,6 +349,7 @@ impl Prepared {
             segment_steps: shot.segment_steps,
             schedule: KeyframeSchedule {
                 steps,
+                begin: (settings.begin - 1) * settings.frame_every,
                 keyframes,
                 passive,
                 timings: std::sync::OnceLock::new(),
@@ -423,11 +433,24 @@ impl Prepared {
         match steps.iter().position(|&s| step < s) {
             None => (steps.len(), steps.len(), 1.0),
             Some(i) => {
-                let start = if i == 0 { 0 } else { steps[i - 1] };
-                let u = (step - start) as f64 / (steps[i] - start) as f64;
+                let start = if i == 0 {
+                    self.schedule.begin
+                } else {
+                    steps[i - 1]
+                };
+                // Before the shape change begins the body is where it would be on its own.
+                let u = step.saturating_sub(start) as f64 / (steps[i] - start) as f64;
                 (i, i + 1, u * u * (3.0 - 2.0 * u))
             }
         }
+    }
+
+    /// Whether segment `k` ends by the frame the shape change begins on: it runs without
+    /// controls (the body holds still, or falls and lands, as its physics has it) and is not
+    /// optimized.
+    pub fn segment_before_begin(&self, k: usize) -> bool {
+        let end: usize = self.segment_steps[..=k].iter().sum();
+        end <= self.schedule.begin
     }
 
     /// Whether segment `k` starts at or after the final target's arrival: the shape is held.
@@ -563,7 +586,7 @@ impl Prepared {
         let mut made = Vec::new();
         for i in 0..self.schedule.steps.len() {
             let start = if i == 0 {
-                0
+                self.schedule.begin
             } else {
                 self.schedule.steps[i - 1]
             };
@@ -760,13 +783,16 @@ impl Prepared {
         } else {
             &[][..]
         };
-        motion::measure(
-            &speeds[from - 1..to],
-            iou,
-            &section,
-            per_segment,
-            arrive + 1 - from,
-        )
+        motion::MotionMeasures {
+            first_frame: from,
+            ..motion::measure(
+                &speeds[from - 1..to],
+                iou,
+                &section,
+                per_segment,
+                arrive + 1 - from,
+            )
+        }
     }
 
     pub fn loss_of(&self, state: &State) -> Result<f64, SimError> {

@@ -198,6 +198,12 @@ pub struct MorphSettings {
     /// target from the first segment on.
     #[serde(default)]
     pub at: Vec<usize>,
+    /// The frame the shape change begins on (`--begin`; 1 = the rest shape, the default).
+    /// Before it the body is left to its physics with no controls (it holds still, or falls
+    /// and lands), and the easing curve toward the first keyframe starts here; the motion
+    /// measures count from here. A shot that should hold still or settle first says so here.
+    #[serde(default = "default_begin")]
+    pub begin: usize,
     /// Gravity in the source mesh's units per second squared (y is up: `[0, -9.81, 0]` for a
     /// mesh in metres). `None`: no gravity.
     #[serde(default)]
@@ -322,6 +328,10 @@ fn one_level() -> usize {
 }
 
 fn default_start_frame() -> usize {
+    1
+}
+
+fn default_begin() -> usize {
     1
 }
 
@@ -491,6 +501,7 @@ impl MorphSettings {
             fps: Some(DEFAULT_FPS),
             frames: None,
             at: Vec::new(),
+            begin: 1,
             gravity: None,
             ground: None,
             colliders: Vec::new(),
@@ -669,6 +680,19 @@ impl MorphSettings {
                     }
                 ));
             }
+        }
+        // The shape change begins before the first keyframe (the default arrival when none
+        // is given), so the easing curve has frames to run over.
+        let first_key = self
+            .at
+            .first()
+            .copied()
+            .unwrap_or_else(|| default_arrival(frames));
+        if self.begin < 1 || (self.begin > 1 && self.begin >= first_key) {
+            return Err(format!(
+                "--begin {} must be at least 1 and before the first keyframe, frame {first_key}",
+                self.begin
+            ));
         }
         if let Some(g) = self.gravity
             && !g.iter().all(|v| v.is_finite())

@@ -627,7 +627,7 @@ pub fn measure(source: &Path, target: &Path, config: &StudyConfig) -> StudyRow {
             if recorder.frames.len() == n {
                 let (speeds, ious): (Vec<f64>, Vec<f64>) = recorder.frames.into_iter().unzip();
                 let arrive = *prep.settings.at.last().expect("a morph has a final target");
-                row.motion = Some(prep.motion_of(&speeds, &ious, 1, n, arrive));
+                row.motion = Some(prep.motion_of(&speeds, &ious, prep.settings.begin, n, arrive));
             }
         }
         Err(e) => row.error = Some(e.to_string()),

@@ -160,7 +160,10 @@ fn motion_and_keyframes(
         (speeds.len() == n_frames)
             .then(|| prep.motion_of(&speeds, &progress_to(t), from, to, at[t]))
     };
-    let motion = measured(targets - 1, 1, n_frames);
+    // Measured from the frame the shape change begins on (before it the body only does what
+    // its physics does).
+    let begin = prep.settings.begin;
+    let motion = measured(targets - 1, begin, n_frames);
     let keyframes = (0..targets)
         .map(|t| {
             let judged_at = |f: usize| {
@@ -170,9 +173,9 @@ fn motion_and_keyframes(
                     .find(|(i, j, _)| (*i, *j) == (f, t))
                     .map(|(_, _, q)| *q)
             };
-            // This target's section: from the previous keyframe (the rest shape for the first)
+            // This target's section: from the previous keyframe (the begin frame for the first)
             // to its own, or to the last frame for the final target.
-            let from = if t == 0 { 1 } else { at[t - 1] };
+            let from = if t == 0 { begin } else { at[t - 1] };
             let to = if t + 1 == targets { n_frames } else { at[t] };
             KeyframeReport {
                 target: identity.inputs[1 + t].path.clone(),

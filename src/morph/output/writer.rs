@@ -108,11 +108,15 @@ pub(super) fn run_writing_frames(
     Ok((result, frames, sinks))
 }
 
-/// The frame halfway (in time) between the previous keyframe's frame (the rest shape's for
-/// the first) and target `t`'s.
+/// The frame halfway (in time) between the previous keyframe's frame (the frame the shape
+/// change begins on for the first) and target `t`'s.
 pub(super) fn halfway(prep: &Prepared, t: usize) -> usize {
     let at = &prep.settings.at;
-    let before = if t == 0 { 1 } else { at[t - 1] };
+    let before = if t == 0 {
+        prep.settings.begin
+    } else {
+        at[t - 1]
+    };
     before + (at[t] - before) / 2
 }
 
