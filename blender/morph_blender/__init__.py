@@ -29,6 +29,9 @@ class MorphSettings(bpy.types.PropertyGroup):
                         "(0: the preset's)", default=0, min=0, max=100000)
     arrival: IntProperty(name="Arrival frame", description="The frame by which the last target is "
                          "reached (0: 80% of the frames)", default=0, min=0, max=100000)
+    begin: IntProperty(name="Begin frame", description="The frame the shape change begins on; before "
+                       "it the body holds still or falls on its own (1: the first frame)", default=1,
+                       min=1, max=100000)
     output: StringProperty(name="Output", subtype="DIR_PATH", default="//morph",
                            description="The morph's output folder (frames, surfaces, morph.usdc)")
     overwrite: BoolProperty(name="Overwrite", default=False,
@@ -114,6 +117,8 @@ class MORPH_OT_morph_to_target(bpy.types.Operator):
         if settings.arrival and len(paths) == 1:
             # Several targets are spread over the shot (morph's default).
             kwargs["at"] = [settings.arrival]
+        if settings.begin > 1:
+            kwargs["begin"] = settings.begin
         self.job = dict(source=inputs / "source.obj", targets=paths, out=out,
                         overwrite=settings.overwrite, **kwargs)
         self.progress = {"done": 0.0, "message": "starting", "result": None, "error": None}
@@ -219,6 +224,7 @@ class MORPH_PT_panel(bpy.types.Panel):
         layout.prop(settings, "preset")
         layout.prop(settings, "frames")
         layout.prop(settings, "arrival")
+        layout.prop(settings, "begin")
         layout.prop(settings, "output")
         layout.prop(settings, "overwrite")
         layout.operator(MORPH_OT_morph_to_target.bl_idname, icon="MOD_PHYSICS")
