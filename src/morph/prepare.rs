@@ -280,6 +280,7 @@ impl Prepared {
             .iter()
             .map(|f| (f - 1) * settings.frame_every)
             .collect();
+        let begin = (settings.begin - 1) * settings.frame_every;
         // Where the body goes on its own, up to the first keyframe: a run without controls,
         // when anything moves a body at rest, kept at the segments' ends (and at every frame
         // when the path term needs it there).
@@ -299,7 +300,6 @@ impl Prepared {
                 ends.push(end);
             }
             // The body's place where the shape change begins: the first section starts there.
-            let begin = (settings.begin - 1) * settings.frame_every;
             if begin > 0 && !ends.contains(&begin) {
                 ends.push(begin);
                 ends.sort_unstable();
@@ -349,7 +349,7 @@ impl Prepared {
             segment_steps: shot.segment_steps,
             schedule: KeyframeSchedule {
                 steps,
-                begin: (settings.begin - 1) * settings.frame_every,
+                begin,
                 keyframes,
                 passive,
                 timings: std::sync::OnceLock::new(),
