@@ -237,11 +237,7 @@ pub struct MorphArgs {
     /// target at 80% of the frames, earlier ones evenly before it].
     #[arg(long, visible_alias = "arrive", value_delimiter = ',')]
     at: Vec<usize>,
-    /// The frame the shape change begins on (1 = the rest shape). Before it the body runs
-    /// without controls: it holds still, or falls and lands under the scene's gravity; the
-    /// easing curve toward the first keyframe starts here, and the motion measures count from
-    /// here [default: 1].
-    #[arg(long)]
+    #[arg(long, help = help("The frame the shape change begins on (1 = the rest shape). Before it the body runs without controls: it holds still, or falls and lands under the scene's gravity; the easing curve toward the first keyframe starts here, and the motion measures count from here", None, defaults().begin))]
     begin: Option<usize>,
     #[arg(long, value_parser = choice(&Surfaces::ALL), help = format!("Surfaces per frame: carried (the source mesh itself, with its UVs and groups, following the body; carried/), rebuilt (a closed surface made from the particles, which follows any change of topology; meshes/), both, or none [default {}]", name(&defaults().surfaces)))]
     surface: Option<Surfaces>,

@@ -501,7 +501,7 @@ impl MorphSettings {
             fps: Some(DEFAULT_FPS),
             frames: None,
             at: Vec::new(),
-            begin: 1,
+            begin: default_begin(),
             gravity: None,
             ground: None,
             colliders: Vec::new(),
