@@ -67,6 +67,109 @@ fn the_carried_surface_keeps_the_source_topology_and_uvs() {
     assert!(summary["max_stretch"].as_f64().unwrap() > 1.0, "{summary}");
 }
 
+/// Each written normal of a carried OBJ and its vertex's normal on the written mesh (area
+/// weighted over the faces, fanned): the angle between them, in degrees, per face corner.
+fn normal_offsets(text: &str) -> Vec<f64> {
+    let parse = |l: &str| -> [f64; 3] {
+        let c: Vec<f64> = l
+            .split_whitespace()
+            .skip(1)
+            .take(3)
+            .map(|x| x.parse().unwrap())
+            .collect();
+        [c[0], c[1], c[2]]
+    };
+    let v: Vec<[f64; 3]> = lines(text, "v").into_iter().map(parse).collect();
+    let vn: Vec<[f64; 3]> = lines(text, "vn").into_iter().map(parse).collect();
+    // (vertex, normal) per corner, by face.
+    let faces: Vec<Vec<(usize, usize)>> = lines(text, "f")
+        .into_iter()
+        .map(|l| {
+            l.split_whitespace()
+                .skip(1)
+                .map(|c| {
+                    let k: Vec<&str> = c.split('/').collect();
+                    (
+                        k[0].parse::<usize>().unwrap() - 1,
+                        k[2].parse::<usize>().unwrap() - 1,
+                    )
+                })
+                .collect()
+        })
+        .collect();
+    let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+    let cross = |a: [f64; 3], b: [f64; 3]| {
+        [
+            a[1] * b[2] - a[2] * b[1],
+            a[2] * b[0] - a[0] * b[2],
+            a[0] * b[1] - a[1] * b[0],
+        ]
+    };
+    let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    let mut area = vec![[0.0; 3]; v.len()];
+    for f in &faces {
+        for k in 1..f.len() - 1 {
+            let (a, b, c) = (f[0].0, f[k].0, f[k + 1].0);
+            let n = cross(sub(v[b], v[a]), sub(v[c], v[a]));
+            for i in [a, b, c] {
+                area[i] = [area[i][0] + n[0], area[i][1] + n[1], area[i][2] + n[2]];
+            }
+        }
+    }
+    faces
+        .iter()
+        .flatten()
+        .filter_map(|&(i, k)| {
+            let (g, n) = (area[i], vn[k]);
+            let cos = dot(g, n) / (dot(g, g) * dot(n, n)).sqrt();
+            cos.is_finite()
+                .then(|| cos.clamp(-1.0, 1.0).acos().to_degrees())
+        })
+        .collect()
+}
+
+/// A source with its own normals (`vn`: suzanne's) has them written turned with the carried
+/// mesh: on every frame each keeps the angle it makes with its vertex's normal on the mesh, as
+/// in the source (0.13.0 turned them by the particles' mean `F`, which a plastic flow leaves
+/// near a rotation: 15.7 degrees off on frame 1, 20.6 on the last, on this morph).
+#[test]
+fn a_source_s_own_normals_follow_the_carried_mesh() {
+    let out = scratch_in("surface-tests", "carried-normals");
+    ok(&morph(&[
+        "../shared/meshes/suzanne.obj",
+        "assets/sphere.obj",
+        "-o",
+        out.to_str().unwrap(),
+        "--preset",
+        "draft",
+        "--resolution",
+        "16",
+        "--surface",
+        "carried",
+        "--usd",
+        "none",
+        "--quiet",
+    ]));
+    let m = manifest(&out);
+    let frames = m["frames"].as_array().unwrap();
+    let read = |f: &serde_json::Value| {
+        std::fs::read_to_string(out.join(f["carried_mesh"].as_str().unwrap())).unwrap()
+    };
+    let first = normal_offsets(&read(&frames[0]));
+    assert!(first.len() > 1900, "{} corners", first.len());
+    let last = normal_offsets(&read(frames.last().unwrap()));
+    assert_eq!(first.len(), last.len());
+    let worst = first
+        .iter()
+        .zip(&last)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    assert!(
+        worst < 0.5,
+        "a written normal turned {worst} degrees against its mesh"
+    );
+}
+
 /// The rebuilt surfaces come out clean with either method: one shell (the body; no void
 /// walls, no islands), closed, and no triangle under the stated smallest angle; the manifest
 /// has the surfaces before cleaning too (the narrow lattice kernel leaves voids to drop).

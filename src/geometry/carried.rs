@@ -3,14 +3,24 @@
 //! frame a vertex at rest position `X` is at
 //!
 //! ```text
-//!   x = X + sum_p w_p (x_p - X_p) + G (X - C),   G = sum_p w_p (F_p - I),   C = sum_p w_p X_p
+//!   x = X + sum_p w_p (x_p - X_p) + G (X - C),   G = sum_p w_p H_p,   C = sum_p w_p X_p
 //! ```
 //!
-//! (sim units; `x_p`, `F_p` the particle's position and deformation gradient, `X_p` its rest
-//! position; `w_p` the binding's weights, summing to 1): the particles' mean motion, plus their
-//! mean deformation applied to the vertex's offset from their rest centroid. It is exact for
-//! any affine motion of the particles, and at rest every term is exactly zero, so frame 1 is
-//! the source asset, bit for bit: its vertex lines are written as they were read.
+//! (sim units; `x_p` the particle's position, `X_p` its rest position, `H_p` the gradient of
+//! the material's displacement at the particle; `w_p` the binding's weights, summing to 1):
+//! the particles' mean motion, plus their mean deformation applied to the vertex's offset
+//! from their rest centroid. It is exact for any affine motion of the particles, and at rest
+//! every term is exactly zero, so frame 1 is the source asset, bit for bit: its vertex lines
+//! are written as they were read.
+//!
+//! `H_p` is the deformation since rest fitted to the particle's rest neighbours
+//! ([`RestNeighbourhood::fit_displacement`]), not the particle's own `F_p - I`: the plastic
+//! control folds the flow into the rest shape and elasticity takes `F_p` back toward a
+//! rotation, so after a flow `F_p` no longer says how the material around the particle has
+//! changed shape, and a vertex carried by it stays where the mean motion of its particles'
+//! centroid puts it: short of a part that grew, proud of one that shrank (docs/geometry.md,
+//! "The carried surface"). Where the fit fails (the neighbours parted or mixed: a rms
+//! residual toward [`FIT_TRUST_SPACINGS`]) the particle's own `F_p - I` takes over, faded in.
 //!
 //! Why this form and this radius (`BIND_SPACINGS`): where the body's surface compresses
 //! (sphere -> spot's neck, 30x in one direction) neighbouring vertices come closer than the
@@ -22,7 +32,12 @@
 //! three of the vertex's own edge lengths, so that a finer body (more particles, the same mesh)
 //! does not fold it either (`BIND_EDGES`).
 //!
-//! Normals follow the deformation too: `n' ~ F^-T n` with `F = I + G` at their vertex.
+//! Normals follow the surface they are written on: each source normal (a `vn` line) turns by
+//! the smallest rotation that takes its vertex's area-weighted normal at rest to the carried
+//! mesh's own there, so the shading is the shape's and the source's own normals (hard edges,
+//! hand-edited normals) keep their offsets from the faces. `F^-T` at the vertex (`F = I + G`,
+//! until 0.13.0) is a mean over the binding's 4.5 spacings and missed how the mesh itself
+//! turns: bob -> spot's last frame was written with normals a mean 29 degrees off its faces.
 //!
 //! An OBJ source is rewritten line by line: `v` and `vn` lines get their new values, every
 //! other line (`vt`, faces, groups, materials, smoothing, comments) is kept as it was, so the
@@ -35,7 +50,10 @@
 //! stretch, so a run says when the carried surface no longer sits on the body.
 
 use super::mesh::TriMesh;
+use super::neighbourhood::{FIT_SPACINGS, RestNeighbourhood};
+use super::point_grid::PointGrid;
 use nalgebra::{Matrix2, Matrix3, Vector3};
+use rayon::prelude::*;
 use std::io::Write;
 use std::path::Path;
 
@@ -52,6 +70,11 @@ const BIND_EDGES: f64 = 3.0;
 /// The largest binding radius the edge rule may give, in particle spacings (a low-poly
 /// source's few vertices still follow their own part of the body).
 const BIND_MAX_SPACINGS: f64 = 8.0;
+
+/// A particle's fitted deformation is trusted less as the fit's rms residual grows, and not
+/// at all from this many particle spacings (its neighbours parted or mixed: the material
+/// judge's limit for a continuum, `morph/quality.rs`); its own `F_p` takes the rest.
+const FIT_TRUST_SPACINGS: f64 = 0.25;
 
 /// A carried vertex farther than this many particle spacings from every particle is counted
 /// as detached.
@@ -75,8 +98,10 @@ pub struct CarriedSurface {
     vertex_text: Vec<String>,
     /// Rest positions, world units.
     rest: Vec<Vector3<f64>>,
-    /// Rest normals, and a vertex each is used at (its deformation turns it).
+    /// Rest normals (`vn` lines), and a vertex each is used at (its turn turns it).
     normals: Vec<(Vector3<f64>, Option<usize>)>,
+    /// Each vertex's area-weighted normal at rest.
+    rest_normals: Vec<Vector3<f64>>,
     /// Faces fan-triangulated, by vertex index (for the stretch measure).
     pub triangles: Vec<[usize; 3]>,
     /// Each triangle's edge neighbours (the topology is fixed: found once, for the fold share).
@@ -88,6 +113,11 @@ pub struct CarriedSurface {
     bind: Vec<(u32, f64)>,
     /// Each vertex's offset from its particles' weighted rest centroid (sim units).
     offset: Vec<Vector3<f64>>,
+    /// Each particle's rest neighbourhood, for the particles a vertex is bound to (the
+    /// deformation `H_p` is fitted over it on every frame).
+    fits: Vec<Option<RestNeighbourhood>>,
+    /// Particle spacing (sim units).
+    spacing: f64,
     /// World -> sim map the binding was made with.
     to_sim: super::Similarity,
 }
@@ -96,8 +126,8 @@ pub struct CarriedSurface {
 pub struct CarriedFrame {
     /// World positions, one per source vertex.
     pub positions: Vec<Vector3<f64>>,
-    /// The interpolated deformation gradient at each vertex.
-    pub deformation: Vec<Matrix3<f64>>,
+    /// Each vertex's area-weighted normal on this frame.
+    pub normals: Vec<Vector3<f64>>,
 }
 
 /// What a frame's carried surface measures.
@@ -146,9 +176,13 @@ impl CarriedSurface {
         };
         surface.to_sim = to_sim;
         surface.neighbours = super::fidelity::edge_neighbours(&surface.triangles);
+        surface.rest_normals =
+            super::mesh::area_weighted_normals(&surface.rest, surface.triangles.iter().copied());
         let radii = binding_radii(&surface.rest, &surface.triangles, to_sim, spacing);
         let (offsets, bind) = binding(&surface.rest, &radii, to_sim, particles);
         surface.offset = centroid_offsets(&surface.rest, to_sim, particles, &offsets, &bind);
+        surface.fits = neighbourhoods(particles, &bind, spacing);
+        surface.spacing = spacing;
         surface.offsets = offsets;
         surface.bind = bind;
         Ok(surface)
@@ -164,31 +198,65 @@ impl CarriedSurface {
     }
 
     /// The surface on a frame of particle positions `x` and deformation gradients `f` (sim
-    /// units, in the particles' order at binding); `to_world` maps sim to world.
+    /// units, in the particles' order at binding; `rest_particles` their rest positions).
     pub fn carry(
         &self,
         rest_particles: &[Vector3<f64>],
         x: &[Vector3<f64>],
         f: &[Matrix3<f64>],
     ) -> CarriedFrame {
+        let gradients = self.gradients(rest_particles, x, f);
         let back = 1.0 / self.to_sim.scale;
-        let (positions, deformation) = (0..self.rest.len())
+        let positions: Vec<Vector3<f64>> = (0..self.rest.len())
             .map(|i| {
                 let mut motion = Vector3::zeros();
                 let mut g = Matrix3::zeros();
                 for &(p, w) in &self.bind[self.offsets[i]..self.offsets[i + 1]] {
                     let p = p as usize;
                     motion += w * (x[p] - rest_particles[p]);
-                    g += w * (f[p] - Matrix3::identity());
+                    g += w * gradients[p];
                 }
-                let u = motion + g * self.offset[i];
-                (self.rest[i] + back * u, g + Matrix3::identity())
+                self.rest[i] + back * (motion + g * self.offset[i])
             })
-            .unzip();
-        CarriedFrame {
-            positions,
-            deformation,
-        }
+            .collect();
+        let normals =
+            super::mesh::area_weighted_normals(&positions, self.triangles.iter().copied());
+        CarriedFrame { positions, normals }
+    }
+
+    /// Each bound particle's displacement gradient `H_p` on this frame (the module doc): the
+    /// fitted one, faded into `F_p - I` as the fit's residual grows; zero for a particle no
+    /// vertex is bound to.
+    fn gradients(
+        &self,
+        rest: &[Vector3<f64>],
+        x: &[Vector3<f64>],
+        f: &[Matrix3<f64>],
+    ) -> Vec<Matrix3<f64>> {
+        let limit = FIT_TRUST_SPACINGS * self.spacing;
+        self.fits
+            .par_iter()
+            .enumerate()
+            .map(|(p, fit)| {
+                let Some(fit) = fit else {
+                    return Matrix3::zeros();
+                };
+                let own = f[p] - Matrix3::identity();
+                let (h, residual) = fit.fit_displacement(rest, x, p);
+                let fitted = h.iter().all(|v| v.is_finite())
+                    && (h + Matrix3::identity()).determinant() > 0.0;
+                if !fitted {
+                    return own;
+                }
+                let trust = (1.0 - residual / limit).max(0.0).powi(2);
+                // At rest `h` is exactly zero and the trust exactly 1: frame 1 stays the source.
+                if trust == 1.0 {
+                    h
+                } else {
+                    trust * h + (1.0 - trust) * own
+                }
+            })
+            .collect()
     }
 
     /// Largest and smallest principal stretch over the triangles, and the vertices detached
@@ -240,8 +308,8 @@ impl CarriedSurface {
                     }
                     Line::Normal(k) => {
                         let (n, at) = self.normals[*k];
-                        let n = match at.and_then(|i| frame.deformation[i].try_inverse()) {
-                            Some(inv) => (inv.transpose() * n).try_normalize(1e-30).unwrap_or(n),
+                        let n = match at {
+                            Some(i) => turned(n, self.rest_normals[i], frame.normals[i]),
                             None => n,
                         };
                         writeln!(w, "vn {} {} {}", n.x as f32, n.y as f32, n.z as f32)?;
@@ -251,6 +319,22 @@ impl CarriedSurface {
             Ok(())
         })
     }
+}
+
+/// `n` turned by the smallest rotation taking the unit normal `from` to `to`: `n` itself where
+/// they are equal (a vertex at rest) or either is zero (a vertex of no area), and `to` where
+/// the surface has turned over (no smallest rotation).
+fn turned(n: Vector3<f64>, from: Vector3<f64>, to: Vector3<f64>) -> Vector3<f64> {
+    if from == to || from == Vector3::zeros() || to == Vector3::zeros() {
+        return n;
+    }
+    let (axis, cos) = (from.cross(&to), from.dot(&to));
+    if cos <= -1.0 + 1e-9 {
+        return to;
+    }
+    // Rodrigues' formula for the rotation about `axis` by the angle between the two.
+    let rotated = n + axis.cross(&n) + axis.cross(&axis.cross(&n)) / (1.0 + cos);
+    rotated.try_normalize(1e-300).unwrap_or(n)
 }
 
 /// The largest and smallest singular values of the map taking a triangle's rest edges to its
@@ -355,6 +439,31 @@ fn binding(
         offsets.push(bind.len());
     }
     (offsets, bind)
+}
+
+/// The rest neighbourhood of every particle some vertex is bound to (`None` for the others,
+/// and where the neighbours do not span the space).
+fn neighbourhoods(
+    particles: &[Vector3<f64>],
+    bind: &[(u32, f64)],
+    spacing: f64,
+) -> Vec<Option<RestNeighbourhood>> {
+    let mut bound = vec![false; particles.len()];
+    for &(p, _) in bind {
+        bound[p as usize] = true;
+    }
+    let radius = FIT_SPACINGS * spacing;
+    let grid = PointGrid::new(particles, radius);
+    (0..particles.len())
+        .into_par_iter()
+        .map(|p| {
+            if bound[p] {
+                RestNeighbourhood::new(particles, &grid, p, radius)
+            } else {
+                None
+            }
+        })
+        .collect()
 }
 
 /// Each vertex's offset (sim units) from the weighted rest centroid of its particles.
@@ -555,6 +664,9 @@ fn empty() -> CarriedSurface {
         offsets: Vec::new(),
         bind: Vec::new(),
         offset: Vec::new(),
+        rest_normals: Vec::new(),
+        fits: Vec::new(),
+        spacing: 1.0,
         to_sim: super::Similarity::identity(),
     }
 }
@@ -569,6 +681,21 @@ mod tests {
         let now = [2.0 * Vector3::x(), 0.5 * Vector3::y()];
         let (lo, hi) = principal_stretches(rest, now).unwrap();
         assert!((hi - 2.0).abs() < 1e-12 && (lo - 0.5).abs() < 1e-12);
+    }
+
+    /// A source normal turns with its vertex's surface and keeps its angle to it; at rest,
+    /// or where the surface has no area, it is kept as it is.
+    #[test]
+    fn a_source_normal_turns_with_its_surface() {
+        let (from, n) = (Vector3::z(), Vector3::new(0.3, 0.0, 1.0).normalize());
+        let to = Vector3::new(1.0, 0.0, 1.0).normalize();
+        let t = turned(n, from, to);
+        assert!((t.norm() - 1.0).abs() < 1e-12);
+        assert!((t.dot(&to) - n.dot(&from)).abs() < 1e-12, "{t}");
+        assert!(t.y.abs() < 1e-12 && t.x > to.x, "{t}");
+        assert_eq!(turned(n, from, from), n);
+        assert_eq!(turned(n, Vector3::zeros(), to), n);
+        assert_eq!(turned(n, from, -from), -from);
     }
 
     /// A vertex binds over 4.5 spacings, or [`BIND_EDGES`] of its mean edge lengths where its
@@ -605,8 +732,8 @@ mod tests {
         );
     }
 
-    /// An affine motion of the particles carries every vertex exactly by the same map, and a
-    /// frame at rest gives the rest positions bit for bit.
+    /// An affine motion of the particles carries every vertex exactly by the same map, whatever
+    /// the particles' own `F`, and a frame at rest gives the rest positions bit for bit.
     #[test]
     fn affine_motion_is_carried_exactly() {
         let mut particles = Vec::new();
@@ -623,15 +750,35 @@ mod tests {
         let radii = binding_radii(&s.rest, &s.triangles, to_sim, 0.5);
         (s.offsets, s.bind) = binding(&s.rest, &radii, to_sim, &particles);
         s.offset = centroid_offsets(&s.rest, to_sim, &particles, &s.offsets, &s.bind);
+        s.rest_normals =
+            crate::geometry::mesh::area_weighted_normals(&s.rest, s.triangles.iter().copied());
+        s.fits = neighbourhoods(&particles, &s.bind, 0.5);
+        s.spacing = 0.5;
         let f0 = vec![Matrix3::identity(); particles.len()];
         let at_rest = s.carry(&particles, &particles, &f0);
         assert_eq!(at_rest.positions, s.rest);
         let a = Matrix3::new(1.1, 0.2, 0.0, -0.1, 0.9, 0.05, 0.0, 0.1, 1.2);
         let t = Vector3::new(0.3, -0.2, 0.1);
         let moved: Vec<_> = particles.iter().map(|p| a * p + t).collect();
-        let frame = s.carry(&particles, &moved, &vec![a; particles.len()]);
-        for (v, r) in frame.positions.iter().zip(&s.rest) {
-            assert!((v - (a * r + t)).norm() < 1e-12);
+        // The particles' own `F` is the motion's (elastic), or the identity: the plastic
+        // control has folded the flow into the rest shape. The surface follows the material
+        // either way, and its normals turn by the motion's `F^-T`.
+        for f in [a, Matrix3::identity()] {
+            let frame = s.carry(&particles, &moved, &vec![f; particles.len()]);
+            for (v, r) in frame.positions.iter().zip(&s.rest) {
+                assert!(
+                    (v - (a * r + t)).norm() < 1e-12,
+                    "{v} against {}",
+                    a * r + t
+                );
+            }
+            // The mesh's own normals follow `a^-T`, and a source normal along them stays so.
+            let inverse_t = a.try_inverse().unwrap().transpose();
+            for (i, n) in frame.normals.iter().enumerate() {
+                let want = (inverse_t * s.rest_normals[i]).normalize();
+                assert!((n - want).norm() < 1e-12, "{n} against {want}");
+                assert!((turned(s.rest_normals[i], s.rest_normals[i], *n) - want).norm() < 1e-12);
+            }
         }
         assert_eq!((s.uvs, s.triangles.len()), (1, 1));
         assert!(matches!(&s.lines[0], Line::Kept(l) if l == "mtllib /a/m.mtl"));

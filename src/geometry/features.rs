@@ -54,8 +54,6 @@ pub const ROUNDS: usize = 3;
 /// the source's planes to the body's boundary (docs/geometry.md, "Sharp edges").
 pub const FADE_STRAIN: f64 = 0.03;
 pub const FADE_RESIDUAL: f64 = 0.1;
-/// Rest neighbours within this many spacings fit a plane particle's deformation.
-const FIT_RADIUS: f64 = 1.5;
 
 fn fade(x: f64, limit: f64) -> f64 {
     (1.0 - x / limit).max(0.0).powi(2)
@@ -92,7 +90,7 @@ impl SourcePlanes {
                 rest: rest.to_vec(),
             };
         };
-        let radius = FIT_RADIUS * spacing;
+        let radius = super::neighbourhood::FIT_SPACINGS * spacing;
         let grid = PointGrid::new(rest, radius);
         let planes = (0..rest.len())
             .into_par_iter()

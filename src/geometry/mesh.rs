@@ -424,17 +424,10 @@ impl TriMesh {
 
     /// Area-weighted vertex normals (unit length; zero for an unused vertex).
     pub fn vertex_normals(&self) -> Vec<Vector3<f64>> {
-        let mut n = vec![Vector3::zeros(); self.vertices.len()];
-        for t in &self.triangles {
-            let [a, b, c] = self.corners(t);
-            let face = (b - a).cross(&(c - a));
-            for &v in t {
-                n[v as usize] += face;
-            }
-        }
-        n.iter()
-            .map(|v| v.try_normalize(1e-300).unwrap_or_else(Vector3::zeros))
-            .collect()
+        area_weighted_normals(
+            &self.vertices,
+            self.triangles.iter().map(|t| t.map(|v| v as usize)),
+        )
     }
 
     /// Normals per triangle corner that keep creases: a corner's normal is the area-weighted
@@ -1026,6 +1019,25 @@ fn one_line(s: &str) -> String {
         Some((head, _)) => head.to_string(),
         None => flat,
     }
+}
+
+/// Unit vertex normals of the triangles over `vertices`: the sum of the faces' area vectors
+/// around each vertex, normalized (zero for a vertex of no face or of zero area).
+pub fn area_weighted_normals(
+    vertices: &[Vector3<f64>],
+    triangles: impl Iterator<Item = [usize; 3]>,
+) -> Vec<Vector3<f64>> {
+    let mut n = vec![Vector3::zeros(); vertices.len()];
+    for t in triangles {
+        let [a, b, c] = t.map(|v| vertices[v]);
+        let face = (b - a).cross(&(c - a));
+        for v in t {
+            n[v] += face;
+        }
+    }
+    n.iter()
+        .map(|v| v.try_normalize(1e-300).unwrap_or_else(Vector3::zeros))
+        .collect()
 }
 
 #[cfg(test)]

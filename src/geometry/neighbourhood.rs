@@ -8,7 +8,13 @@
 use super::point_grid::PointGrid;
 use nalgebra::{Matrix3, Vector3};
 
+/// Rest neighbours within this many particle spacings fit a particle's deformation (about 14
+/// of them in a full neighbourhood: enough to span the space at a surface too, few enough to
+/// see the deformation at a particle's own scale).
+pub const FIT_SPACINGS: f64 = 1.5;
+
 /// A particle's rest neighbours and their rest offsets' inverse Gram matrix, made once.
+#[derive(Clone, Debug)]
 pub struct RestNeighbourhood {
     neighbours: Vec<u32>,
     gram_inverse: Matrix3<f64>,
@@ -42,18 +48,42 @@ impl RestNeighbourhood {
     /// The fitted deformation of particle `i` from `rest` to `x` and the fit's rms residual
     /// (in the positions' units).
     pub fn fit(&self, rest: &[Vector3<f64>], x: &[Vector3<f64>], i: usize) -> (Matrix3<f64>, f64) {
-        let (xi, ri) = (x[i], rest[i]);
+        self.fit_offsets(rest, i, |j| x[j] - x[i])
+    }
+
+    /// The fitted displacement gradient `F - I` of particle `i` from `rest` to `x`, and the
+    /// same residual as [`Self::fit`]. Fitted to the displacements themselves, so a frame at
+    /// rest gives exactly zero (the carried surface's first frame is the source bit for bit).
+    pub fn fit_displacement(
+        &self,
+        rest: &[Vector3<f64>],
+        x: &[Vector3<f64>],
+        i: usize,
+    ) -> (Matrix3<f64>, f64) {
+        let moved = |j: usize| x[j] - rest[j];
+        self.fit_offsets(rest, i, |j| moved(j) - moved(i))
+    }
+
+    /// The least-squares `M` with `offset(j) = M (X_j - X_i)` over the neighbours, and its rms
+    /// residual.
+    fn fit_offsets(
+        &self,
+        rest: &[Vector3<f64>],
+        i: usize,
+        offset: impl Fn(usize) -> Vector3<f64>,
+    ) -> (Matrix3<f64>, f64) {
+        let ri = rest[i];
         let mut moment = Matrix3::zeros();
         for &j in &self.neighbours {
-            moment += (x[j as usize] - xi) * (rest[j as usize] - ri).transpose();
+            moment += offset(j as usize) * (rest[j as usize] - ri).transpose();
         }
-        let f = moment * self.gram_inverse;
+        let m = moment * self.gram_inverse;
         let residual = self
             .neighbours
             .iter()
-            .map(|&j| ((x[j as usize] - xi) - f * (rest[j as usize] - ri)).norm_squared())
+            .map(|&j| (offset(j as usize) - m * (rest[j as usize] - ri)).norm_squared())
             .sum::<f64>()
             / self.neighbours.len() as f64;
-        (f, residual.sqrt())
+        (m, residual.sqrt())
     }
 }

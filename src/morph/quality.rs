@@ -146,8 +146,6 @@ impl Progress {
 /// The material cover's half-width: a particle stands for its rest cell (`h` wide), widened
 /// by a tenth so that neighbouring deformed cells, fitted apart, leave no cracks.
 pub const MATERIAL_HALF_WIDTH: f64 = 0.55;
-/// Rest neighbours within this many spacings fit a particle's deformation.
-const MATERIAL_FIT_RADIUS: f64 = 1.5;
 /// A fit whose rms residual is above this many spacings (neighbours that parted or mixed)
 /// is not a continuum there: the particle covers its undeformed cell.
 const MATERIAL_FIT_RESIDUAL: f64 = 0.25;
@@ -162,7 +160,7 @@ fn fitted_deformation(
     x: &[Vector3<f64>],
     spacing: f64,
 ) -> Vec<Matrix3<f64>> {
-    let radius = MATERIAL_FIT_RADIUS * spacing;
+    let radius = crate::geometry::neighbourhood::FIT_SPACINGS * spacing;
     let grid = PointGrid::new(rest, radius);
     (0..rest.len())
         .into_par_iter()
