@@ -17,10 +17,10 @@
 //! ([`RestNeighbourhood::fit_displacement`]), not the particle's own `F_p - I`: the plastic
 //! control folds the flow into the rest shape and elasticity takes `F_p` back toward a
 //! rotation, so after a flow `F_p` no longer says how the material around the particle has
-//! changed shape, and a vertex carried by it stays where the mean motion of its particles'
-//! centroid puts it: short of a part that grew, proud of one that shrank (docs/geometry.md,
-//! "The carried surface"). Where the fit fails (the neighbours parted or mixed: a rms
-//! residual toward [`FIT_TRUST_SPACINGS`]) the particle's own `F_p - I` takes over, faded in.
+//! changed shape (with the fit the carried surface ends 2-10% nearer the target on average:
+//! docs/geometry.md, "What turns the carried surface"). Where the fit fails (the neighbours
+//! parted or mixed: an rms residual toward [`FIT_TRUST_SPACINGS`]) the particle's own
+//! `F_p - I` takes over, faded in.
 //!
 //! Why this form and this radius (`BIND_SPACINGS`): where the body's surface compresses
 //! (sphere -> spot's neck, 30x in one direction) neighbouring vertices come closer than the
@@ -98,7 +98,8 @@ pub struct CarriedSurface {
     vertex_text: Vec<String>,
     /// Rest positions, world units.
     rest: Vec<Vector3<f64>>,
-    /// Rest normals (`vn` lines), and a vertex each is used at (its turn turns it).
+    /// Rest normals (`vn` lines), and the vertex each is written at (it turns as that
+    /// vertex's normal on the mesh turns).
     normals: Vec<(Vector3<f64>, Option<usize>)>,
     /// Each vertex's area-weighted normal at rest.
     rest_normals: Vec<Vector3<f64>>,
