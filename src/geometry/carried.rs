@@ -127,7 +127,8 @@ pub struct CarriedSurface {
 pub struct CarriedFrame {
     /// World positions, one per source vertex.
     pub positions: Vec<Vector3<f64>>,
-    /// Each vertex's area-weighted normal on this frame.
+    /// Each vertex's area-weighted normal on this frame (empty when the source has no `vn`
+    /// lines: nothing turns).
     pub normals: Vec<Vector3<f64>>,
 }
 
@@ -220,8 +221,12 @@ impl CarriedSurface {
                 self.rest[i] + back * (motion + g * self.offset[i])
             })
             .collect();
-        let normals =
-            super::mesh::area_weighted_normals(&positions, self.triangles.iter().copied());
+        // Only a source with normals of its own (`vn` lines) writes any.
+        let normals = if self.normals.is_empty() {
+            Vec::new()
+        } else {
+            super::mesh::area_weighted_normals(&positions, self.triangles.iter().copied())
+        };
         CarriedFrame { positions, normals }
     }
 
