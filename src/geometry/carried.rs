@@ -367,10 +367,10 @@ fn principal_stretches(rest: [Vector3<f64>; 2], now: [Vector3<f64>; 2]) -> Optio
 
 /// Vertices (sim units) farther than `radius` from every particle of `x`.
 fn detached(vertices: &[Vector3<f64>], x: &[Vector3<f64>], radius: f64) -> usize {
-    let grid = CellHash::new(x, radius);
+    let grid = PointGrid::new(x, radius);
     vertices
         .iter()
-        .filter(|v| grid.within(v, radius, x).next().is_none())
+        .filter(|v| !grid.any_within(v, radius))
         .count()
 }
 
@@ -418,16 +418,16 @@ fn binding(
     particles: &[Vector3<f64>],
 ) -> (Vec<usize>, Vec<(u32, f64)>) {
     let largest = radii.iter().copied().fold(0.0, f64::max);
-    let grid = CellHash::new(particles, largest);
+    let grid = PointGrid::new(particles, largest);
     let mut offsets = vec![0];
     let mut bind = Vec::new();
     for (v, &radius) in rest.iter().zip(radii) {
         let at = to_sim.apply(v);
         let start = bind.len();
-        for p in grid.within(&at, radius, particles) {
+        grid.for_each_within(&at, radius, |p| {
             let q = (particles[p] - at).norm_squared() / (radius * radius);
             bind.push((p as u32, (1.0 - q).powi(3)));
-        }
+        });
         if bind.len() == start {
             let nearest = (0..particles.len())
                 .min_by(|&a, &b| {
@@ -490,42 +490,6 @@ fn centroid_offsets(
             to_sim.apply(v) - centre
         })
         .collect()
-}
-
-/// Points hashed into cubic cells, for radius queries.
-struct CellHash {
-    cell: f64,
-    cells: rustc_hash::FxHashMap<[i64; 3], Vec<u32>>,
-}
-
-impl CellHash {
-    fn new(points: &[Vector3<f64>], cell: f64) -> CellHash {
-        let mut cells: rustc_hash::FxHashMap<[i64; 3], Vec<u32>> = Default::default();
-        for (i, p) in points.iter().enumerate() {
-            cells.entry(Self::key(p, cell)).or_default().push(i as u32);
-        }
-        CellHash { cell, cells }
-    }
-
-    fn key(p: &Vector3<f64>, cell: f64) -> [i64; 3] {
-        [0, 1, 2].map(|a| (p[a] / cell).floor() as i64)
-    }
-
-    /// Points within `radius` (at most the cell size) of `q`, in index order per cell.
-    fn within<'a>(
-        &'a self,
-        q: &'a Vector3<f64>,
-        radius: f64,
-        points: &'a [Vector3<f64>],
-    ) -> impl Iterator<Item = usize> + 'a {
-        let k = Self::key(q, self.cell);
-        (-1..=1)
-            .flat_map(move |a| (-1..=1).flat_map(move |b| (-1..=1).map(move |c| [a, b, c])))
-            .filter_map(move |d| self.cells.get(&[k[0] + d[0], k[1] + d[1], k[2] + d[2]]))
-            .flatten()
-            .map(|&i| i as usize)
-            .filter(move |&i| (points[i] - q).norm_squared() <= radius * radius)
-    }
 }
 
 /// An OBJ file's lines, its vertices, normals and faces.
