@@ -183,31 +183,31 @@ impl Bins {
         let origin = spec.origin_vec();
         let inv_dx = 1.0 / spec.dx;
         let bdims = nodes.map(|n| n.div_ceil(BLOCK));
-        // Stencil base node per axis, as in `Stencil::new`.
-        let base_of = |x: f64, a: usize| -> f64 {
-            let xg = (x - origin[a]) * inv_dx;
-            if support == 3 {
-                super::kernel::floor(xg - 0.5)
-            } else {
-                super::kernel::floor(xg) - 1.0
-            }
-        };
+        // Each particle's block: that of its stencil base node, `floor(xg - 0.5)` (quadratic)
+        // or `floor(xg) - 1` (cubic) as in `Stencil::new`, where `xg` is its position in
+        // cells. With `y = xg - 0.5` (or `xg - 1`, exact for `xg >= 1`) the stencil lies on
+        // the grid iff `0 <= y < nodes + 1 - support`, and there the floor is the truncation,
+        // so the check comes first and no floor is taken (its branch cost as much as the rest
+        // of the build). NaN fails the check.
+        let shift = if support == 3 { 0.5 } else { 1.0 };
+        let ends = nodes.map(|n| (n + 1) as f64 - support as f64);
         let block_of: Vec<u32> = positions
             .par_iter()
             .map(|x| {
                 let mut blk = 0usize;
                 for a in 0..3 {
-                    let b = base_of(x[a], a);
-                    // Also rejects NaN: every comparison with NaN is false.
-                    if !(b >= 0.0 && b + (support as f64) <= nodes[a] as f64) {
+                    let y = (x[a] - origin[a]) * inv_dx - shift;
+                    if !(y >= 0.0 && y < ends[a]) {
                         return u32::MAX;
                     }
-                    blk = blk * bdims[a] + (b as usize) / BLOCK;
+                    blk = blk * bdims[a] + (y as usize) / BLOCK;
                 }
                 blk as u32
             })
             .collect();
-        if let Some(p) = block_of.par_iter().position_first(|&b| b == u32::MAX) {
+        // A serial scan: rayon's `position_first` checked a shared flag at every particle and
+        // cost a third of the build.
+        if let Some(p) = block_of.iter().position(|&b| b == u32::MAX) {
             let x = positions[p];
             return Err(if x.iter().all(|c| c.is_finite()) {
                 SimError::OutsideGrid {
@@ -426,6 +426,71 @@ impl<'a, T> SharedMut<'a, T> {
 mod tests {
     use super::*;
     use crate::mpm::kernel::Stencil;
+
+    /// A particle goes to the block of its stencil's base node, and is refused exactly
+    /// when its stencil leaves the grid or it is not finite: positions on and next to every
+    /// bound, for both kernels.
+    #[test]
+    fn blocks_follow_the_stencil_base_and_its_bounds() {
+        let spec = GridSpec {
+            origin: [-1.0, -0.5, -2.0],
+            dx: 0.25,
+            cells: [13, 9, 17],
+        };
+        let (origin, dx, nodes) = (spec.origin_vec(), spec.dx, spec.nodes());
+        let bdims = nodes.map(|n| n.div_ceil(BLOCK));
+        // Along x, cell coordinates on, just below and just above every half cell.
+        let mut xs = Vec::new();
+        for i in -4..=2 * nodes[0] as i64 + 4 {
+            let g = 0.5 * i as f64;
+            for v in [g, g.next_down(), g.next_up()] {
+                xs.push(Vector3::new(origin[0] + v * dx, 0.6, 0.1));
+            }
+        }
+        xs.push(Vector3::new(f64::NAN, 0.6, 0.1));
+        xs.push(Vector3::new(f64::INFINITY, 0.6, 0.1));
+        fn check<const N: usize>(
+            spec: &GridSpec,
+            x: &Vector3<f64>,
+            origin: &Vector3<f64>,
+            dx: f64,
+            nodes: [usize; 3],
+            bdims: [usize; 3],
+        ) -> usize
+        where
+            Stencil<N>: crate::mpm::kernel::Cached,
+        {
+            let inside = x.iter().all(|c| c.is_finite()) && {
+                let s = Stencil::<N>::new(x, origin, dx);
+                (0..3).all(|a| s.base[a] >= 0 && s.base[a] as usize + N <= nodes[a])
+            };
+            match Bins::build(spec, std::slice::from_ref(x), N, 0) {
+                Ok(bins) => {
+                    assert!(inside, "{x:?} taken with support {N}");
+                    let s = Stencil::<N>::new(x, origin, dx);
+                    let c = bins.blocks[0].coords;
+                    let expected = s.base.map(|b| (b / BLOCK as i64) as u32);
+                    assert_eq!(c, expected, "{x:?}, support {N}");
+                    assert!((0..3).all(|a| (c[a] as usize) < bdims[a]));
+                    1
+                }
+                Err(_) => {
+                    assert!(!inside, "{x:?} refused with support {N}");
+                    0
+                }
+            }
+        }
+        let mut taken = [0, 0];
+        for x in &xs {
+            taken[0] += check::<3>(&spec, x, &origin, dx, nodes, bdims);
+            taken[1] += check::<4>(&spec, x, &origin, dx, nodes, bdims);
+        }
+        // Both kinds of answer were seen.
+        assert!(
+            taken.iter().all(|&t| t > 10 && t < xs.len() - 10),
+            "{taken:?}"
+        );
+    }
 
     /// Particles scattered by blocks into tiles: every node holds the sum of its particles'
     /// weighted masses (as a plain loop over the particles gives, up to rounding), the same
