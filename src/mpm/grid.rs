@@ -187,8 +187,7 @@ impl Bins {
         // or `floor(xg) - 1` (cubic) as in `Stencil::new`, where `xg` is its position in
         // cells. With `y = xg - 0.5` (or `xg - 1`, exact for `xg >= 1`) the stencil lies on
         // the grid iff `0 <= y < nodes + 1 - support`, and there the floor is the truncation,
-        // so the check comes first and no floor is taken (its branch cost as much as the rest
-        // of the build). NaN fails the check.
+        // so the check comes first and no floor (a branch) is taken. NaN fails the check.
         let shift = if support == 3 { 0.5 } else { 1.0 };
         let ends = nodes.map(|n| (n + 1) as f64 - support as f64);
         let block_of: Vec<u32> = positions
@@ -427,16 +426,21 @@ mod tests {
     use super::*;
     use crate::mpm::kernel::Stencil;
 
+    /// A grid with an uneven number of cells along each axis, off the origin.
+    fn test_grid() -> GridSpec {
+        GridSpec {
+            origin: [-1.0, -0.5, -2.0],
+            dx: 0.25,
+            cells: [13, 9, 17],
+        }
+    }
+
     /// A particle goes to the block of its stencil's base node, and is refused exactly
     /// when its stencil leaves the grid or it is not finite: positions on and next to every
     /// bound, for both kernels.
     #[test]
     fn blocks_follow_the_stencil_base_and_its_bounds() {
-        let spec = GridSpec {
-            origin: [-1.0, -0.5, -2.0],
-            dx: 0.25,
-            cells: [13, 9, 17],
-        };
+        let spec = test_grid();
         let (origin, dx, nodes) = (spec.origin_vec(), spec.dx, spec.nodes());
         let bdims = nodes.map(|n| n.div_ceil(BLOCK));
         // Along x, cell coordinates on, just below and just above every half cell.
@@ -497,11 +501,7 @@ mod tests {
     /// bits on one thread, on several and sequentially, and zeros where no particle reaches.
     #[test]
     fn scatter_sums_every_particle_whatever_the_threads() {
-        let spec = GridSpec {
-            origin: [-1.0, -0.5, -2.0],
-            dx: 0.25,
-            cells: [13, 9, 17],
-        };
+        let spec = test_grid();
         let mut rng = 0x2545_f491_4f6c_dd1du64;
         let mut next = || {
             rng ^= rng << 13;
