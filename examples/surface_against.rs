@@ -4,11 +4,13 @@
 //! loses apart from what the body's shape loses.
 //!
 //! ```text
-//! cargo run --release --example surface_against -- MESH REFERENCE SPACING [REST]
+//! cargo run --release --example surface_against -- MESH REFERENCE SPACING [REST] [--colour OUT.ply]
 //! ```
 //!
 //! With `REST`, the same mesh at rest (a carried surface's frame 1), the mean angle is also
-//! split by how much each face's area grew or shrank since.
+//! split by how much each face's area grew or shrank since. `--colour` writes the mesh as a PLY
+//! whose faces are coloured by their angle (white at 0, yellow at 10 degrees, red from 20), for
+//! `scripts/render_deviation.py`.
 //!
 //! `SPACING` is the unit of the distances (a run's particle spacing in world units: `dx_sim
 //! / particles_per_cell * sim_to_world.scale`).
@@ -16,11 +18,20 @@
 use morph::geometry::fidelity::{Reference, mesh_fidelity};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let args: Vec<String> = std::env::args().skip(1).collect();
+    let mut args: Vec<String> = std::env::args().skip(1).collect();
+    let colour = match args.iter().position(|a| a == "--colour") {
+        Some(i) if i + 1 < args.len() => Some(args.drain(i..i + 2).nth(1).unwrap()),
+        Some(_) => return Err("--colour needs a file".into()),
+        None => None,
+    };
     let (mesh, reference, spacing, rest) = match &args[..] {
         [m, r, s] => (m, r, s, None),
         [m, r, s, rest] => (m, r, s, Some(rest)),
-        _ => return Err("usage: surface_against MESH REFERENCE SPACING [REST]".into()),
+        _ => {
+            return Err(
+                "usage: surface_against MESH REFERENCE SPACING [REST] [--colour OUT.ply]".into(),
+            );
+        }
     };
     let rest = match rest {
         Some(p) => Some(morph::geometry::load_mesh(std::path::Path::new(p))?.mesh),
@@ -49,6 +60,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut stretch_area = [0.0; 5];
     let mut stretch_angle = [0.0; 5];
     let mut total = 0.0;
+    let mut coloured = String::new();
     for (face, t) in mesh.triangles.iter().enumerate() {
         let [a, b, c] = t.map(|i| mesh.vertices[i as usize]);
         let cross = (b - a).cross(&(c - a));
@@ -63,6 +75,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             .clamp(-1.0, 1.0)
             .acos()
             .to_degrees();
+        if colour.is_some() {
+            let [red, green, blue] = ramp(degrees);
+            for v in [a, b, c] {
+                coloured += &format!("{} {} {} {red} {green} {blue}\n", v.x, v.y, v.z);
+            }
+        }
         let band = bands
             .iter()
             .position(|&d| (centre - q).norm() / spacing < d)
@@ -86,6 +104,18 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             angle[band] / total
         );
     }
+    if let Some(path) = colour {
+        let n = mesh.triangles.len();
+        let mut ply = format!(
+            "ply\nformat ascii 1.0\nelement vertex {}\nproperty float x\nproperty float y\nproperty float z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\nelement face {n}\nproperty list uchar int vertex_indices\nend_header\n",
+            3 * n
+        );
+        ply += &coloured;
+        for f in 0..n {
+            ply += &format!("3 {} {} {}\n", 3 * f, 3 * f + 1, 3 * f + 2);
+        }
+        std::fs::write(path, ply)?;
+    }
     if rest.is_some() {
         for (s, upper) in stretches.iter().enumerate() {
             println!(
@@ -96,4 +126,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
     }
     Ok(())
+}
+
+/// A face's colour for its angle: white at 0 degrees, yellow at 10, red from 20.
+fn ramp(degrees: f64) -> [u8; 3] {
+    let t = (degrees / 10.0).clamp(0.0, 2.0);
+    let channel = |v: f64| (255.0 * v.clamp(0.0, 1.0)).round() as u8;
+    if t <= 1.0 {
+        [255, 255, channel(1.0 - t)]
+    } else {
+        [255, channel(2.0 - t), 0]
+    }
 }
