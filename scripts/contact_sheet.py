@@ -94,6 +94,52 @@ def resolve(path, out):
     return None
 
 
+def caption(scene, view, body, at, scale):
+    """A text object `body` centred at `at`, facing the camera's `view`."""
+    curve = bpy.data.curves.new(body, "FONT")
+    curve.body = body
+    curve.align_x = "CENTER"
+    curve.size = scale
+    t = bpy.data.objects.new(body, curve)
+    t.matrix_world = Matrix.Translation(at) @ view.to_4x4()
+    t.data.materials.append(material("ink", (0.05, 0.05, 0.05)))
+    scene.collection.objects.link(t)
+
+
+def render(scene, view, mid, extent, size, width_px, samples, sun_energy, png):
+    """Renders `scene` under one orthographic camera looking along `view` at `mid`, framing
+    `extent` (width, height) in scene units (`size`: the largest object's, for the clipping),
+    with a sun and a grey world, Cycles on the CPU, into `png` through a temporary name."""
+    width, height = extent
+    cam = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
+    cam.data.type = "ORTHO"
+    cam.data.ortho_scale = max(width, height)
+    back = view @ Vector((0, 0, 1))
+    cam.matrix_world = Matrix.Translation(mid + 20 * size * back) @ view.to_4x4()
+    cam.data.clip_end = 100 * size
+    scene.collection.objects.link(cam)
+    scene.camera = cam
+    sun = bpy.data.objects.new("sun", bpy.data.lights.new("sun", "SUN"))
+    sun.data.energy = sun_energy
+    sun.matrix_world = (view @ Euler((math.radians(-30), math.radians(25), 0), "XYZ").to_matrix()).to_4x4()
+    scene.collection.objects.link(sun)
+    world = bpy.data.worlds.new("w")
+    world.color = (0.42, 0.43, 0.46)
+    scene.world = world
+    scene.render.engine = "CYCLES"
+    scene.cycles.device = "CPU"
+    scene.cycles.samples = samples
+    scene.render.resolution_x = width_px
+    scene.render.resolution_y = int(width_px * height / width)
+    scene.render.image_settings.file_format = "PNG"
+    scene.render.image_settings.color_mode = "RGB"
+    scene.render.image_settings.compression = 100
+    partial = png + ".part.png"
+    scene.render.filepath = partial
+    bpy.ops.render.render(write_still=True)
+    os.replace(partial, png)
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("out")
@@ -181,14 +227,7 @@ def main():
         ob.matrix_world = Matrix.Translation(goal - centre[ob.name]) @ ob.matrix_world
 
     def text(body, at, scale):
-        curve = bpy.data.curves.new(body, "FONT")
-        curve.body = body
-        curve.align_x = "CENTER"
-        curve.size = scale
-        t = bpy.data.objects.new(body, curve)
-        t.matrix_world = Matrix.Translation(at) @ view.to_4x4()
-        t.data.materials.append(material("ink", (0.05, 0.05, 0.05)))
-        scene.collection.objects.link(t)
+        caption(scene, view, body, at, scale)
 
     for c, f in enumerate(frames):
         text(names.get(f, f"frame {f}"), c * cell * right + 0.55 * cell * up, 0.09 * cell)
@@ -197,37 +236,11 @@ def main():
     for r, (label, _, _) in enumerate(rows):
         text(label, -0.62 * cell * right - r * cell * up, 0.09 * cell)
 
-    cam = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
-    cam.data.type = "ORTHO"
     width = (columns + 0.5) * cell
     height = (len(rows) * cell + header)
-    cam.data.ortho_scale = max(width, height)
     mid = ((columns - 1) / 2 - 0.25) * cell * right - ((len(rows) - 1) / 2 - 0.12) * cell * up
-    back = view @ Vector((0, 0, 1))
-    cam.matrix_world = Matrix.Translation(mid + 20 * size * back) @ view.to_4x4()
-    cam.data.clip_end = 100 * size
-    scene.collection.objects.link(cam)
-    scene.camera = cam
-    sun = bpy.data.objects.new("sun", bpy.data.lights.new("sun", "SUN"))
-    sun.data.energy = 4.5
-    sun.matrix_world = (view @ Euler((math.radians(-30), math.radians(25), 0), "XYZ").to_matrix()).to_4x4()
-    scene.collection.objects.link(sun)
-    world = bpy.data.worlds.new("w")
-    world.color = (0.42, 0.43, 0.46)
-    scene.world = world
-    scene.render.engine = "CYCLES"
-    scene.cycles.device = "CPU"
-    scene.cycles.samples = args.samples
-    scene.render.resolution_x = args.width
-    scene.render.resolution_y = int(args.width * height / width)
-    scene.render.image_settings.file_format = "PNG"
-    scene.render.image_settings.color_mode = "RGB"
-    scene.render.image_settings.compression = 100
     png = args.png or os.path.join(out, "contact.png")
-    partial = png + ".part.png"
-    scene.render.filepath = partial
-    bpy.ops.render.render(write_still=True)
-    os.replace(partial, png)
+    render(scene, view, mid, (width, height), size, args.width, args.samples, 4.5, png)
     print(f"contact sheet: {png}: rows {[r[0] for r in rows]}, frames {frames}"
           + (", target" if target else ""))
 

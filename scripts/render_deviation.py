@@ -13,9 +13,13 @@ module, e.g. the client check's venv).
 import argparse
 import math
 import os
+import sys
 
 import bpy
 from mathutils import Euler, Matrix, Vector
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+from contact_sheet import caption, render  # noqa: E402  (the contact sheet's camera and light)
 
 
 def load_ply(path, name):
@@ -76,48 +80,12 @@ def main():
     for c, (_, ob) in enumerate(tiles):
         ob.matrix_world = Matrix.Translation(c * cell * right - centre[ob.name]) @ ob.matrix_world
 
-    ink = bpy.data.materials.new("ink")
-    ink.use_nodes = True
-    ink.node_tree.nodes["Principled BSDF"].inputs["Base Color"].default_value = (0.05, 0.05, 0.05, 1)
-    for c, (label, _) in enumerate(tiles):
-        curve = bpy.data.curves.new(label, "FONT")
-        curve.body = label
-        curve.align_x = "CENTER"
-        curve.size = 0.07 * cell
-        t = bpy.data.objects.new(label, curve)
-        t.matrix_world = Matrix.Translation(c * cell * right + 0.55 * cell * up) @ view.to_4x4()
-        t.data.materials.append(ink)
-        scene.collection.objects.link(t)
-
-    cam = bpy.data.objects.new("cam", bpy.data.cameras.new("cam"))
-    cam.data.type = "ORTHO"
-    width, height = (len(tiles) + 0.1) * cell, 1.3 * cell
-    cam.data.ortho_scale = max(width, height)
+    for c, (text, _) in enumerate(tiles):
+        caption(scene, view, text, c * cell * right + 0.55 * cell * up, 0.07 * cell)
+    extent = ((len(tiles) + 0.1) * cell, 1.3 * cell)
     mid = (len(tiles) - 1) / 2 * cell * right + 0.1 * cell * up
-    cam.matrix_world = Matrix.Translation(mid + 20 * size * (view @ Vector((0, 0, 1)))) @ view.to_4x4()
-    cam.data.clip_end = 100 * size
-    scene.collection.objects.link(cam)
-    scene.camera = cam
-    sun = bpy.data.objects.new("sun", bpy.data.lights.new("sun", "SUN"))
-    sun.data.energy = 3.5
-    sun.matrix_world = (view @ Euler((math.radians(-30), math.radians(25), 0), "XYZ").to_matrix()).to_4x4()
-    scene.collection.objects.link(sun)
-    world = bpy.data.worlds.new("w")
-    world.color = (0.42, 0.43, 0.46)
-    scene.world = world
-    scene.render.engine = "CYCLES"
-    scene.cycles.device = "CPU"
-    scene.cycles.samples = args.samples
-    scene.render.resolution_x = args.width
-    scene.render.resolution_y = int(args.width * height / width)
-    scene.render.image_settings.file_format = "PNG"
-    scene.render.image_settings.color_mode = "RGB"
-    scene.render.image_settings.compression = 100
-    partial = args.png + ".part.png"
-    scene.render.filepath = partial
-    bpy.ops.render.render(write_still=True)
-    os.replace(partial, args.png)
-    print(f"render deviation: {args.png}: {[label for label, _ in tiles]}")
+    render(scene, view, mid, extent, size, args.width, args.samples, 3.5, args.png)
+    print(f"render deviation: {args.png}: {[text for text, _ in tiles]}")
 
 
 if __name__ == "__main__":

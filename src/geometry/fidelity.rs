@@ -90,16 +90,15 @@ pub struct Fidelity {
     pub max_distance: f64,
 }
 
-/// How true the surface (`vertices`, `triangles`) is to `reference`; `spacing` is the
-/// particle spacing in the same units. The same for any thread count.
-pub fn fidelity(
+/// Per face of the surface (`vertices`, `triangles`), in face order: its area, the angle in
+/// degrees between its normal and `reference`'s at the closest point to its centre, and that
+/// point's distance from the centre (zeros for a face of no area). What [`fidelity`] sums.
+pub fn face_deviations(
     vertices: &[Vector3<f64>],
     triangles: &[[usize; 3]],
     reference: &Reference,
-    spacing: f64,
-) -> Fidelity {
-    // Per face: area, angle, centre distance (sums are taken in face order below).
-    let faces: Vec<(f64, f64, f64)> = triangles
+) -> Vec<(f64, f64, f64)> {
+    triangles
         .par_iter()
         .map(|t| {
             let [a, b, c] = t.map(|i| vertices[i]);
@@ -113,7 +112,19 @@ pub fn fidelity(
             let cos = (cross / (2.0 * area)).dot(&n_ref).clamp(-1.0, 1.0);
             (area, cos.acos().to_degrees(), (centre - q).norm())
         })
-        .collect();
+        .collect()
+}
+
+/// How true the surface (`vertices`, `triangles`) is to `reference`; `spacing` is the
+/// particle spacing in the same units. The same for any thread count.
+pub fn fidelity(
+    vertices: &[Vector3<f64>],
+    triangles: &[[usize; 3]],
+    reference: &Reference,
+    spacing: f64,
+) -> Fidelity {
+    // Sums are taken in face order below.
+    let faces = face_deviations(vertices, triangles, reference);
     let vertex_max = vertices
         .par_iter()
         .map(|v| (v - reference.closest(v).0).norm())
