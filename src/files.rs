@@ -117,3 +117,25 @@ mod tests {
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }
+
+/// The longest piece of a file's text an error message quotes.
+pub const QUOTE_CHARS: usize = 40;
+
+/// `text` as an error message quotes it: at most [`QUOTE_CHARS`] characters, control and
+/// non-printing characters escaped, and the length said when it was cut, so that a header
+/// line of megabytes (or binary junk) gives a short error.
+pub fn quote_short(text: &str) -> String {
+    let mut out = String::new();
+    let mut chars = text.chars();
+    for c in chars.by_ref().take(QUOTE_CHARS) {
+        if c.is_control() {
+            out.extend(c.escape_default());
+        } else {
+            out.push(c);
+        }
+    }
+    if chars.next().is_some() {
+        out.push_str(&format!("... ({} bytes)", text.len()));
+    }
+    out
+}

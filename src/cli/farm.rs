@@ -19,7 +19,8 @@ pub struct FarmTemplateArgs {
     /// The template file to write.
     #[arg(long, default_value = "morph-job.json")]
     template: PathBuf,
-    /// Replace the template file if it exists.
+    /// Replace the template file if it exists (before or after the meshes: the template's job
+    /// always runs with --resume, so the morph's own --overwrite means this one).
     #[arg(long)]
     overwrite: bool,
     /// The morph: SOURCE TARGET... and any of `morph`'s options (see morph --help).
@@ -52,9 +53,9 @@ pub fn run(args: &FarmTemplateArgs) -> ExitCode {
         let (settings, source, targets) = c.morph.job()?;
         settings.validate()?;
         settings.validate_targets(targets.len())?;
-        Ok((settings, source, targets, c.morph.output().to_path_buf()))
+        Ok((settings, source, targets, c.morph.output().to_path_buf(), c.morph.overwrite()))
     });
-    let (settings, source, targets, out) = match job {
+    let (settings, source, targets, out, overwrite_given_after) = match job {
         Ok(j) => j,
         Err(e) => return super::fail(false, 2, &e),
     };
@@ -77,7 +78,7 @@ pub fn run(args: &FarmTemplateArgs) -> ExitCode {
             ),
         );
     }
-    if args.template.exists() && !args.overwrite {
+    if args.template.exists() && !(args.overwrite || overwrite_given_after) {
         return super::fail(
             false,
             2,

@@ -294,6 +294,11 @@ impl MorphArgs {
         &self.output
     }
 
+    /// Whether `--overwrite` was given.
+    pub fn overwrite(&self) -> bool {
+        self.overwrite
+    }
+
     /// The settings, source and targets these options ask for (a scene file read over its
     /// preset, then each option given).
     pub fn job(&self) -> Result<(MorphSettings, PathBuf, Vec<PathBuf>), String> {
@@ -559,7 +564,10 @@ pub fn run(args: &MorphArgs) -> ExitCode {
         }
         if openjd {
             let percent = format!("{:.1}", 100.0 * meter.observe(e).min(0.999));
-            if percent != shown_percent {
+            // Setup and a level's start know no progress yet (a resumed run's starts at its
+            // checkpoint): shown from the first step or segment on, so it never goes back.
+            let measured = !matches!(e, MorphEvent::Setup { .. } | MorphEvent::Level { .. });
+            if measured && percent != shown_percent {
                 say!("openjd_progress: {percent}");
                 shown_percent = percent;
             }

@@ -953,9 +953,10 @@ fn parse_ply(path: &Path, bytes: &[u8]) -> Result<TriMesh, MeshError> {
 /// the parser exhaust memory). Headers this check cannot read are left to the parser.
 fn check_ply_counts(bytes: &[u8]) -> Result<(), String> {
     let marker = b"end_header";
-    let Some(at) = bytes.windows(marker.len()).position(|w| w == marker) else {
+    let Some(at) = check_ply_header(bytes)? else {
         return Ok(());
     };
+    debug_assert!(bytes[at..].starts_with(marker));
     let body = bytes.len().saturating_sub(at + marker.len() + 1) as u128;
     let header = String::from_utf8_lossy(&bytes[..at]);
     let binary = header
@@ -1014,11 +1015,63 @@ fn check_ply_counts(bytes: &[u8]) -> Result<(), String> {
 
 /// Parser messages can span lines and end in a debug dump; errors are printed on one line.
 fn one_line(s: &str) -> String {
-    let flat = s.split_whitespace().collect::<Vec<_>>().join(" ");
+    // A parser quotes the line it failed on: each word is cut to a few dozen characters and
+    // the whole to a few of them, so a header line of megabytes gives a short message.
+    let flat = s
+        .split_whitespace()
+        .map(crate::files::quote_short)
+        .take(MESSAGE_WORDS)
+        .collect::<Vec<_>>()
+        .join(" ");
     match flat.split_once(" Error: ParseError") {
         Some((head, _)) => head.to_string(),
         None => flat,
     }
+}
+
+/// The most words of a parser's message an error repeats.
+const MESSAGE_WORDS: usize = 24;
+/// The longest PLY header line morph reads (the format's own lines are a few words).
+const PLY_HEADER_LINE: usize = 1024;
+/// How far into a PLY file its header may end.
+const PLY_HEADER_BYTES: usize = 1 << 20;
+
+/// Where a PLY file's `end_header` starts, `None` when the parser should find out (no
+/// marker in a short file). Refused here, before the parser reads anything: a file that does
+/// not start with `ply`, a header line longer than [`PLY_HEADER_LINE`] (a count of megabytes
+/// of digits) or a header not ended within [`PLY_HEADER_BYTES`] (binary junk).
+fn check_ply_header(bytes: &[u8]) -> Result<Option<usize>, String> {
+    let first = bytes.split(|&b| b == b'\n').next().unwrap_or(&[]);
+    if first.trim_ascii() != b"ply" {
+        let shown = String::from_utf8_lossy(&first[..first.len().min(PLY_HEADER_LINE)]);
+        return Err(format!(
+            "the file does not start with the line 'ply' (it starts '{}')",
+            crate::files::quote_short(&shown)
+        ));
+    }
+    let marker = b"end_header";
+    let mut at = 0;
+    for (number, line) in bytes.split(|&b| b == b'\n').enumerate() {
+        if line.len() > PLY_HEADER_LINE {
+            let shown = String::from_utf8_lossy(&line[..PLY_HEADER_LINE]);
+            return Err(format!(
+                "header line {} is {} bytes long (at most {PLY_HEADER_LINE}): '{}'",
+                number + 1,
+                line.len(),
+                crate::files::quote_short(&shown)
+            ));
+        }
+        if line.trim_ascii() == marker {
+            return Ok(Some(at + line.iter().position(|&b| b == b'e').unwrap_or(0)));
+        }
+        at += line.len() + 1;
+        if at > PLY_HEADER_BYTES {
+            return Err(format!(
+                "no end_header within the first {PLY_HEADER_BYTES} bytes"
+            ));
+        }
+    }
+    Ok(None)
 }
 
 /// Unit vertex normals of the triangles over `vertices`: the sum of the faces' area vectors

@@ -346,8 +346,9 @@ pub struct MeshReport {
     pub parts: Vec<mesh::PartTopology>,
     pub bounds_min: [f64; 3],
     pub bounds_max: [f64; 3],
-    /// Inside volume in the mesh's units (winding-number voxelization); null when it is
-    /// beyond f64 (a warning gives its order of magnitude).
+    /// Inside volume in the mesh's units: exact (divergence theorem) for a closed mesh, else
+    /// the winding-number voxelization's; null when it is beyond f64 (a warning gives its
+    /// order of magnitude).
     pub volume: Option<f64>,
     pub centroid: [f64; 3],
     pub resolution: usize,
@@ -384,6 +385,26 @@ pub fn inspect(path: &Path, resolution: usize) -> Result<MeshReport, MeshError> 
         warnings.push(e.to_string());
     }
     let topo = mesh.topology();
+    // A closed mesh's volume is exact by the divergence theorem; the lattice's estimate
+    // (what placement uses) cannot see parts thinner than its spacing.
+    let exact = topo.is_closed().then(|| mesh.signed_volume().abs());
+    let volume = exact.or(Some(solid.volume)).filter(|v| v.is_finite() && *v > 0.0);
+    if let (Some(exact), true) = (exact, solid.volume.is_finite())
+        && (solid.volume > 1.5 * exact || solid.volume < exact / 1.5)
+    {
+        warnings.push(format!(
+            "{}: it is thinner than morph's measuring lattice (1/{} of its longest side): its volume is {exact:.3e}, but morph measures {:.3e}, so a morph would place it at the wrong size",
+            path.display(),
+            placement::MEASURE_SAMPLES,
+            solid.volume
+        ));
+    }
+    if particles.positions.is_empty() {
+        warnings.push(format!(
+            "{}: no particle fits inside at --resolution {resolution} (the shape is thinner than a particle spacing): it cannot be a morph's source or target there; raise --resolution",
+            path.display()
+        ));
+    }
     let parts = mesh.parts();
     let genus = match parts.as_slice() {
         [one] => one.genus,
@@ -402,7 +423,7 @@ pub fn inspect(path: &Path, resolution: usize) -> Result<MeshReport, MeshError> 
         parts,
         bounds_min: solid.bounds_min,
         bounds_max: solid.bounds_max,
-        volume: (solid.volume.is_finite() && solid.volume > 0.0).then_some(solid.volume),
+        volume,
         centroid: solid.centroid,
         resolution,
         particles: particles.positions.len(),

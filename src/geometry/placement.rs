@@ -18,7 +18,7 @@ use std::path::Path;
 pub const DOMAIN_SIZE: f64 = 32.0;
 
 /// Samples across the longest side when measuring a mesh's volume and centroid.
-const MEASURE_SAMPLES: usize = 96;
+pub const MEASURE_SAMPLES: usize = 96;
 
 /// `y = scale * x + translation`.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]

@@ -109,7 +109,32 @@ impl MassGrid {
         let header: MassGridHeader = serde_json::from_slice(&bytes[12..body])
             .map_err(|e| format!("'{name}': bad header: {e}"))?;
         if header.dtype != "f64le" {
-            return Err(format!("'{name}': unsupported dtype '{}'", header.dtype));
+            return Err(format!(
+                "'{name}': unsupported dtype '{}' (morph reads f64le)",
+                short(&header.dtype)
+            ));
+        }
+        let z_slowest = match header.order.as_str() {
+            "x-slowest" => false,
+            "z-slowest" => true,
+            other => {
+                return Err(format!(
+                    "'{name}': unsupported order '{}' (morph reads x-slowest or z-slowest)",
+                    short(other)
+                ));
+            }
+        };
+        if header.units != "world" {
+            return Err(format!(
+                "'{name}': unsupported units '{}' (morph's grids are in world units)",
+                short(&header.units)
+            ));
+        }
+        if header.mass_units != "simulation" {
+            return Err(format!(
+                "'{name}': unsupported mass_units '{}' (morph's masses are in simulation units)",
+                short(&header.mass_units)
+            ));
         }
         let n = header
             .dims
@@ -123,12 +148,36 @@ impl MassGrid {
                 n * 8
             ));
         }
-        let values = bytes[body..]
+        let stored: Vec<f64> = bytes[body..]
             .chunks_exact(8)
             .map(|c| f64::from_le_bytes(c.try_into().expect("8 bytes")))
             .collect();
+        // Held x-slowest in memory, whatever the file's order, so nodes compare as nodes.
+        let values = if z_slowest {
+            let [nx, ny, nz] = header.dims;
+            let mut v = Vec::with_capacity(n);
+            for i in 0..nx {
+                for j in 0..ny {
+                    for k in 0..nz {
+                        v.push(stored[i + nx * (j + ny * k)]);
+                    }
+                }
+            }
+            v
+        } else {
+            stored
+        };
+        let header = MassGridHeader {
+            order: "x-slowest".into(),
+            ..header
+        };
         Ok(MassGrid { header, values })
     }
+}
+
+/// At most a few dozen characters of a value read from a file, for an error message.
+fn short(s: &str) -> String {
+    crate::files::quote_short(s)
 }
 
 /// Outcome of comparing two grids.

@@ -526,8 +526,33 @@ impl Staging {
         })
     }
 
+    /// Whether `dir` is still the folder this run locked: the lock file at its path is the
+    /// one this run holds open (same device and inode). A folder removed during the run and
+    /// made again by another run is that run's, and nothing of it may be touched.
+    pub fn is_ours(&self) -> bool {
+        use std::os::unix::fs::MetadataExt;
+        match (
+            self._lock.metadata(),
+            fs::symlink_metadata(self.dir.join(LOCK_FILE)),
+        ) {
+            (Ok(held), Ok(there)) => held.dev() == there.dev() && held.ino() == there.ino(),
+            _ => false,
+        }
+    }
+
+    /// The error for a staging folder that is no longer this run's.
+    fn lost(&self) -> String {
+        format!(
+            "the staging folder '{}' was removed or replaced during the run (by another run?); this run's work is lost and nothing there was touched",
+            self.dir.display()
+        )
+    }
+
     /// Empties the staging folder (an earlier run's files), keeping the lock.
     pub fn clear(&mut self) -> Result<(), String> {
+        if !self.is_ours() {
+            return Err(self.lost());
+        }
         for entry in fs::read_dir(&self.dir).map_err(|e| e.to_string())? {
             let entry = entry.map_err(|e| e.to_string())?;
             if entry.file_name() == LOCK_FILE {
@@ -545,9 +570,12 @@ impl Staging {
         Ok(())
     }
 
-    /// Removes the staging folder (a run that failed before leaving anything worth keeping).
+    /// Removes the staging folder (a run that failed before leaving anything worth keeping),
+    /// only while it is still the one this run locked ([`Staging::is_ours`]).
     pub fn discard(self) {
-        let _ = fs::remove_dir_all(&self.dir);
+        if self.is_ours() {
+            let _ = fs::remove_dir_all(&self.dir);
+        }
     }
 
     /// Puts the complete staging folder in place of `plan.out`: the old folder (if any) is
@@ -555,6 +583,9 @@ impl Staging {
     pub fn commit(self, plan: &OutputPlan) -> Result<(), String> {
         let out = &plan.out;
         let shown = out.display();
+        if !self.is_ours() {
+            return Err(self.lost());
+        }
         let aside = match fs::symlink_metadata(out) {
             Err(_) => None,
             Ok(m) => {

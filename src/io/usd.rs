@@ -377,10 +377,19 @@ fn build(seq: &UsdSequence) -> std::io::Result<Layer> {
         .expect("just made")
         .add(FieldKey::Kind, Value::Token("component".into()));
 
-    // Particles.
-    let frames = per_frame(n, |k| read_points_ply(&at(&seq.points[k])))?;
+    // Particles: each frame's values made as it is read (in f32, as USD holds them), so no
+    // more than one f64 frame per thread is held at once.
+    let first = match seq.points.first() {
+        Some(p) => Some(read_points_ply(&at(p))?),
+        None => None,
+    };
+    let frames = per_frame(n, |k| {
+        let f = read_points_ply(&at(&seq.points[k]))?;
+        let j = Value::FloatVec(f.j.iter().map(|&j| j as f32).collect());
+        Ok([vec3fs(&f.x), vec3fs(&f.v), extent(&f.x), j])
+    })?;
     let particles = layer.prim(&root, "particles", "Points");
-    let count = frames.first().map_or(0, |f| f.x.len());
+    let count = first.as_ref().map_or(0, |f| f.x.len());
     layer.attribute(
         &particles,
         "ids",
@@ -393,26 +402,30 @@ fn build(seq: &UsdSequence) -> std::io::Result<Layer> {
         "float[]",
         Value::FloatVec(vec![seq.width as f32; count]),
     );
-    if let Some(first) = frames.first() {
+    if let Some(first) = first {
         layer.vertex_primvar(&particles, "primvars:rest", "point3f[]", vec3fs(&first.x));
     }
-    let each = |f: &dyn Fn(&PointsFrame) -> Value| frames.iter().map(f).collect::<Vec<_>>();
-    let points = layer.samples(each(&|f| vec3fs(&f.x)));
+    let [mut points, mut velocities, mut extents, mut j] = [(); 4].map(|_| Vec::with_capacity(n));
+    for [x, v, e, jf] in frames {
+        points.push(x);
+        velocities.push(v);
+        extents.push(e);
+        j.push(jf);
+    }
+    let points = layer.samples(points);
     layer.attribute(&particles, "points", "point3f[]", points);
-    let velocities = layer.samples(each(&|f| vec3fs(&f.v)));
+    let velocities = layer.samples(velocities);
     layer.attribute(&particles, "velocities", "vector3f[]", velocities);
-    let extents = layer.samples(each(&|f| extent(&f.x)));
+    let extents = layer.samples(extents);
     layer.attribute(&particles, "extent", "float3[]", extents);
-    let j = layer.samples(each(&|f| {
-        Value::FloatVec(f.j.iter().map(|&j| j as f32).collect())
-    }));
+    let j = layer.samples(j);
     layer.vertex_primvar(&particles, "primvars:J", "float[]", j);
-    drop(frames);
 
     // The carried surface: the source's topology and UVs, points and velocities per frame.
     if let Some(files) = &seq.carried {
-        let frames = per_frame(n, |k| read_obj(&at(&files[k])))?;
-        let first = &frames[0];
+        // The topology and UVs once, from the first frame; each frame's positions.
+        let first = &read_obj(&at(&files[0]))?;
+        let frames = per_frame(n, |k| read_obj(&at(&files[k])).map(|f| f.positions))?;
         let carried = layer.prim(&root, "carried", "Mesh");
         layer.uniform_token(&carried, "subdivisionScheme", "none");
         layer.uniform_token(&carried, "orientation", "rightHanded");
@@ -440,14 +453,14 @@ fn build(seq: &UsdSequence) -> std::io::Result<Layer> {
                 .collect();
             layer.attribute(&carried, "primvars:st:indices", "int[]", ints(&indices));
         }
-        let points = layer.samples(frames.iter().map(|f| vec3fs(&f.positions)).collect());
+        let points = layer.samples(frames.iter().map(|f| vec3fs(f)).collect());
         layer.attribute(&carried, "points", "point3f[]", points);
         // Velocities by central differences of the frames (one-sided at the ends).
         let velocities = (0..n)
             .map(|k| {
                 let (a, b) = (k.saturating_sub(1), (k + 1).min(n - 1));
                 let dt = (b - a).max(1) as f64 / seq.fps;
-                let (pa, pb) = (&frames[a].positions, &frames[b].positions);
+                let (pa, pb) = (&frames[a], &frames[b]);
                 Value::Vec3fVec(
                     pa.iter()
                         .zip(pb)
@@ -458,23 +471,39 @@ fn build(seq: &UsdSequence) -> std::io::Result<Layer> {
             .collect();
         let velocities = layer.samples(velocities);
         layer.attribute(&carried, "velocities", "vector3f[]", velocities);
-        let extents = layer.samples(frames.iter().map(|f| extent(&f.positions)).collect());
+        let extents = layer.samples(frames.iter().map(|f| extent(f)).collect());
         layer.attribute(&carried, "extent", "float3[]", extents);
     }
 
     // The rebuilt surface: its topology changes from frame to frame.
     if let Some(files) = &seq.rebuilt {
-        let frames = per_frame(n, |k| read_obj(&at(&files[k])))?;
+        // Each frame's values made as it is read, as for the particles.
+        let frames = per_frame(n, |k| {
+            let f = read_obj(&at(&files[k]))?;
+            Ok([
+                ints(&f.counts),
+                ints(&f.indices),
+                vec3fs(&f.positions),
+                extent(&f.positions),
+            ])
+        })?;
         let rebuilt = layer.prim(&root, "rebuilt", "Mesh");
         layer.uniform_token(&rebuilt, "subdivisionScheme", "none");
-        let each = |f: &dyn Fn(&ObjFrame) -> Value| frames.iter().map(f).collect::<Vec<_>>();
-        let counts = layer.samples(each(&|f| ints(&f.counts)));
+        let [mut counts, mut indices, mut points, mut extents] =
+            [(); 4].map(|_| Vec::with_capacity(n));
+        for [c, i, p, e] in frames {
+            counts.push(c);
+            indices.push(i);
+            points.push(p);
+            extents.push(e);
+        }
+        let counts = layer.samples(counts);
         layer.attribute(&rebuilt, "faceVertexCounts", "int[]", counts);
-        let indices = layer.samples(each(&|f| ints(&f.indices)));
+        let indices = layer.samples(indices);
         layer.attribute(&rebuilt, "faceVertexIndices", "int[]", indices);
-        let points = layer.samples(each(&|f| vec3fs(&f.positions)));
+        let points = layer.samples(points);
         layer.attribute(&rebuilt, "points", "point3f[]", points);
-        let extents = layer.samples(each(&|f| extent(&f.positions)));
+        let extents = layer.samples(extents);
         layer.attribute(&rebuilt, "extent", "float3[]", extents);
     }
     // The volume: a Volume prim whose `density` field reads each frame's OpenVDB file

@@ -130,6 +130,11 @@ pub enum MorphError {
     /// and then the staging folder is removed).
     #[error("interrupted")]
     Interrupted { signal: usize, kept: bool },
+    /// The optimization could not work: its objective or gradient was not finite, or no
+    /// segment's loss moved ([`crate::morph::chain::optimization_failure`]); the message says
+    /// what to change. Nothing of the run is kept.
+    #[error("{0}")]
+    Optimization(String),
 }
 
 /// One exported frame: which, when, and the particles in world units.

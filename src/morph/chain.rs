@@ -3,8 +3,8 @@
 //! checkpoint holds), and the warnings a run's gradients call for.
 
 use super::{
-    Frame, IterationRecord, LevelRecord, MorphError, MorphEvent, MorphResult, Observer, Prepared,
-    SegmentRecord, levels, segment,
+    Frame, IterationRecord, LevelRecord, MorphError, MorphEvent, MorphResult, MorphSettings,
+    Observer, Prepared, SegmentRecord, levels, segment,
 };
 
 use crate::integrator::Integrator;
@@ -376,6 +376,9 @@ fn chain<I: Integrator>(
                 evaluations: record.evaluations,
                 seconds: record.seconds,
             });
+            if let Some(why) = non_finite(&prep.settings, &record) {
+                return Err(MorphError::Optimization(why));
+            }
             progress.segments.push(record);
             // A window keeps segment k's layers; the rest start the next window's
             // optimization (and are in the checkpoint, so a resume continues bit for bit).
@@ -498,6 +501,83 @@ pub fn run_warnings(segments: &[SegmentRecord]) -> Vec<String> {
         ));
     }
     out
+}
+
+/// Why a run's optimization could not work, in one line that says what to change, or `None`
+/// when it could: a segment whose objective or gradient was not finite ([`non_finite`]), or
+/// a run where no segment's loss moved at all (every step undone, or steps too small to
+/// change it), so the body did not go toward its target. `iterations` are the run's
+/// evaluations (an undone step's loss is infinite).
+pub fn optimization_failure(
+    settings: &MorphSettings,
+    segments: &[SegmentRecord],
+    iterations: &[IterationRecord],
+) -> Option<String> {
+    if let Some(why) = segments.iter().find_map(|r| non_finite(settings, r)) {
+        return Some(why);
+    }
+    let outsized = settings.outsized_weights();
+    let lower = format!("lower {}", outsized.join(", "));
+    let optimized: Vec<&SegmentRecord> = segments.iter().filter(|r| r.evaluations > 1).collect();
+    let moved = |r: &&SegmentRecord| r.loss < (1.0 - MOVED_SHARE) * r.initial_loss;
+    if optimized.is_empty() || optimized.iter().any(moved) {
+        return None;
+    }
+    // Nothing moved. Undone steps raised the objective or blew the simulation up (steps too
+    // large); accepted ones that left the loss where it was were too small to matter.
+    let steps = iterations.iter().filter(|i| i.iteration > 0);
+    let undone = steps.clone().filter(|i| !i.loss.is_finite()).count();
+    let lr = settings.optimizer.learning_rate;
+    let advice = match (2 * undone >= steps.count(), outsized.is_empty()) {
+        (true, true) => format!(
+            "most steps raised the objective or blew the simulation up: try a smaller --learning-rate (now {lr:e})"
+        ),
+        (true, false) => format!(
+            "most steps raised the objective or blew the simulation up: {lower}, or try a smaller --learning-rate (now {lr:e})"
+        ),
+        (false, true) => format!(
+            "its steps changed almost nothing: the learning rate {lr:e} is too small for these controls; try a larger --learning-rate"
+        ),
+        (false, false) => format!(
+            "its steps changed almost nothing: {lower} (it drowns the mass loss), or try a larger --learning-rate (now {lr:e})"
+        ),
+    };
+    Some(format!(
+        "the optimization did not move the body: no segment's loss went down by {}% in {} evaluations ({undone} steps undone); {advice}",
+        100.0 * MOVED_SHARE,
+        optimized.iter().map(|r| r.evaluations).sum::<usize>()
+    ))
+}
+
+/// The least share of its loss a segment's optimization removes to have moved the body (a
+/// healthy morph's early segments remove 30-70%).
+pub const MOVED_SHARE: f64 = 0.01;
+
+/// Why segment `r` could not be optimized, when its objective or its gradient was not finite
+/// (a weight that overflows 64-bit floats: no control can move); checked as each segment
+/// ends, so such a run stops at once.
+pub fn non_finite(settings: &MorphSettings, r: &SegmentRecord) -> Option<String> {
+    let outsized = settings.outsized_weights();
+    let lower = if outsized.is_empty() {
+        "lower the objective's weights".to_string()
+    } else {
+        format!("lower {}", outsized.join(", "))
+    };
+    let at = format!("pass {} segment {}", r.pass + 1, r.segment + 1);
+    if !r.initial_loss.is_finite() {
+        return Some(format!(
+            "the objective is not finite ({at} starts at loss {}): {lower}",
+            r.initial_loss
+        ));
+    }
+    // No gradient is recorded (NaN) for a segment of one evaluation.
+    let took_gradient = settings.optimizer.iterations > 1 && r.evaluations > 1;
+    (took_gradient && !r.grad_norm_first.is_finite()).then(|| {
+        format!(
+            "the objective's gradient is not finite ({at}, loss {:.3e}), so no control could move: {lower}",
+            r.initial_loss
+        )
+    })
 }
 
 impl RunProgress {

@@ -386,6 +386,57 @@ impl Prepared {
     }
 }
 
+/// Bytes one particle of one frame takes in the USD layer while it is written: points,
+/// velocities (f32 x 3 each), `J` (f32) and a share of the time-sample map.
+pub const USD_PARTICLE_BYTES: u64 = 32;
+/// Rebuilt-surface vertices per particle a plan allows for (measured: 0.83 on sphere ->
+/// cube at 17,256 particles, 1.05 on sphere -> two-lobes at 11,752; thin parts have more
+/// surface for their volume).
+pub const REBUILT_VERTICES_PER_PARTICLE: f64 = 1.5;
+/// Bytes one rebuilt vertex of one frame takes in the USD layer: its point (f32 x 3) and,
+/// at two triangles a vertex, their indices and counts (i32).
+pub const USD_REBUILT_VERTEX_BYTES: u64 = 48;
+/// Bytes one carried vertex of one frame takes while the USD layer is made: its f64
+/// position (for the velocities' differences) and its point and velocity (f32 x 3 each).
+pub const USD_CARRIED_VERTEX_BYTES: u64 = 48;
+
+/// Estimated bytes of the USD layer of `frames` frames of `particles` particles, with the
+/// surfaces `settings` asks for (`source_vertices`: the carried surface's), all held at once
+/// while the file is written ([`crate::io::usd`]); 0 when no USD file is written.
+pub fn usd_bytes(settings: &MorphSettings, particles: u64, frames: u64, source_vertices: u64) -> u64 {
+    use super::settings::Surfaces;
+    if settings.usd == crate::io::usd::UsdFormat::None {
+        return 0;
+    }
+    let carried = matches!(settings.surfaces, Surfaces::Carried | Surfaces::Both);
+    let rebuilt = matches!(settings.surfaces, Surfaces::Rebuilt | Surfaces::Both);
+    let rebuilt_vertices = (REBUILT_VERTICES_PER_PARTICLE * particles as f64).ceil() as u64;
+    let per_frame = particles * USD_PARTICLE_BYTES
+        + if carried { source_vertices * USD_CARRIED_VERTEX_BYTES } else { 0 }
+        + if rebuilt { rebuilt_vertices * USD_REBUILT_VERTEX_BYTES } else { 0 };
+    frames * per_frame
+}
+
+impl Prepared {
+    /// Refuses `plan` before any step when the whole-sequence writers would not fit in its
+    /// limit: the USD layer is built once every frame is on disk (the tapes are gone by then;
+    /// the rest of the fixed part is still held), from every frame at once.
+    pub fn check_writers(&self, plan: &MemoryPlan, source_vertices: usize) -> Result<(), MorphError> {
+        let n = self.initial.len() as u64;
+        let frames = self.frame_count() as u64;
+        let usd = usd_bytes(&self.settings, n, frames, source_vertices as u64);
+        let need = plan.fixed + (usd as f64 * (1.0 + ALLOCATOR_SLACK)) as u64;
+        if usd > 0 && need > plan.limit {
+            return Err(MorphError::Settings(format!(
+                "--memory-limit {} is below the {} this morph's USD file needs while it is written ({frames} frames of {n} particles and their surfaces, held at once); raise it, write fewer frames, or pass --usd none",
+                show_bytes(plan.limit),
+                show_bytes(need.div_ceil(1 << 20) * (1 << 20)),
+            )));
+        }
+        Ok(())
+    }
+}
+
 /// A size as people read it: `150 MB`, `4.0 GB` (powers of 1024).
 pub fn show_bytes(b: u64) -> String {
     let b = b as f64;

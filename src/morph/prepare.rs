@@ -116,13 +116,9 @@ impl Prepared {
         targets: &[(&LoadedMesh, &Path)],
     ) -> Result<Prepared, MorphError> {
         settings.validate().map_err(MorphError::Settings)?;
-        if !settings.at.is_empty() && settings.at.len() != targets.len() {
-            return Err(MorphError::Settings(format!(
-                "--at gives {} frame(s) for {} target(s): give one frame per target",
-                settings.at.len(),
-                targets.len()
-            )));
-        }
+        settings
+            .validate_targets(targets.len())
+            .map_err(MorphError::Settings)?;
         let jitter = (settings.jitter > 0.0).then_some(Jitter {
             amount: settings.jitter,
             seed: settings.seed,

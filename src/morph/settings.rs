@@ -532,7 +532,40 @@ impl MorphSettings {
                 self.at.len()
             ));
         }
+        // Spread over the shot (no --at): each target needs a frame of its own after the
+        // first, up to the default arrival.
+        let frames = self.shot().frame_count();
+        let room = default_arrival(frames).saturating_sub(1);
+        if self.at.is_empty() && targets > room {
+            return Err(format!(
+                "{targets} target meshes need a keyframe each, but a shot of {frames} frames has room for {room} (frames 2 to {}): give fewer targets, a longer shot (--frames, --seconds) or --at",
+                room + 1
+            ));
+        }
         Ok(())
+    }
+
+    /// The objective's weights set far above their defaults (a hundred times, or above a
+    /// million where the default is 0), as `--name value (default d)`: what to lower when the
+    /// objective overflows or drowns the mass loss.
+    pub fn outsized_weights(&self) -> Vec<String> {
+        let d = MorphSettings::default();
+        [
+            ("volume-weight", self.volume_weight, d.volume_weight),
+            ("path-weight", self.path_weight, d.path_weight),
+            ("fine-weight", self.fine_weight, d.fine_weight),
+            ("reach-weight", self.reach_weight, d.reach_weight),
+            ("arrival-weight", self.arrival_weight, d.arrival_weight),
+            ("waypoint-weight", self.waypoint_weight, d.waypoint_weight),
+            ("control-smoothing", self.control_smoothing, d.control_smoothing),
+        ]
+        .into_iter()
+        .filter(|&(_, v, d)| {
+            let bound = if d > 0.0 { 1e2 * d } else { 1e6 };
+            !(v.abs() <= bound)
+        })
+        .map(|(name, v, d)| format!("--{name} {v:e} (default {d})"))
+        .collect()
     }
 
     /// Checks every setting; the message names the option. Counts are checked before

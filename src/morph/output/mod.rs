@@ -268,6 +268,7 @@ pub fn morph_to_folder(
         )?;
         let mut prep = Prepared::from_meshes(settings, (&src, source), &meshes)?;
         let memory = prep.plan_memory(request.memory_limit)?;
+        prep.check_writers(&memory, src.mesh.vertices.len())?;
         Ok((prep, memory))
     })();
     let (prep, memory) = match prepared {
@@ -331,7 +332,23 @@ pub fn morph_to_folder(
         }
         Err(e) => {
             // Keep whatever a later --resume can use; remove a staging folder with nothing in it.
-            let kept = checkpoint::exists(&staging.dir);
+            // Only while the folder is still the one this run locked: removed and made again
+            // by another run, it is that run's.
+            if !staging.is_ours() {
+                return Err(match e {
+                    MorphError::Interrupted { signal, .. } => MorphError::Interrupted {
+                        signal,
+                        kept: false,
+                    },
+                    e => MorphError::Output(format!(
+                        "{e}; the staging folder '{}' was removed or replaced during the run (by another run?): nothing there was touched",
+                        staging.dir.display()
+                    )),
+                });
+            }
+            // A failed optimization is no work to continue: a resume would fail the same way.
+            let kept = checkpoint::exists(&staging.dir)
+                && !matches!(e, MorphError::Optimization(_));
             let dir = staging.dir.clone();
             if !kept {
                 staging.discard();

@@ -43,6 +43,12 @@ pub(super) fn write_run(
     let source = Path::new(&identity.inputs[0].path);
     let sinks = sinks::for_folder(prep, dir, source)?;
     let (result, written, sinks) = run_writing_frames(prep, dir, run_id, resume, sinks, caller)?;
+    // A body the optimization never moved is no morph: refused before the sequence's files.
+    if let Some(why) =
+        crate::morph::optimization_failure(settings, &result.segments, &result.iterations)
+    {
+        return Err(MorphError::Optimization(why));
+    }
     let frames_summary = FramesSummary::of(&written.stats);
     let (motion, keyframes) = motion_and_keyframes(prep, identity, &written);
     let quality_over_time = quality_over_time(prep, &written);
