@@ -5,6 +5,8 @@
 //! survive, through the real binary.
 
 mod common;
+#[path = "safety/third_probe.rs"]
+mod third_probe;
 use common::cli::Scratch;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Output, Stdio};

@@ -429,6 +429,35 @@ pub fn plan(
     })
 }
 
+/// The lock file a run holds open, by device and inode: what makes a staging folder that
+/// run's, whatever its path.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LockId {
+    dev: u64,
+    ino: u64,
+}
+
+impl LockId {
+    /// Whether the lock file in `dir` is this one (the folder is still the run's own).
+    pub fn holds(&self, dir: &Path) -> bool {
+        use std::os::unix::fs::MetadataExt;
+        fs::symlink_metadata(dir.join(LOCK_FILE))
+            .is_ok_and(|m| (m.dev(), m.ino()) == (self.dev, self.ino))
+    }
+
+    /// `Err` with a message when `dir` is no longer the folder this run locked.
+    pub fn check(&self, dir: &Path) -> Result<(), String> {
+        if self.holds(dir) {
+            Ok(())
+        } else {
+            Err(format!(
+                "the staging folder '{}' was removed or replaced during the run (by another run?); this run stopped and touched nothing there",
+                dir.display()
+            ))
+        }
+    }
+}
+
 /// What the staging folder held when it was taken.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Previous {
@@ -526,18 +555,21 @@ impl Staging {
         })
     }
 
-    /// Whether `dir` is still the folder this run locked: the lock file at its path is the
-    /// one this run holds open (same device and inode). A folder removed during the run and
-    /// made again by another run is that run's, and nothing of it may be touched.
+    /// Whether `dir` is still the folder this run locked ([`LockId::holds`]). A folder
+    /// removed during the run and made again by another run is that run's, and nothing of it
+    /// may be touched.
     pub fn is_ours(&self) -> bool {
+        self.lock_id().is_some_and(|id| id.holds(&self.dir))
+    }
+
+    /// The identity of the lock file this run holds open.
+    pub fn lock_id(&self) -> Option<LockId> {
         use std::os::unix::fs::MetadataExt;
-        match (
-            self._lock.metadata(),
-            fs::symlink_metadata(self.dir.join(LOCK_FILE)),
-        ) {
-            (Ok(held), Ok(there)) => held.dev() == there.dev() && held.ino() == there.ino(),
-            _ => false,
-        }
+        let m = self._lock.metadata().ok()?;
+        Some(LockId {
+            dev: m.dev(),
+            ino: m.ino(),
+        })
     }
 
     /// The error for a staging folder that is no longer this run's.

@@ -308,11 +308,14 @@ pub fn morph_to_folder(
         } else {
             None
         };
+        let lock = staging.lock_id().ok_or_else(|| {
+            MorphError::Output(format!("cannot read the lock of '{}'", staging.dir.display()))
+        })?;
         run::write_run(
             &prep,
             &identity,
             &run_id,
-            &staging.dir,
+            (&staging.dir, lock),
             resume,
             memory,
             setup_s,

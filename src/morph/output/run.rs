@@ -27,7 +27,7 @@ pub(super) fn write_run(
     prep: &Prepared,
     identity: &RunIdentity,
     run_id: &str,
-    dir: &Path,
+    (dir, lock): (&Path, outdir::LockId),
     resume: Option<RunProgress>,
     memory: MemoryPlan,
     setup_s: f64,
@@ -42,7 +42,7 @@ pub(super) fn write_run(
         .map(|p| checkpoint::describe(p, settings.passes, prep.settings.segments));
     let source = Path::new(&identity.inputs[0].path);
     let sinks = sinks::for_folder(prep, dir, source)?;
-    let (result, written, sinks) = run_writing_frames(prep, dir, run_id, resume, sinks, caller)?;
+    let (result, written, sinks) = run_writing_frames(prep, (dir, lock), run_id, resume, sinks, caller)?;
     // A body the optimization never moved is no morph: refused before the sequence's files.
     if let Some(why) =
         crate::morph::optimization_failure(settings, &result.segments, &result.iterations)
@@ -118,6 +118,7 @@ pub(super) fn write_run(
         quality_over_time,
     };
     let manifest_path = dir.join(MANIFEST);
+    lock.check(dir).map_err(MorphError::Output)?;
     let json =
         serde_json::to_vec_pretty(&manifest).map_err(|e| MorphError::Output(e.to_string()))?;
     crate::io::write_atomically(&manifest_path, |w| std::io::Write::write_all(w, &json))

@@ -3,6 +3,7 @@
 
 use super::manifest::FrameStats;
 use super::sinks::{FrameRecord, FrameSink, SinkFrame, out_err};
+use crate::io::outdir::LockId;
 use crate::morph::memory::WRITE_QUEUE;
 use crate::morph::quality::{Progress, Quality, close_neighbour_share};
 use crate::morph::{
@@ -42,7 +43,7 @@ pub(super) struct Caller<'a> {
 /// the sinks to finish.
 pub(super) fn run_writing_frames(
     prep: &Prepared,
-    dir: &Path,
+    (dir, lock): (&Path, LockId),
     run_id: &str,
     resume: Option<RunProgress>,
     sinks: Sinks,
@@ -54,6 +55,7 @@ pub(super) fn run_writing_frames(
     let (answers, done) = channel();
     let mut writer = FolderWriter {
         dir,
+        lock,
         run_id,
         work,
         done,
@@ -173,6 +175,8 @@ fn frame_stats(frame: &Frame) -> FrameStats {
 /// segments, and passes on events and stop requests.
 struct FolderWriter<'a> {
     dir: &'a Path,
+    /// The staging folder's lock: `dir` is checked to be still this run's before each write.
+    lock: LockId,
     /// The run's identity, which seals its checkpoint files.
     run_id: &'a str,
     /// The writer thread's queue, and its answers (see [`FrameWork`]).
@@ -360,6 +364,8 @@ impl Observer for FolderWriter<'_> {
         if let Some(on_frame) = self.on_frame {
             on_frame(frame);
         }
+        // Never a write into a folder another run made at this one's path.
+        self.lock.check(self.dir).map_err(MorphError::Output)?;
         self.collect(false)?;
         let index = frame.index;
         // A frame written again (a later pass) waits for the writer's earlier answers on it.
@@ -420,6 +426,7 @@ impl Observer for FolderWriter<'_> {
     fn segment_done(&mut self, progress: &RunProgress, segment: usize) -> Result<(), MorphError> {
         // A checkpoint counts only frames that are on disk.
         self.collect(true)?;
+        self.lock.check(self.dir).map_err(MorphError::Output)?;
         let path = self.stats_path();
         checkpoint::write_json(&path, self.run_id, &self.stats)
             .map_err(|e| out_err("checkpoint", &path, e))?;

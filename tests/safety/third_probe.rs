@@ -1,0 +1,380 @@
+//! The third hostile probe's defects (issue 62), each through the real binary: another run's
+//! staging folder, the memory limit with the USD writer, an optimization that cannot work,
+//! `compare` and the header's layout, short errors on PLY junk, `inspect` on a mesh that cannot
+//! be a source, too many targets, `farm-template --overwrite`, farm progress on resume.
+
+use super::*;
+
+/// A morph of a few seconds with the knobs of the probe (`S` in the issue).
+const PROBE: &[&str] = &[
+    "--preset",
+    "draft",
+    "--resolution",
+    "16",
+    "--segments",
+    "2",
+    "--iterations",
+    "3",
+    "--quiet",
+];
+
+fn signal(child: &Child, name: &str) {
+    send(child, name);
+}
+
+fn wait_for(path: &Path, what: &str) {
+    let t0 = Instant::now();
+    while !path.exists() {
+        assert!(t0.elapsed() < Duration::from_secs(60), "{what} never came");
+        std::thread::sleep(Duration::from_millis(5));
+    }
+}
+
+/// Defect 1: run A's staging folder is removed by hand and run B takes the path; A, going
+/// on, fails without touching B's folder (and writes nothing into it), and B completes.
+#[test]
+fn a_failing_run_never_touches_another_runs_staging_folder() {
+    let dir = scratch("probe3-staging");
+    let keep = sentinel(&dir);
+    let (s, t) = (asset("sphere.obj"), asset("two-lobes.obj"));
+    let a = command(&dir, &morph_args(&s, &t, "c3", SMALL))
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let partial = dir.join("c3.partial");
+    wait_for(&partial.join("checkpoint/progress.json"), "A's first checkpoint");
+    // A is held still while its folder goes and B takes the path, then let go.
+    signal(&a, "STOP");
+    std::fs::remove_dir_all(&partial).unwrap();
+    let b = command(&dir, &morph_args(&s, &t, "c3", SMALL))
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    wait_for(&partial.join("run.json"), "B's staging folder");
+    signal(&a, "CONT");
+    let a = a.wait_with_output().unwrap();
+    assert_one_line_error(&a, 1, &["was removed or replaced during the run"]);
+    let b = b.wait_with_output().unwrap();
+    assert_eq!(b.status.code(), Some(0), "{}", stderr(&b));
+    // B's folder is whole and holds only B's frames.
+    let m: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("c3/manifest.json")).unwrap()).unwrap();
+    for f in m["files"].as_array().unwrap() {
+        assert!(dir.join("c3").join(f.as_str().unwrap()).is_file(), "{f}");
+    }
+    assert_eq!(
+        files(&dir.join("c3/frames")).len(),
+        m["frames"].as_array().unwrap().len()
+    );
+    assert!(!partial.exists());
+    assert_sentinel(&keep);
+}
+
+/// `morph ARGS` in `dir` with its peak resident memory (bytes, from the kernel's own count
+/// of the child: `wait4`).
+fn run_measuring_memory(dir: &Path, args: &[&str]) -> (Output, u64) {
+    let child = command(dir, args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let pid = child.id() as libc::pid_t;
+    // Read the pipes on threads so the child never blocks on them.
+    let mut child = child;
+    let (mut out, mut err) = (child.stdout.take().unwrap(), child.stderr.take().unwrap());
+    let read_out = std::thread::spawn(move || {
+        let mut v = Vec::new();
+        std::io::Read::read_to_end(&mut out, &mut v).unwrap();
+        v
+    });
+    let read_err = std::thread::spawn(move || {
+        let mut v = Vec::new();
+        std::io::Read::read_to_end(&mut err, &mut v).unwrap();
+        v
+    });
+    let mut status = 0;
+    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
+    // SAFETY: `pid` is this process's own child, not yet waited for; the pointers are live.
+    let waited = unsafe { libc::wait4(pid, &mut status, 0, &mut usage) };
+    assert_eq!(waited, pid);
+    let code = libc::WIFEXITED(status).then(|| libc::WEXITSTATUS(status));
+    let output = Output {
+        status: std::os::unix::process::ExitStatusExt::from_raw(status),
+        stdout: read_out.join().unwrap(),
+        stderr: read_err.join().unwrap(),
+    };
+    assert_eq!(output.status.code(), code);
+    (output, usage.ru_maxrss as u64 * 1024)
+}
+
+/// What the memory test allows above the limit: the allocator's slack over what the plan
+/// counts (`ALLOCATOR_SLACK`, 10%) and 16 MB for the binary's own pages.
+fn allowance(limit: u64) -> u64 {
+    limit / 10 + (16 << 20)
+}
+
+/// Defect 2: a run of many frames with USD on stays within --memory-limit, writers included;
+/// a limit the USD layer cannot fit in is refused before any work, and --usd none fits it.
+#[test]
+fn memory_limit_holds_for_a_run_of_many_frames_with_usd() {
+    let dir = scratch("probe3-memory");
+    let (s, t) = (asset("sphere.obj"), asset("cube.obj"));
+    let shot = [
+        "--preset",
+        "draft",
+        "--resolution",
+        "16",
+        "--iterations",
+        "1",
+        "--frames",
+        "121",
+        "--quiet",
+    ];
+    let args = |out: &'static str, limit: &'static str, extra: &[&'static str]| {
+        let mut v = morph_args(&s, &t, out, &shot);
+        v.extend(["--memory-limit", limit]);
+        v.extend_from_slice(extra);
+        v.into_iter().map(String::from).collect::<Vec<_>>()
+    };
+    // Refused before work where the USD layer cannot fit: nothing written.
+    let low = args("low", "100M", &[]);
+    let low: Vec<&str> = low.iter().map(String::as_str).collect();
+    let o = run(&dir, &low);
+    assert_one_line_error(&o, 2, &["USD file needs", "--usd none"]);
+    assert!(!dir.join("low").exists() && !dir.join("low.partial").exists());
+    // Without the USD the same limit holds the run.
+    let none = args("none", "100M", &["--usd", "none"]);
+    let none: Vec<&str> = none.iter().map(String::as_str).collect();
+    let (o, peak) = run_measuring_memory(&dir, &none);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    assert!(peak <= (100 << 20) + allowance(100 << 20), "peak {peak}");
+    // With it, a limit the plan accepts holds the whole run.
+    let usd = args("usd", "170M", &[]);
+    let usd: Vec<&str> = usd.iter().map(String::as_str).collect();
+    let (o, peak) = run_measuring_memory(&dir, &usd);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    assert!(dir.join("usd/morph.usdc").is_file());
+    assert!(peak <= (170 << 20) + allowance(170 << 20), "peak {peak}");
+}
+
+/// Defects 3-5: an optimization that cannot work (a non-finite objective or gradient, a
+/// loss that never moves) exits 1 with one line naming what to change, the right way round,
+/// and leaves nothing behind.
+#[test]
+fn an_optimization_that_cannot_work_fails_saying_what_to_change() {
+    let dir = scratch("probe3-optimization");
+    let keep = sentinel(&dir);
+    let (s, t) = (asset("sphere.obj"), asset("cube.obj"));
+    let cases: &[(&[&str], &[&str])] = &[
+        (&["--volume-weight", "1e6"], &["did not move the body", "lower --volume-weight"]),
+        (&["--path-weight", "1e300"], &["gradient is not finite", "lower --path-weight"]),
+        (&["--fine-weight", "1e300"], &["gradient is not finite", "lower --fine-weight"]),
+        (
+            &["--control-smoothing", "1e300"],
+            &["did not move the body", "lower --control-smoothing"],
+        ),
+        (&["--learning-rate", "1e-300"], &["did not move the body", "larger --learning-rate"]),
+    ];
+    for (extra, needles) in cases {
+        let mut args = morph_args(&s, &t, "o", PROBE);
+        args.extend_from_slice(extra);
+        let o = run(&dir, &args);
+        assert_one_line_error(&o, 1, needles);
+        assert!(!stderr(&o).contains("smaller --learning-rate") || extra[0] != "--learning-rate");
+        assert!(!dir.join("o").exists() && !dir.join("o.partial").exists(), "{extra:?}");
+    }
+    // A healthy run of the same shot passes.
+    let o = run(&dir, &morph_args(&s, &t, "o", PROBE));
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    assert_sentinel(&keep);
+}
+
+/// A mass grid file: `header` (JSON) over `values`.
+fn write_grid(path: &Path, header: &str, values: &[f64]) {
+    let mut bytes = b"MORPHMG1".to_vec();
+    bytes.extend((header.len() as u32).to_le_bytes());
+    bytes.extend(header.as_bytes());
+    for v in values {
+        bytes.extend(v.to_le_bytes());
+    }
+    std::fs::write(path, bytes).unwrap();
+}
+
+fn grid_header(order: &str, units: &str) -> String {
+    format!(
+        r#"{{"dims":[2,3,4],"origin":[0,0,0],"dx":1,"dtype":"f64le","order":"{order}","units":"{units}","mass_units":"simulation"}}"#
+    )
+}
+
+/// Defect 6: `compare` reads the layout the header declares (x- or z-slowest) and refuses an
+/// order or units it cannot read.
+#[test]
+fn compare_reads_the_headers_order_and_refuses_what_it_cannot() {
+    let dir = scratch("probe3-compare");
+    let (nx, ny, nz) = (2, 3, 4);
+    let mass = |i: usize, j: usize, k: usize| (100 * i + 10 * j + k) as f64;
+    let mut x_slowest = Vec::new();
+    for i in 0..nx {
+        for j in 0..ny {
+            for k in 0..nz {
+                x_slowest.push(mass(i, j, k));
+            }
+        }
+    }
+    let mut z_slowest = Vec::new();
+    for k in 0..nz {
+        for j in 0..ny {
+            for i in 0..nx {
+                z_slowest.push(mass(i, j, k));
+            }
+        }
+    }
+    let (a, b, c) = (dir.join("a.mgrid"), dir.join("b.mgrid"), dir.join("c.mgrid"));
+    write_grid(&a, &grid_header("x-slowest", "world"), &x_slowest);
+    write_grid(&b, &grid_header("z-slowest", "world"), &z_slowest);
+    // The same masses in two layouts: equal.
+    let o = run(&dir, &["compare", "a.mgrid", "b.mgrid"]);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    // The z-slowest bytes declared x-slowest are other masses: different.
+    write_grid(&c, &grid_header("x-slowest", "world"), &z_slowest);
+    let o = run(&dir, &["compare", "a.mgrid", "c.mgrid"]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    for (order, units, needle) in [
+        ("banana", "world", "unsupported order 'banana'"),
+        ("x-slowest", "millimetres", "unsupported units 'millimetres'"),
+    ] {
+        write_grid(&c, &grid_header(order, units), &x_slowest);
+        let o = run(&dir, &["compare", "a.mgrid", "c.mgrid"]);
+        assert_one_line_error(&o, 2, &[needle]);
+    }
+}
+
+/// Defect 7: a PLY header line of megabytes and a file of NULs named .ply give a short,
+/// one-line error.
+#[test]
+fn ply_junk_gives_a_short_error() {
+    let dir = scratch("probe3-ply");
+    let long = dir.join("long.ply");
+    let mut text = b"ply\nformat ascii 1.0\nelement vertex ".to_vec();
+    text.extend(std::iter::repeat_n(b'9', 5 << 20));
+    text.extend(b"\nproperty float x\nend_header\n");
+    std::fs::write(&long, text).unwrap();
+    let nul = dir.join("nul.ply");
+    std::fs::write(&nul, vec![0u8; 8 << 20]).unwrap();
+    for (file, needle) in [(&long, "header line 3 is"), (&nul, "does not start with the line 'ply'")]
+    {
+        let o = run(&dir, &["inspect", &file.display().to_string()]);
+        assert_one_line_error(&o, 1, &[needle]);
+        assert!(o.stderr.len() < 400, "{} bytes", o.stderr.len());
+    }
+}
+
+/// An axis-aligned box `size` from the origin, as an OBJ.
+fn write_box(path: &Path, size: [f64; 3]) {
+    let (v, f) = cube([0.0; 3]);
+    let v: Vec<[f64; 3]> = v
+        .iter()
+        .map(|p| [p[0] * size[0], p[1] * size[1], p[2] * size[2]])
+        .collect();
+    write_obj(path, &v, &f);
+}
+
+/// Defect 8: `inspect` warns of a mesh no particle fits in (it cannot be a source), and gives
+/// a closed mesh's exact volume.
+#[test]
+fn inspect_warns_of_a_mesh_that_cannot_be_a_source() {
+    let dir = scratch("probe3-inspect");
+    for (name, size) in [("needle.obj", [1.0, 1e-6, 1e-6]), ("slab.obj", [1.0, 1.0, 0.01])] {
+        let path = dir.join(name);
+        write_box(&path, size);
+        let (report, err) = inspect(&dir, &path);
+        assert_eq!(report["particles"], 0);
+        let exact = size[0] * size[1] * size[2];
+        let volume = report["volume"].as_f64().unwrap();
+        assert!((volume / exact - 1.0).abs() < 1e-6, "{volume} vs {exact}");
+        let warnings = report["warnings"].as_array().unwrap();
+        assert!(
+            warnings
+                .iter()
+                .any(|w| w.as_str().unwrap().contains("no particle fits inside")),
+            "{warnings:?}"
+        );
+        assert!(err.contains("morph: warning:") && err.contains("cannot be a morph's source"));
+    }
+    // A mesh that can be a source has no such warning, and its volume is exact too.
+    let path = dir.join("cube.obj");
+    write_box(&path, [1.0, 2.0, 3.0]);
+    let (report, _) = inspect(&dir, &path);
+    assert!(report["particles"].as_u64().unwrap() > 0);
+    assert!((report["volume"].as_f64().unwrap() - 6.0).abs() < 1e-9);
+    assert!(report["warnings"].as_array().unwrap().is_empty(), "{report}");
+}
+
+/// Defect 9: more targets than the shot has keyframes for are refused before any mesh is
+/// read, without naming an --at that was never given.
+#[test]
+fn too_many_targets_are_refused_before_loading() {
+    let dir = scratch("probe3-targets");
+    let s = asset("sphere.obj");
+    let cube = asset("cube.obj");
+    let mut args = vec![s.as_str()];
+    args.extend(std::iter::repeat_n(cube.as_str(), 12));
+    args.extend(["-o", "x", "--frames", "13"]);
+    let o = run(&dir, &args);
+    assert_one_line_error(&o, 2, &["12 target meshes need a keyframe each", "room for"]);
+    assert!(!stderr(&o).contains("--at:"));
+    // Meshes that do not exist show the check comes before any is read.
+    let mut args = vec![s.as_str()];
+    args.extend(std::iter::repeat_n("missing.obj", 1000));
+    args.extend(["-o", "x", "--frames", "13"]);
+    let o = run(&dir, &args);
+    assert_one_line_error(&o, 2, &["1000 target meshes"]);
+    assert!(!dir.join("x").exists() && !dir.join("x.partial").exists());
+}
+
+/// Defect 10: `farm-template`'s --overwrite counts after the meshes too.
+#[test]
+fn farm_template_overwrite_after_the_meshes() {
+    let dir = scratch("probe3-farm");
+    let (s, t) = (asset("sphere.obj"), asset("cube.obj"));
+    std::fs::write(dir.join("job.json"), "old").unwrap();
+    let args = [
+        "farm-template", "openjd", "--template", "job.json", &s, &t, "--overwrite",
+    ];
+    let o = run(&dir, &args);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let job = std::fs::read_to_string(dir.join("job.json")).unwrap();
+    assert!(job.contains("jobtemplate-2023-09"), "{job}");
+    // Without it, still refused.
+    let o = run(&dir, &args[..args.len() - 1]);
+    assert_one_line_error(&o, 2, &["exists; pass --overwrite"]);
+}
+
+/// Defect 11: a resumed run's farm progress starts where the interrupted one was, never at 0.
+#[test]
+fn farm_progress_never_goes_back_on_resume() {
+    let dir = scratch("probe3-progress");
+    let (s, t) = (asset("sphere.obj"), asset("two-lobes.obj"));
+    let mut args = morph_args(&s, &t, "out", SMALL);
+    args.extend(["--progress", "openjd"]);
+    let mut child = command(&dir, &args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    wait_for_checkpoint(&dir, &mut child);
+    signal(&child, "TERM");
+    let o = child.wait_with_output().unwrap();
+    assert_eq!(o.status.code(), Some(143), "{}", stderr(&o));
+    args.push("--resume");
+    let o = run(&dir, &args);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let shown: Vec<f64> = String::from_utf8_lossy(&o.stdout)
+        .lines()
+        .filter_map(|l| l.strip_prefix("openjd_progress: "))
+        .map(|p| p.parse().unwrap())
+        .collect();
+    assert!(shown[0] > 0.0, "{shown:?}");
+    assert!(shown.windows(2).all(|w| w[0] <= w[1]), "{shown:?}");
+    assert_eq!(shown.last(), Some(&100.0));
+}
