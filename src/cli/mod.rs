@@ -153,9 +153,13 @@ pub fn main() -> ExitCode {
         // the results are the same for any count.
         let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
         if t > cores {
-            eprintln!(
-                "morph: warning: --threads {t} is more than this machine's {cores} cores; using {cores}"
-            );
+            // The morph's --quiet holds every warning back, this one too.
+            let quiet = cli.command.is_none() && cli.morph.quiet();
+            if !quiet {
+                eprintln!(
+                    "morph: warning: --threads {t} is more than this machine's {cores} cores; using {cores}"
+                );
+            }
             threads = Some(cores);
         }
     }

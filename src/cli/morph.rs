@@ -294,6 +294,11 @@ impl MorphArgs {
         &self.output
     }
 
+    /// Whether `--quiet` was given (no summary, no warnings).
+    pub fn quiet(&self) -> bool {
+        self.quiet
+    }
+
     /// Whether `--overwrite` was given.
     pub fn overwrite(&self) -> bool {
         self.overwrite
@@ -503,9 +508,11 @@ impl MorphArgs {
 
 /// SIGINT, SIGTERM and SIGHUP (a closed terminal or SSH session) set `stop` to the signal's
 /// number: the run stops at its next evaluation and keeps its checkpoint. A second signal
-/// while stopping exits at once. SIGPIPE is ignored so that a closed stdout (a log reader
-/// that went away) is seen as a failed write, which stops the run the same way.
-fn stop_on_signals() -> std::io::Result<Arc<AtomicUsize>> {
+/// while stopping exits at once, with its line (and, with `--json`, its `interrupted` event)
+/// written from the handler: the checkpoint's files are written under temporary names and
+/// renamed, so the last one a resume needs is whole. SIGPIPE is ignored so that a closed stdout
+/// (a log reader that went away) is seen as a failed write, which stops the run the same way.
+fn stop_on_signals(json: bool, staging: &std::path::Path) -> std::io::Result<Arc<AtomicUsize>> {
     use signal_hook::consts::{SIGHUP, SIGINT, SIGTERM};
     // SAFETY: setting one signal's disposition to "ignore" is async-signal-safe.
     unsafe {
@@ -514,7 +521,34 @@ fn stop_on_signals() -> std::io::Result<Arc<AtomicUsize>> {
     let stop = Arc::new(AtomicUsize::new(0));
     let stopping = Arc::new(std::sync::atomic::AtomicBool::new(false));
     for sig in [SIGINT, SIGTERM, SIGHUP] {
-        signal_hook::flag::register_conditional_shutdown(sig, 128 + sig, Arc::clone(&stopping))?;
+        let code = 128 + sig;
+        let message = format!(
+            "interrupted again by {} while stopping: exited at once; the last checkpoint in '{}', if one was written, is kept for --resume",
+            signal_name(sig as usize),
+            staging.display()
+        );
+        // Made now: the handler only writes bytes (no allocation, no lock).
+        let line = format!("morph: {message}\n").into_bytes();
+        let event = json.then(|| {
+            let e = serde_json::json!({ "event": "interrupted", "signal": signal_name(sig as usize), "message": message, "exit_code": code });
+            format!("{e}\n").into_bytes()
+        });
+        let again = Arc::clone(&stopping);
+        let second = move || {
+            if again.load(std::sync::atomic::Ordering::SeqCst) {
+                // SAFETY: write(2) and _exit(2) are async-signal-safe; the buffers are owned
+                // by this closure and never change.
+                unsafe {
+                    libc::write(2, line.as_ptr().cast(), line.len());
+                    if let Some(e) = &event {
+                        libc::write(1, e.as_ptr().cast(), e.len());
+                    }
+                    libc::_exit(code);
+                }
+            }
+        };
+        // SAFETY: the action does only async-signal-safe work (see above).
+        unsafe { signal_hook::low_level::register(sig, second)? };
         signal_hook::flag::register(sig, Arc::clone(&stopping))?;
         signal_hook::flag::register_usize(sig, Arc::clone(&stop), sig as usize)?;
     }
@@ -540,7 +574,7 @@ pub fn run(args: &MorphArgs) -> ExitCode {
         Ok(j) => j,
         Err(e) => return fail_run(args, 2, &e),
     };
-    let stop = match stop_on_signals() {
+    let stop = match stop_on_signals(args.json, &morph::io::outdir::partial_dir(&args.output)) {
         Ok(s) => s,
         Err(e) => return fail_run(args, 1, &format!("cannot watch for signals: {e}")),
     };

@@ -429,6 +429,18 @@ pub fn plan(
     })
 }
 
+/// Why [`Staging::take`] could not take the staging folder.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum TakeError {
+    /// Another live run holds its lock (the run fails: exit 1).
+    #[error("{0}")]
+    InUse(String),
+    /// It cannot be made or used (a read-only or missing parent, a file in its place,
+    /// foreign files): a bad output folder, refused before any work (exit 2).
+    #[error("{0}")]
+    Unusable(String),
+}
+
 /// The lock file a run holds open, by device and inode: what makes a staging folder that
 /// run's, whatever its path.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -481,17 +493,19 @@ impl Staging {
     /// run marks the staging folder as its own, and `known` the names a run writes at its
     /// top (with `.tmp` for a file being written); a folder without the identity, or holding
     /// any other name, is refused.
-    pub fn take(plan: &OutputPlan, identity: &str, known: &[&str]) -> Result<Staging, String> {
+    pub fn take(plan: &OutputPlan, identity: &str, known: &[&str]) -> Result<Staging, TakeError> {
+        use TakeError::Unusable;
         let dir = &plan.staging;
         let shown = dir.display();
         if let Ok(m) = fs::symlink_metadata(dir)
             && !m.is_dir()
         {
-            return Err(format!(
+            return Err(Unusable(format!(
                 "'{shown}' exists and is not a folder; move it away"
-            ));
+            )));
         }
-        fs::create_dir_all(dir).map_err(|e| format!("cannot create folder '{shown}': {e}"))?;
+        fs::create_dir_all(dir)
+            .map_err(|e| Unusable(format!("cannot create folder '{shown}': {e}")))?;
         let lock_path = dir.join(LOCK_FILE);
         let mut lock = OpenOptions::new()
             .read(true)
@@ -499,7 +513,7 @@ impl Staging {
             .create(true)
             .truncate(false)
             .open(&lock_path)
-            .map_err(|e| format!("cannot create '{}': {e}", lock_path.display()))?;
+            .map_err(|e| Unusable(format!("cannot create '{}': {e}", lock_path.display())))?;
         match lock.try_lock() {
             Ok(()) => {}
             Err(fs::TryLockError::WouldBlock) => {
@@ -511,21 +525,21 @@ impl Staging {
                 } else {
                     format!("another morph run (process {owner})")
                 };
-                return Err(format!(
+                return Err(TakeError::InUse(format!(
                     "output folder '{}' is being written by {who}; wait for it or choose another -o",
                     plan.out.display()
-                ));
+                )));
             }
             Err(fs::TryLockError::Error(e)) => {
-                return Err(format!("cannot lock '{}': {e}", lock_path.display()));
+                return Err(Unusable(format!("cannot lock '{}': {e}", lock_path.display())));
             }
         }
         lock.set_len(0)
             .and_then(|_| writeln!(lock, "{}", std::process::id()))
             .and_then(|_| lock.flush())
-            .map_err(|e| format!("cannot write '{}': {e}", lock_path.display()))?;
+            .map_err(|e| Unusable(format!("cannot write '{}': {e}", lock_path.display())))?;
         let others: Vec<String> = fs::read_dir(dir)
-            .map_err(|e| format!("cannot read '{shown}': {e}"))?
+            .map_err(|e| Unusable(format!("cannot read '{shown}': {e}")))?
             .filter_map(|e| e.ok())
             .map(|e| e.file_name().to_string_lossy().into_owned())
             .filter(|n| n != LOCK_FILE)
@@ -538,15 +552,15 @@ impl Staging {
                 .iter()
                 .find(|n| !ours(n) && !n.strip_suffix(".tmp").is_some_and(ours))
             {
-                return Err(format!(
+                return Err(Unusable(format!(
                     "'{shown}' holds '{foreign}', which morph does not write; move it away"
-                ));
+                )));
             }
             Previous::Run
         } else {
-            return Err(format!(
+            return Err(Unusable(format!(
                 "'{shown}' holds files morph did not write (no {identity}); move it away"
-            ));
+            )));
         };
         Ok(Staging {
             dir: dir.clone(),

@@ -48,8 +48,9 @@ impl SceneFile {
             .extension()
             .is_some_and(|e| e.eq_ignore_ascii_case("json"));
         let mut table: toml::Table = if json {
-            let value: serde_json::Value =
-                serde_json::from_str(text).map_err(|e| format!("scene file '{shown}': {e}"))?;
+            let value = serde_json::from_str::<Strict>(text)
+                .map_err(|e| format!("scene file '{shown}': {e}"))?
+                .0;
             toml::Table::try_from(value).map_err(|e| {
                 format!("scene file '{shown}': {e} (the top level must be an object)")
             })?
@@ -321,6 +322,74 @@ fn one_line(message: &str) -> String {
             format!("{at}: {last}")
         }
         _ => message.trim().to_string(),
+    }
+}
+
+/// A JSON value whose objects never repeat a key: `serde_json` keeps the last of repeated
+/// keys, so a scene file naming a setting twice would run with one of them silently (TOML's
+/// parser refuses a repeated key itself).
+struct Strict(serde_json::Value);
+
+impl<'de> serde::Deserialize<'de> for Strict {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Strict, D::Error> {
+        d.deserialize_any(StrictVisitor).map(Strict)
+    }
+}
+
+struct StrictVisitor;
+
+impl<'de> serde::de::Visitor<'de> for StrictVisitor {
+    type Value = serde_json::Value;
+
+    fn expecting(&self, f: &mut std::fmt::Formatter) -> std::fmt::Result {
+        f.write_str("a JSON value")
+    }
+
+    fn visit_bool<E>(self, v: bool) -> Result<Self::Value, E> {
+        Ok(v.into())
+    }
+    fn visit_i64<E>(self, v: i64) -> Result<Self::Value, E> {
+        Ok(v.into())
+    }
+    fn visit_u64<E>(self, v: u64) -> Result<Self::Value, E> {
+        Ok(v.into())
+    }
+    fn visit_f64<E>(self, v: f64) -> Result<Self::Value, E> {
+        Ok(v.into())
+    }
+    fn visit_str<E>(self, v: &str) -> Result<Self::Value, E> {
+        Ok(v.into())
+    }
+    fn visit_string<E>(self, v: String) -> Result<Self::Value, E> {
+        Ok(v.into())
+    }
+    fn visit_unit<E>(self) -> Result<Self::Value, E> {
+        Ok(serde_json::Value::Null)
+    }
+    fn visit_none<E>(self) -> Result<Self::Value, E> {
+        Ok(serde_json::Value::Null)
+    }
+
+    fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut seq: A) -> Result<Self::Value, A::Error> {
+        let mut items = Vec::new();
+        while let Some(Strict(v)) = seq.next_element()? {
+            items.push(v);
+        }
+        Ok(items.into())
+    }
+
+    fn visit_map<A: serde::de::MapAccess<'de>>(self, mut map: A) -> Result<Self::Value, A::Error> {
+        let mut object = serde_json::Map::new();
+        while let Some(key) = map.next_key::<String>()? {
+            let Strict(value) = map.next_value()?;
+            if object.insert(key.clone(), value).is_some() {
+                return Err(serde::de::Error::custom(format!(
+                    "the key `{}` is given twice",
+                    crate::files::quote_short(&key)
+                )));
+            }
+        }
+        Ok(object.into())
     }
 }
 

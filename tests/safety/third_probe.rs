@@ -378,3 +378,125 @@ fn farm_progress_never_goes_back_on_resume() {
     assert!(shown.windows(2).all(|w| w[0] <= w[1]), "{shown:?}");
     assert_eq!(shown.last(), Some(&100.0));
 }
+
+/// Defect 12a: a second Ctrl-C while stopping exits at once with its line (and, with --json,
+/// its `interrupted` event); the checkpoint written before is kept whole and a resume finishes.
+#[test]
+fn a_second_interrupt_says_so_and_keeps_the_checkpoint() {
+    let dir = scratch("probe3-second-signal");
+    let (s, t) = (asset("sphere.obj"), asset("two-lobes.obj"));
+    let mut args = morph_args(&s, &t, "out", SMALL);
+    args.push("--json");
+    let mut child = command(&dir, &args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    wait_for_checkpoint(&dir, &mut child);
+    signal(&child, "INT");
+    signal(&child, "INT");
+    let o = child.wait_with_output().unwrap();
+    assert_eq!(o.status.code(), Some(130), "{}", stderr(&o));
+    let err = stderr(&o);
+    let stdout = String::from_utf8_lossy(&o.stdout);
+    let last: serde_json::Value = serde_json::from_str(stdout.lines().last().unwrap()).unwrap();
+    assert_eq!(last["event"], "interrupted", "{stdout}");
+    assert_eq!(last["exit_code"], 130);
+    // The second signal comes while the first is stopping the run (at its next evaluation).
+    assert!(err.contains("morph: interrupted again by SIGINT while stopping"), "{err}");
+    assert!(last["message"].as_str().unwrap().contains("interrupted again"));
+    args.retain(|a| *a != "--json");
+    args.push("--resume");
+    let o = run(&dir, &args);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+}
+
+/// Defect 12b: --quiet holds back every warning, the --threads one too.
+#[test]
+fn quiet_prints_no_warning() {
+    let dir = scratch("probe3-quiet");
+    let (s, t) = (asset("sphere.obj"), asset("cube.obj"));
+    let mut args = morph_args(&s, &t, "o", TINY);
+    args.extend(["--threads", "64"]);
+    let o = run(&dir, &args);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    assert_eq!(stderr(&o), "", "nothing under --quiet");
+    args.retain(|a| *a != "--quiet");
+    args.push("--overwrite");
+    let o = run(&dir, &args);
+    assert!(stderr(&o).contains("morph: warning: --threads 64"), "{}", stderr(&o));
+}
+
+/// Defect 12c: an output folder whose staging folder cannot be made is a bad output folder,
+/// exit 2 as the table says, before any work.
+#[test]
+fn an_output_folder_that_cannot_be_made_exits_2() {
+    let dir = scratch("probe3-unwritable");
+    let (s, t) = (asset("sphere.obj"), asset("cube.obj"));
+    // /proc refuses new folders even to root (a chmod'ed folder does not).
+    let o = run(&dir, &morph_args(&s, &t, "/proc/morph-probe-out", TINY));
+    assert_one_line_error(&o, 2, &["cannot create folder '/proc/morph-probe-out.partial'"]);
+}
+
+/// Defect 12e: a JSON scene file naming a key twice is refused, naming it (TOML's parser
+/// refuses it itself).
+#[test]
+fn a_scene_key_given_twice_is_refused() {
+    let dir = scratch("probe3-duplicate-keys");
+    let (s, t) = (asset("sphere.obj"), asset("cube.obj"));
+    let json = format!(r#"{{"source": "{s}", "targets": ["{t}"], "frames": 30, "frames": 40}}"#);
+    std::fs::write(dir.join("scene.json"), json).unwrap();
+    let o = run(&dir, &["--scene", "scene.json", "-o", "x"]);
+    assert_one_line_error(&o, 2, &["the key `frames` is given twice"]);
+    let toml = format!("source = \"{s}\"\ntargets = [\"{t}\"]\nframes = 30\nframes = 40\n");
+    std::fs::write(dir.join("scene.toml"), toml).unwrap();
+    let o = run(&dir, &["--scene", "scene.toml", "-o", "x"]);
+    assert_one_line_error(&o, 2, &["duplicate key"]);
+    assert!(!dir.join("x").exists() && !dir.join("x.partial").exists());
+}
+
+/// Defect 12f: a collider (or the ground) that holds part of the body at frame 1 is warned
+/// about, in the summary and the manifest.
+#[test]
+fn a_collider_overlapping_the_body_is_warned_about() {
+    let dir = scratch("probe3-collider");
+    let (s, t) = (asset("sphere.obj"), asset("cube.obj"));
+    // A box through the sphere's side (the unit sphere at the origin).
+    let (v, f) = cube([0.0; 3]);
+    let v: Vec<[f64; 3]> = v.iter().map(|p| [0.6 + p[0], p[1] - 0.5, p[2] - 0.5]).collect();
+    write_obj(&dir.join("rock.obj"), &v, &f);
+    let scene = format!(
+        "source = \"{s}\"\ntargets = [\"{t}\"]\n[[colliders]]\nmesh = \"rock.obj\"\n[ground]\nheight = -0.9\n"
+    );
+    std::fs::write(dir.join("scene.toml"), scene).unwrap();
+    let mut args = vec!["--scene", "scene.toml", "-o", "x"];
+    args.extend_from_slice(&TINY[..TINY.len() - 1]);
+    let o = run(&dir, &args);
+    assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
+    let err = stderr(&o);
+    assert!(err.contains("collider rock.obj overlaps the body at frame 1"), "{err}");
+    assert!(err.contains("the ground at height -0.9 cuts the body at frame 1"), "{err}");
+    let m = common::cli::manifest(&dir.join("x"));
+    let warnings = m["warnings"].to_string();
+    assert!(warnings.contains("overlaps the body"), "{warnings}");
+}
+
+/// Defect 12g: a run of hours says so, with its estimate, before its first step.
+#[test]
+fn a_long_run_says_how_long_before_it_starts() {
+    let dir = scratch("probe3-long");
+    let (s, t) = (asset("sphere.obj"), asset("cube.obj"));
+    let args = morph_args(&s, &t, "o", &["--frames", "60001", "--usd", "none", "--preset", "draft", "--resolution", "16"]);
+    let mut child = command(&dir, &args)
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut err = std::io::BufReader::new(child.stderr.take().unwrap());
+    let mut line = String::new();
+    std::io::BufRead::read_line(&mut err, &mut line).unwrap();
+    signal(&child, "INT");
+    let _ = child.wait();
+    assert!(line.starts_with("morph: warning: this run is long: about "), "{line}");
+    assert!(line.contains("hours") && line.contains("60001 frames"), "{line}");
+}

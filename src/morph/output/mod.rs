@@ -193,7 +193,10 @@ pub fn morph_to_folder(
             _ => {}
         }
     }
-    let mut staging = Staging::take(&plan, RUN_FILE, STAGING_NAMES).map_err(MorphError::Output)?;
+    let mut staging = Staging::take(&plan, RUN_FILE, STAGING_NAMES).map_err(|e| match e {
+        outdir::TakeError::InUse(why) => MorphError::Output(why),
+        outdir::TakeError::Unusable(why) => MorphError::Settings(why),
+    })?;
     let run_path = staging.dir.join(RUN_FILE);
     // What to do with an earlier run's staging folder, decided now, done once the inputs load.
     let mut resuming = false;
