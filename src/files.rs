@@ -118,24 +118,46 @@ mod tests {
     }
 }
 
-/// The longest piece of a file's text an error message quotes.
+/// The longest piece of a file's text an error message quotes, in bytes as shown.
 pub const QUOTE_CHARS: usize = 40;
 
-/// `text` as an error message quotes it: at most [`QUOTE_CHARS`] characters, control and
-/// non-printing characters escaped, and the length said when it was cut, so that a header
-/// line of megabytes (or binary junk) gives a short error.
+/// The most of a parser's message an error repeats, in bytes (cut at a word).
+pub const MESSAGE_BYTES: usize = 240;
+
+/// `text` as an error message quotes it: at most about [`QUOTE_CHARS`] bytes, control and
+/// non-printing characters escaped (and counted as shown), and the length said when it was
+/// cut, so that a header line of megabytes (or binary junk) gives a short error.
 pub fn quote_short(text: &str) -> String {
     let mut out = String::new();
-    let mut chars = text.chars();
-    for c in chars.by_ref().take(QUOTE_CHARS) {
+    for (at, c) in text.char_indices() {
+        if out.len() >= QUOTE_CHARS {
+            out.push_str(&format!("... ({} bytes)", text.len()));
+            return out;
+        }
         if c.is_control() {
             out.extend(c.escape_default());
         } else {
             out.push(c);
         }
+        debug_assert!(at < text.len());
     }
-    if chars.next().is_some() {
-        out.push_str(&format!("... ({} bytes)", text.len()));
+    out
+}
+
+/// A parser's message as one short line: its whitespace made single spaces, each word quoted
+/// short ([`quote_short`]) and about [`MESSAGE_BYTES`] at most (parsers quote what they
+/// failed on, whole).
+pub fn short_message(message: &str) -> String {
+    let mut out = String::new();
+    for word in message.split_whitespace() {
+        if out.len() >= MESSAGE_BYTES {
+            out.push_str(" ...");
+            break;
+        }
+        if !out.is_empty() {
+            out.push(' ');
+        }
+        out.push_str(&quote_short(word));
     }
     out
 }

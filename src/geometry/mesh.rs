@@ -1015,22 +1015,14 @@ fn check_ply_counts(bytes: &[u8]) -> Result<(), String> {
 
 /// Parser messages can span lines and end in a debug dump; errors are printed on one line.
 fn one_line(s: &str) -> String {
-    // A parser quotes the line it failed on: each word is cut to a few dozen characters and
-    // the whole to a few of them, so a header line of megabytes gives a short message.
-    let flat = s
-        .split_whitespace()
-        .map(crate::files::quote_short)
-        .take(MESSAGE_WORDS)
-        .collect::<Vec<_>>()
-        .join(" ");
+    // A parser quotes the line it failed on: the message is cut short, word by word.
+    let flat = crate::files::short_message(s);
     match flat.split_once(" Error: ParseError") {
         Some((head, _)) => head.to_string(),
         None => flat,
     }
 }
 
-/// The most words of a parser's message an error repeats.
-const MESSAGE_WORDS: usize = 24;
 /// The longest PLY header line morph reads (the format's own lines are a few words).
 const PLY_HEADER_LINE: usize = 1024;
 /// How far into a PLY file its header may end.

@@ -49,10 +49,13 @@ impl SceneFile {
             .is_some_and(|e| e.eq_ignore_ascii_case("json"));
         let mut table: toml::Table = if json {
             let value = serde_json::from_str::<Strict>(text)
-                .map_err(|e| format!("scene file '{shown}': {e}"))?
+                .map_err(|e| format!("scene file '{shown}': {}", one_line(&e.to_string())))?
                 .0;
             toml::Table::try_from(value).map_err(|e| {
-                format!("scene file '{shown}': {e} (the top level must be an object)")
+                format!(
+                    "scene file '{shown}': {} (the top level must be an object)",
+                    one_line(&e.to_string())
+                )
             })?
         } else {
             text.parse().map_err(|e: toml::de::Error| {
@@ -319,9 +322,9 @@ fn one_line(message: &str) -> String {
     match (lines.first(), lines.last()) {
         (Some(first), Some(last)) if lines.len() > 1 => {
             let at = first.trim_start_matches("TOML parse error at ");
-            format!("{at}: {last}")
+            crate::files::short_message(&format!("{at}: {last}"))
         }
-        _ => message.trim().to_string(),
+        _ => crate::files::short_message(message),
     }
 }
 
