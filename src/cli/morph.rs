@@ -60,8 +60,10 @@ look-ahead; measured quality and time from docs/morph.md, 2 cores):
 
 EXIT CODES:
   0    success (every written file checked finite)
-  1    the run failed (bad mesh, simulation, writing, output folder in use)
-  2    bad command line, option value or output folder (refused before any work)
+  1    the run failed (bad mesh, simulation, writing, output folder in use, an
+       optimization that could not work: a non-finite objective, or no segment moved)
+  2    bad command line, option value, output folder or memory limit (refused before
+       any work)
   130  interrupted by SIGINT (Ctrl-C), 143 by SIGTERM, 129 by SIGHUP, 141 by a closed
        stdout: completed segments are kept in OUT.partial; the same command with --resume
        continues bit for bit
@@ -740,6 +742,16 @@ pub fn run(args: &MorphArgs) -> ExitCode {
                     100.0 * summary.fill.particles_ejected,
                     summary.seconds
                 );
+                if let Some(o) = &summary.optimization {
+                    say!(
+                        "optimization: {} evaluations, {} steps undone (they raised the objective or blew the simulation up), {} of {} segments moved (loss down by {}% or more)",
+                        o.evaluations,
+                        o.undone_steps,
+                        o.segments_moved,
+                        o.segments,
+                        100.0 * morph::MOVED_SHARE
+                    );
+                }
                 if let Some(q) = &summary.quality {
                     say!(
                         "quality: IoU with the target {:.3}, fill {:.3} (1 = a lattice fill of the target; of its material {:.3}), surface gap {:.2} spacings, reach {:.2} (99%) and {:.2} (most) spacings (a lattice fill's {:.2} and {:.2}), ejected {:.2}%, close neighbours {:.1}%, J {:.2} to {:.2} (mean {:.2}, {:.2}% inverted)",

@@ -549,6 +549,31 @@ pub fn optimization_failure(
     ))
 }
 
+/// How a run's optimization went, for the manifest and the summary: every evaluation, the
+/// steps undone (they raised the objective or blew the simulation up), and the segments whose
+/// loss went down by [`MOVED_SHARE`] or more.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+pub struct OptimizationReport {
+    pub evaluations: usize,
+    pub undone_steps: usize,
+    pub segments: usize,
+    pub segments_moved: usize,
+}
+
+impl OptimizationReport {
+    pub fn of(segments: &[SegmentRecord], iterations: &[IterationRecord]) -> OptimizationReport {
+        OptimizationReport {
+            evaluations: iterations.len(),
+            undone_steps: iterations.iter().filter(|i| !i.loss.is_finite()).count(),
+            segments: segments.len(),
+            segments_moved: segments
+                .iter()
+                .filter(|r| r.loss < (1.0 - MOVED_SHARE) * r.initial_loss)
+                .count(),
+        }
+    }
+}
+
 /// The least share of its loss a segment's optimization removes to have moved the body (a
 /// healthy morph's early segments remove 30-70%).
 pub const MOVED_SHARE: f64 = 0.01;

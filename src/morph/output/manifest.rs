@@ -441,6 +441,10 @@ pub(super) struct Manifest {
     /// How the run's memory was planned (absent in manifests written before it was).
     #[serde(default)]
     pub(super) memory: Option<MemoryPlan>,
+    /// How the optimization went: evaluations, steps undone, segments that moved (absent in
+    /// manifests written before it was).
+    #[serde(default)]
+    pub(super) optimization: Option<crate::morph::OptimizationReport>,
     /// Each target's keyframe: the quality judge against that target on the frame it is
     /// reached and on the frame halfway there from the previous keyframe.
     #[serde(default)]

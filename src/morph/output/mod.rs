@@ -68,6 +68,9 @@ pub struct Summary {
     pub already_complete: bool,
     /// What the run found worth a warning (gradient health, see [`super::run_warnings`]).
     pub warnings: Vec<String>,
+    /// How the optimization went (absent when `--resume` found an older complete folder
+    /// without it).
+    pub optimization: Option<super::OptimizationReport>,
 }
 
 impl Summary {
@@ -88,6 +91,7 @@ impl Summary {
             resumed_from: None,
             already_complete: false,
             warnings: Vec::new(),
+            optimization: m.optimization,
         }
     }
 }

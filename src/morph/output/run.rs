@@ -53,6 +53,7 @@ pub(super) fn write_run(
     let (motion, keyframes) = motion_and_keyframes(prep, identity, &written);
     let quality_over_time = quality_over_time(prep, &written);
     let run_warnings = crate::morph::run_warnings(&result.segments);
+    let optimization = crate::morph::OptimizationReport::of(&result.segments, &result.iterations);
     let optimize_s = clock.elapsed().as_secs_f64() - setup_s;
 
     // Every frame is on disk: the whole-sequence formats write now.
@@ -114,6 +115,7 @@ pub(super) fn write_run(
             .cloned()
             .collect(),
         memory: Some(memory),
+        optimization: Some(optimization),
         keyframes,
         quality_over_time,
     };
