@@ -600,9 +600,11 @@ pub fn run(args: &MorphArgs) -> ExitCode {
         }
         if openjd {
             let percent = format!("{:.1}", 100.0 * meter.observe(e).min(0.999));
-            // Setup and a level's start know no progress yet (a resumed run's starts at its
-            // checkpoint): shown from the first step or segment on, so it never goes back.
-            let measured = !matches!(e, MorphEvent::Setup { .. } | MorphEvent::Level { .. });
+            // With --resume, setup and a level's start know no progress yet (a resumed run's
+            // starts at its checkpoint): shown from the first step or segment on, so it never
+            // goes back. A fresh run starts at 0.
+            let measured =
+                !args.resume || !matches!(e, MorphEvent::Setup { .. } | MorphEvent::Level { .. });
             if measured && percent != shown_percent {
                 say!("openjd_progress: {percent}");
                 shown_percent = percent;

@@ -61,6 +61,8 @@ pub struct KeyframeTarget {
 pub struct SizeEstimate {
     /// Grid nodes.
     pub nodes: usize,
+    /// The grid's spacing (simulation units).
+    pub dx: f64,
     /// Source particles (the inside volume over a particle's).
     pub source_particles: f64,
     /// Particles of every target together (the last and the keyframes before it).
@@ -104,6 +106,7 @@ impl MorphGeometry {
             .sum();
         Ok(SizeEstimate {
             nodes: placement.grid.node_count(),
+            dx: placement.grid.dx,
             source_particles: particles(&source, placement.world_to_sim.scale),
             target_particles,
         })

@@ -265,33 +265,116 @@ fn working_bytes(s: &MorphSettings, n: usize) -> u64 {
     (controls + adam + 6 * State::bytes_for(n)) as u64
 }
 
-/// Refuses `limit` before setup when the morph's fixed part, on counts estimated from the
-/// shapes' volumes ([`crate::geometry::MorphGeometry::estimate`]) at `resolution`, would
-/// not fit in it: setup itself then never allocates past the limit.
-pub fn check_before_setup(
+/// What a morph's memory is sized by: its counts (exact after setup, estimated from the
+/// shapes' volumes before), its grid's spacing, its carried surface and its frames.
+#[derive(Clone, Copy, Debug)]
+pub struct Counts {
+    pub particles: u64,
+    /// Particles of every target together.
+    pub targets: u64,
+    pub nodes: u64,
+    pub keyframes: u64,
+    /// The grid's spacing (simulation units): with the material it sets the substeps.
+    pub dx: f64,
+    pub source_vertices: u64,
+    pub frames: u64,
+}
+
+/// The least memory a morph needs, in bytes: to run (the fixed part and the tape under the
+/// chunks of the smallest peak: what
+/// [`Prepared::plan_memory`] refuses below) and to write its USD file (what
+/// [`Prepared::check_writers`] refuses below). The same formula before setup, on estimated
+/// counts, and after, on exact ones, so a refusal gives one figure for one morph.
+pub fn least_bytes(settings: &MorphSettings, c: &Counts) -> (u64, u64) {
+    let n = c.particles as usize;
+    let material = settings.material.build();
+    let shot = settings.shot();
+    let substeps = match settings.dt {
+        Some(_) => 1,
+        None => {
+            let (bound, _) =
+                crate::material::stable_dt(material.wave_modulus(), settings.material.density, c.dx);
+            super::substeps_for(shot.step, 0.5 * bound).unwrap_or(1)
+        }
+    };
+    let window = settings.lookahead + 1;
+    let steps = (0..shot.segment_steps.len())
+        .map(|k| shot.segment_steps[k..(k + window).min(shot.segment_steps.len())].iter().sum::<usize>())
+        .max()
+        .unwrap_or(0)
+        * substeps;
+    let gradient = n * size_of::<Matrix3<f64>>();
+    let step = gradient
+        + match settings.integrator {
+            crate::integrator::IntegratorKind::Euler => crate::mpm::StepTape::bytes_for(
+                n,
+                c.nodes as usize,
+                material.kept_per_particle(),
+            ),
+            crate::integrator::IntegratorKind::Rk4 => {
+                n * (4 * State::ODE_BYTES_PER_PARTICLE + size_of::<Matrix3<f64>>())
+            }
+        };
+    let fixed = fixed_bytes(settings, c.particles, c.targets, c.nodes, c.keyframes)
+        + (settings.control_stride * substeps * gradient) as u64;
+    // The chunks with the smallest peak (what the plan takes when nothing fits).
+    let least = ChunkPlan::within(0, steps, step, State::bytes_for(n), settings.control_stride * substeps);
+    let tape = least.peak_bytes(steps, step, State::bytes_for(n), settings.control_stride * substeps) as f64;
+    let run = fixed + (tape * (1.0 + ALLOCATOR_SLACK)) as u64;
+    let usd = usd_bytes(settings, c.particles, c.frames, c.source_vertices);
+    let writers = fixed + (usd as f64 * (1.0 + USD_WRITER_SHARE) * (1.0 + ALLOCATOR_SLACK)) as u64;
+    (run, if usd > 0 { writers } else { 0 })
+}
+
+/// Refuses `limit` when it is below what the morph needs at least ([`least_bytes`] on
+/// `counts`), with one figure: the larger need, and what to change. `before_setup`: the
+/// counts are estimates (the check that keeps setup itself within the limit).
+pub fn check_least(
     settings: &MorphSettings,
-    estimate: &crate::geometry::SizeEstimate,
-    keyframes: usize,
+    counts: &Counts,
     limit: MemoryLimit,
 ) -> Result<(), MorphError> {
     let limit_bytes = limit.checked_bytes().map_err(MorphError::Settings)?;
-    let need = fixed_bytes(
-        settings,
-        estimate.source_particles.ceil() as u64,
-        estimate.target_particles.ceil() as u64,
-        estimate.nodes as u64,
-        keyframes as u64,
-    );
-    if need > limit_bytes {
-        return Err(MorphError::Settings(format!(
-            "--memory-limit {} is below the {} this morph needs before its first step (about {:.0} particles on a grid of {} nodes); raise it, or lower --resolution or --particles",
-            show_bytes(limit_bytes),
-            show_bytes(need.div_ceil(1 << 20) * (1 << 20)),
-            estimate.source_particles,
-            estimate.nodes
-        )));
+    let (run, writers) = least_bytes(settings, counts);
+    let need = run.max(writers);
+    if need <= limit_bytes {
+        return Ok(());
     }
-    Ok(())
+    let shown = show_bytes(need.div_ceil(1 << 20) * (1 << 20));
+    let n = counts.particles;
+    Err(MorphError::Settings(if writers > run {
+        format!(
+            "--memory-limit {} is below the {shown} this morph needs at least (about {n} particles; most of it its USD file, {} frames held at once while it is written); raise it, write fewer frames, or pass --usd none",
+            show_bytes(limit_bytes),
+            counts.frames
+        )
+    } else {
+        format!(
+            "--memory-limit {} is below the {shown} this morph needs at least (about {n} particles); raise it, or lower --resolution or --particles",
+            show_bytes(limit_bytes)
+        )
+    }))
+}
+
+/// Refuses `limit` before setup when the morph, on counts estimated from the shapes' volumes
+/// ([`crate::geometry::MorphGeometry::estimate`]) at `resolution`, would not fit in it: setup
+/// itself then never allocates past the limit, and the figure is the whole run's.
+pub fn check_before_setup(
+    settings: &MorphSettings,
+    estimate: &crate::geometry::SizeEstimate,
+    (keyframes, source_vertices): (usize, usize),
+    limit: MemoryLimit,
+) -> Result<(), MorphError> {
+    let counts = Counts {
+        particles: estimate.source_particles.ceil() as u64,
+        targets: estimate.target_particles.ceil() as u64,
+        nodes: estimate.nodes as u64,
+        keyframes: keyframes as u64,
+        dx: estimate.dx,
+        source_vertices: source_vertices as u64,
+        frames: settings.shot().frame_count() as u64,
+    };
+    check_least(settings, &counts, limit)
 }
 
 /// How a morph's memory is planned (written to the manifest).
@@ -423,6 +506,22 @@ pub fn usd_bytes(settings: &MorphSettings, particles: u64, frames: u64, source_v
 }
 
 impl Prepared {
+    /// What this morph's memory is sized by ([`Counts`]), exactly.
+    pub fn memory_counts(&self, source_vertices: usize) -> Counts {
+        let g = &self.geometry;
+        Counts {
+            particles: self.initial.len() as u64,
+            targets: (g.target.positions.len()
+                + g.keyframes.iter().map(|k| k.particles.positions.len()).sum::<usize>())
+                as u64,
+            nodes: self.model().grid.node_count() as u64,
+            keyframes: g.keyframes.len() as u64,
+            dx: self.model().grid.dx,
+            source_vertices: source_vertices as u64,
+            frames: self.frame_count() as u64,
+        }
+    }
+
     /// Refuses `plan` before any step when the whole-sequence writers would not fit in its
     /// limit: the USD layer is built once every frame is on disk (the tapes are gone by then;
     /// the rest of the fixed part is still held), from every frame at once.

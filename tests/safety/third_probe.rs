@@ -507,3 +507,33 @@ fn a_long_run_says_how_long_before_it_starts() {
     assert!(line.starts_with("morph: warning: this run is long: about "), "{line}");
     assert!(line.contains("hours") && line.contains("60001 frames"), "{line}");
 }
+
+/// Defect 12d: a memory refusal gives one figure for one morph, the run's or its USD file's,
+/// whichever is larger: given that figure, the same command runs.
+#[test]
+fn a_memory_refusal_names_the_figure_that_runs() {
+    let dir = scratch("probe3-memory-figure");
+    let (s, t) = (asset("sphere.obj"), asset("cube.obj"));
+    for extra in [&["--usd", "none"][..], &[][..]] {
+        let mut args = morph_args(&s, &t, "o", PROBE);
+        args.extend_from_slice(extra);
+        let mut low = args.clone();
+        low.extend(["--memory-limit", "10M"]);
+        let o = run(&dir, &low);
+        assert_one_line_error(&o, 2, &["this morph needs at least"]);
+        let err = stderr(&o);
+        let figure = err
+            .split("below the ")
+            .nth(1)
+            .and_then(|r| r.split(" this morph").next())
+            .unwrap()
+            .replace(' ', "")
+            .replace("MB", "M")
+            .replace("GB", "G");
+        let mut enough = args.clone();
+        enough.extend(["--memory-limit", &figure]);
+        let o = run(&dir, &enough);
+        assert_eq!(o.status.code(), Some(0), "{figure}: {}", stderr(&o));
+        std::fs::remove_dir_all(dir.join("o")).unwrap();
+    }
+}

@@ -267,15 +267,23 @@ pub fn morph_to_folder(
             .collect();
         // The memory limit holds for setup too: refused before the fill when it cannot.
         let estimate = Prepared::estimate(settings, (&src, source), &meshes)?;
+        let source_vertices = src.mesh.vertices.len();
         super::memory::check_before_setup(
             settings,
             &estimate,
-            targets.len() - 1,
+            (targets.len() - 1, source_vertices),
             request.memory_limit,
         )?;
         let mut prep = Prepared::from_meshes(settings, (&src, source), &meshes)?;
+        // On the exact counts: the same figure as before setup, the larger of the run's and
+        // the writers' needs.
+        super::memory::check_least(
+            &prep.settings,
+            &prep.memory_counts(source_vertices),
+            request.memory_limit,
+        )?;
         let memory = prep.plan_memory(request.memory_limit)?;
-        prep.check_writers(&memory, src.mesh.vertices.len())?;
+        prep.check_writers(&memory, source_vertices)?;
         Ok((prep, memory))
     })();
     let (prep, memory) = match prepared {
