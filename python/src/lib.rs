@@ -53,7 +53,9 @@ fn py_err(e: MorphError) -> PyErr {
             SettingsError::new_err(message)
         }
         MorphError::Mesh(_) => MeshError::new_err(message),
-        MorphError::Sim(_) => SimulationError::new_err(message),
+        // An optimization that could not work (a non-finite objective, no segment moved)
+        // is the simulation's failure to do what was asked, as the CLI's exit 1 says.
+        MorphError::Sim(_) | MorphError::Optimization(_) => SimulationError::new_err(message),
         MorphError::Output(_) | MorphError::Resume(_) => OutputError::new_err(message),
         MorphError::Interrupted { .. } => Cancelled::new_err("cancelled"),
     }

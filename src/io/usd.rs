@@ -231,6 +231,17 @@ fn per_frame<T: Send>(
     (0..frames).into_par_iter().map(&read).collect()
 }
 
+/// Each frame's `K` attribute values regrouped as each attribute's values over the frames.
+fn by_attribute<const K: usize>(frames: Vec<[Value; K]>) -> [Vec<Value>; K] {
+    let mut out: [Vec<Value>; K] = std::array::from_fn(|_| Vec::with_capacity(frames.len()));
+    for frame in frames {
+        for (values, v) in out.iter_mut().zip(frame) {
+            values.push(v);
+        }
+    }
+    out
+}
+
 /// A USD layer under construction: prims and their attributes, in the order they are
 /// authored. Both file formats are written from it (`openusd`'s crate and text writers).
 struct Layer {
@@ -405,13 +416,7 @@ fn build(seq: &UsdSequence) -> std::io::Result<Layer> {
     if let Some(first) = first {
         layer.vertex_primvar(&particles, "primvars:rest", "point3f[]", vec3fs(&first.x));
     }
-    let [mut points, mut velocities, mut extents, mut j] = [(); 4].map(|_| Vec::with_capacity(n));
-    for [x, v, e, jf] in frames {
-        points.push(x);
-        velocities.push(v);
-        extents.push(e);
-        j.push(jf);
-    }
+    let [points, velocities, extents, j] = by_attribute(frames);
     let points = layer.samples(points);
     layer.attribute(&particles, "points", "point3f[]", points);
     let velocities = layer.samples(velocities);
@@ -489,14 +494,7 @@ fn build(seq: &UsdSequence) -> std::io::Result<Layer> {
         })?;
         let rebuilt = layer.prim(&root, "rebuilt", "Mesh");
         layer.uniform_token(&rebuilt, "subdivisionScheme", "none");
-        let [mut counts, mut indices, mut points, mut extents] =
-            [(); 4].map(|_| Vec::with_capacity(n));
-        for [c, i, p, e] in frames {
-            counts.push(c);
-            indices.push(i);
-            points.push(p);
-            extents.push(e);
-        }
+        let [counts, indices, points, extents] = by_attribute(frames);
         let counts = layer.samples(counts);
         layer.attribute(&rebuilt, "faceVertexCounts", "int[]", counts);
         let indices = layer.samples(indices);

@@ -507,14 +507,19 @@ pub fn run_warnings(segments: &[SegmentRecord]) -> Vec<String> {
 /// when it could: a segment whose objective or gradient was not finite ([`non_finite`]), or
 /// a run where no segment's loss moved at all (every step undone, or steps too small to
 /// change it), so the body did not go toward its target. `iterations` are the run's
-/// evaluations (an undone step's loss is infinite).
+/// evaluations (an undone step's loss is infinite). `began_there`: the source already had its
+/// target's shape ([`ARRIVED_IOU`]), and a body that did not move is then no failure.
 pub fn optimization_failure(
     settings: &MorphSettings,
     segments: &[SegmentRecord],
     iterations: &[IterationRecord],
+    began_there: bool,
 ) -> Option<String> {
     if let Some(why) = segments.iter().find_map(|r| non_finite(settings, r)) {
         return Some(why);
+    }
+    if began_there {
+        return None;
     }
     let outsized = settings.outsized_weights();
     let lower = format!("lower {}", outsized.join(", "));
@@ -573,6 +578,10 @@ impl OptimizationReport {
         }
     }
 }
+
+/// The judge's IoU with the target at which a source already is its target's shape (a body
+/// that begins there and does not move is not a failed optimization).
+pub const ARRIVED_IOU: f64 = 0.9;
 
 /// The least share of its loss a segment's optimization removes to have moved the body (a
 /// healthy morph's early segments remove 30-70%).

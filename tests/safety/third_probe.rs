@@ -140,7 +140,7 @@ fn memory_limit_holds_for_a_run_of_many_frames_with_usd() {
     let low = args("low", "100M", &[]);
     let low: Vec<&str> = low.iter().map(String::as_str).collect();
     let o = run(&dir, &low);
-    assert_one_line_error(&o, 2, &["USD file needs", "--usd none"]);
+    assert_one_line_error(&o, 2, &["most of it its USD file", "--usd none"]);
     assert!(!dir.join("low").exists() && !dir.join("low.partial").exists());
     // Without the USD the same limit holds the run.
     let none = args("none", "100M", &["--usd", "none"]);

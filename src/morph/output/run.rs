@@ -43,10 +43,16 @@ pub(super) fn write_run(
     let source = Path::new(&identity.inputs[0].path);
     let sinks = sinks::for_folder(prep, dir, source)?;
     let (result, written, sinks) = run_writing_frames(prep, (dir, lock), run_id, resume, sinks, caller)?;
-    // A body the optimization never moved is no morph: refused before the sequence's files.
-    if let Some(why) =
-        crate::morph::optimization_failure(settings, &result.segments, &result.iterations)
-    {
+    // A body the optimization never moved is no morph: refused before the sequence's files,
+    // unless it began in its target's shape (a target the source's own shape at another size:
+    // nothing was there to move).
+    let began_there = prep.quality(&prep.initial).iou >= crate::morph::ARRIVED_IOU;
+    if let Some(why) = crate::morph::optimization_failure(
+        settings,
+        &result.segments,
+        &result.iterations,
+        began_there,
+    ) {
         return Err(MorphError::Optimization(why));
     }
     let frames_summary = FramesSummary::of(&written.stats);

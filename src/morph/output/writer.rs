@@ -82,6 +82,7 @@ pub(super) fn run_writing_frames(
         let thread = scope.spawn(move || {
             write_frames(
                 sinks,
+                (dir, lock),
                 (prep.settings.start_frame, n_frames),
                 spacing,
                 queue,
@@ -228,6 +229,7 @@ struct FrameDone {
 /// `spacing` (simulation units) is for the close-neighbour share.
 fn write_frames(
     mut sinks: Sinks,
+    (dir, lock): (&Path, LockId),
     (start, count): (usize, usize),
     spacing: f64,
     work: Receiver<FrameWork>,
@@ -247,9 +249,15 @@ fn write_frames(
             state: &job.state,
         };
         let mut record = FrameRecord::default();
-        let result = sinks
-            .iter_mut()
-            .try_for_each(|sink| sink.frame(&frame, &mut record))
+        // Checked here too: a frame queued before the folder was taken is not written into it.
+        let result = lock
+            .check(dir)
+            .map_err(MorphError::Output)
+            .and_then(|()| {
+                sinks
+                    .iter_mut()
+                    .try_for_each(|sink| sink.frame(&frame, &mut record))
+            })
             .map(|()| {
                 let close = close_neighbour_share(&job.state.x, spacing);
                 (record, close)
