@@ -53,7 +53,13 @@ pub fn run(args: &FarmTemplateArgs) -> ExitCode {
         let (settings, source, targets) = c.morph.job()?;
         settings.validate()?;
         settings.validate_targets(targets.len())?;
-        Ok((settings, source, targets, c.morph.output().to_path_buf(), c.morph.overwrite()))
+        Ok((
+            settings,
+            source,
+            targets,
+            c.morph.output().to_path_buf(),
+            c.morph.overwrite(),
+        ))
     });
     let (settings, source, targets, out, overwrite_given_after) = match job {
         Ok(j) => j,

@@ -391,7 +391,9 @@ pub fn inspect(path: &Path, resolution: usize) -> Result<MeshReport, MeshError> 
     // A closed mesh's volume is exact by the divergence theorem; the lattice's estimate
     // (what placement uses) cannot see parts thinner than its spacing.
     let exact = topo.is_closed().then(|| mesh.signed_volume().abs());
-    let volume = exact.or(Some(solid.volume)).filter(|v| v.is_finite() && *v > 0.0);
+    let volume = exact
+        .or(Some(solid.volume))
+        .filter(|v| v.is_finite() && *v > 0.0);
     if let (Some(exact), true) = (exact, solid.volume.is_finite())
         && (solid.volume > 1.5 * exact || solid.volume < exact / 1.5)
     {

@@ -531,7 +531,10 @@ impl Staging {
                 )));
             }
             Err(fs::TryLockError::Error(e)) => {
-                return Err(Unusable(format!("cannot lock '{}': {e}", lock_path.display())));
+                return Err(Unusable(format!(
+                    "cannot lock '{}': {e}",
+                    lock_path.display()
+                )));
             }
         }
         lock.set_len(0)

@@ -292,25 +292,30 @@ pub fn least_bytes(settings: &MorphSettings, c: &Counts) -> (u64, u64) {
     let substeps = match settings.dt {
         Some(_) => 1,
         None => {
-            let (bound, _) =
-                crate::material::stable_dt(material.wave_modulus(), settings.material.density, c.dx);
+            let (bound, _) = crate::material::stable_dt(
+                material.wave_modulus(),
+                settings.material.density,
+                c.dx,
+            );
             super::substeps_for(shot.step, 0.5 * bound).unwrap_or(1)
         }
     };
     let window = settings.lookahead + 1;
     let steps = (0..shot.segment_steps.len())
-        .map(|k| shot.segment_steps[k..(k + window).min(shot.segment_steps.len())].iter().sum::<usize>())
+        .map(|k| {
+            shot.segment_steps[k..(k + window).min(shot.segment_steps.len())]
+                .iter()
+                .sum::<usize>()
+        })
         .max()
         .unwrap_or(0)
         * substeps;
     let gradient = n * size_of::<Matrix3<f64>>();
     let step = gradient
         + match settings.integrator {
-            crate::integrator::IntegratorKind::Euler => crate::mpm::StepTape::bytes_for(
-                n,
-                c.nodes as usize,
-                material.kept_per_particle(),
-            ),
+            crate::integrator::IntegratorKind::Euler => {
+                crate::mpm::StepTape::bytes_for(n, c.nodes as usize, material.kept_per_particle())
+            }
             crate::integrator::IntegratorKind::Rk4 => {
                 n * (4 * State::ODE_BYTES_PER_PARTICLE + size_of::<Matrix3<f64>>())
             }
@@ -318,8 +323,19 @@ pub fn least_bytes(settings: &MorphSettings, c: &Counts) -> (u64, u64) {
     let fixed = fixed_bytes(settings, c.particles, c.targets, c.nodes, c.keyframes)
         + (settings.control_stride * substeps * gradient) as u64;
     // The chunks with the smallest peak (what the plan takes when nothing fits).
-    let least = ChunkPlan::within(0, steps, step, State::bytes_for(n), settings.control_stride * substeps);
-    let tape = least.peak_bytes(steps, step, State::bytes_for(n), settings.control_stride * substeps) as f64;
+    let least = ChunkPlan::within(
+        0,
+        steps,
+        step,
+        State::bytes_for(n),
+        settings.control_stride * substeps,
+    );
+    let tape = least.peak_bytes(
+        steps,
+        step,
+        State::bytes_for(n),
+        settings.control_stride * substeps,
+    ) as f64;
     let run = fixed + (tape * (1.0 + ALLOCATOR_SLACK)) as u64;
     let usd = usd_bytes(settings, c.particles, c.frames, c.source_vertices);
     let writers = fixed + (usd as f64 * (1.0 + USD_WRITER_SHARE) * (1.0 + ALLOCATOR_SLACK)) as u64;
@@ -491,17 +507,31 @@ pub const USD_WRITER_SHARE: f64 = 0.5;
 /// Estimated bytes of the USD layer of `frames` frames of `particles` particles, with the
 /// surfaces `settings` asks for (`source_vertices`: the carried surface's), all held at once
 /// while the file is written ([`crate::io::usd`]); 0 when no USD file is written.
-pub fn usd_bytes(settings: &MorphSettings, particles: u64, frames: u64, source_vertices: u64) -> u64 {
+pub fn usd_bytes(
+    settings: &MorphSettings,
+    particles: u64,
+    frames: u64,
+    source_vertices: u64,
+) -> u64 {
     use super::settings::Surfaces;
     if settings.usd == crate::io::usd::UsdFormat::None {
         return 0;
     }
     let carried = matches!(settings.surfaces, Surfaces::Carried | Surfaces::Both);
     let rebuilt = matches!(settings.surfaces, Surfaces::Rebuilt | Surfaces::Both);
-    let rebuilt_vertices = (REBUILT_VERTICES_PER_AREA * (particles as f64).powf(2.0 / 3.0)).ceil() as u64;
+    let rebuilt_vertices =
+        (REBUILT_VERTICES_PER_AREA * (particles as f64).powf(2.0 / 3.0)).ceil() as u64;
     let per_frame = particles * USD_PARTICLE_BYTES
-        + if carried { source_vertices * USD_CARRIED_VERTEX_BYTES } else { 0 }
-        + if rebuilt { rebuilt_vertices * USD_REBUILT_VERTEX_BYTES } else { 0 };
+        + if carried {
+            source_vertices * USD_CARRIED_VERTEX_BYTES
+        } else {
+            0
+        }
+        + if rebuilt {
+            rebuilt_vertices * USD_REBUILT_VERTEX_BYTES
+        } else {
+            0
+        };
     frames * per_frame
 }
 
@@ -512,8 +542,10 @@ impl Prepared {
         Counts {
             particles: self.initial.len() as u64,
             targets: (g.target.positions.len()
-                + g.keyframes.iter().map(|k| k.particles.positions.len()).sum::<usize>())
-                as u64,
+                + g.keyframes
+                    .iter()
+                    .map(|k| k.particles.positions.len())
+                    .sum::<usize>()) as u64,
             nodes: self.model().grid.node_count() as u64,
             keyframes: g.keyframes.len() as u64,
             dx: self.model().grid.dx,
@@ -525,7 +557,11 @@ impl Prepared {
     /// Refuses `plan` before any step when the whole-sequence writers would not fit in its
     /// limit: the USD layer is built once every frame is on disk (the tapes are gone by then;
     /// the rest of the fixed part is still held), from every frame at once.
-    pub fn check_writers(&self, plan: &MemoryPlan, source_vertices: usize) -> Result<(), MorphError> {
+    pub fn check_writers(
+        &self,
+        plan: &MemoryPlan,
+        source_vertices: usize,
+    ) -> Result<(), MorphError> {
         let n = self.initial.len() as u64;
         let frames = self.frame_count() as u64;
         let usd = usd_bytes(&self.settings, n, frames, source_vertices as u64);

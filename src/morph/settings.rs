@@ -557,7 +557,11 @@ impl MorphSettings {
             ("reach-weight", self.reach_weight, d.reach_weight),
             ("arrival-weight", self.arrival_weight, d.arrival_weight),
             ("waypoint-weight", self.waypoint_weight, d.waypoint_weight),
-            ("control-smoothing", self.control_smoothing, d.control_smoothing),
+            (
+                "control-smoothing",
+                self.control_smoothing,
+                d.control_smoothing,
+            ),
         ]
         .into_iter()
         .filter(|&(_, v, d)| {

@@ -42,7 +42,10 @@ fn a_failing_run_never_touches_another_runs_staging_folder() {
         .spawn()
         .unwrap();
     let partial = dir.join("c3.partial");
-    wait_for(&partial.join("checkpoint/progress.json"), "A's first checkpoint");
+    wait_for(
+        &partial.join("checkpoint/progress.json"),
+        "A's first checkpoint",
+    );
     // A is held still while its folder goes and B takes the path, then let go.
     signal(&a, "STOP");
     std::fs::remove_dir_all(&partial).unwrap();
@@ -166,14 +169,26 @@ fn an_optimization_that_cannot_work_fails_saying_what_to_change() {
     let keep = sentinel(&dir);
     let (s, t) = (asset("sphere.obj"), asset("cube.obj"));
     let cases: &[(&[&str], &[&str])] = &[
-        (&["--volume-weight", "1e6"], &["did not move the body", "lower --volume-weight"]),
-        (&["--path-weight", "1e300"], &["gradient is not finite", "lower --path-weight"]),
-        (&["--fine-weight", "1e300"], &["gradient is not finite", "lower --fine-weight"]),
+        (
+            &["--volume-weight", "1e6"],
+            &["did not move the body", "lower --volume-weight"],
+        ),
+        (
+            &["--path-weight", "1e300"],
+            &["gradient is not finite", "lower --path-weight"],
+        ),
+        (
+            &["--fine-weight", "1e300"],
+            &["gradient is not finite", "lower --fine-weight"],
+        ),
         (
             &["--control-smoothing", "1e300"],
             &["did not move the body", "lower --control-smoothing"],
         ),
-        (&["--learning-rate", "1e-300"], &["did not move the body", "larger --learning-rate"]),
+        (
+            &["--learning-rate", "1e-300"],
+            &["did not move the body", "larger --learning-rate"],
+        ),
     ];
     for (extra, needles) in cases {
         let mut args = morph_args(&s, &t, "o", PROBE);
@@ -181,7 +196,10 @@ fn an_optimization_that_cannot_work_fails_saying_what_to_change() {
         let o = run(&dir, &args);
         assert_one_line_error(&o, 1, needles);
         assert!(!stderr(&o).contains("smaller --learning-rate") || extra[0] != "--learning-rate");
-        assert!(!dir.join("o").exists() && !dir.join("o.partial").exists(), "{extra:?}");
+        assert!(
+            !dir.join("o").exists() && !dir.join("o.partial").exists(),
+            "{extra:?}"
+        );
     }
     // A healthy run of the same shot passes.
     let o = run(&dir, &morph_args(&s, &t, "o", PROBE));
@@ -229,7 +247,11 @@ fn compare_reads_the_headers_order_and_refuses_what_it_cannot() {
             }
         }
     }
-    let (a, b, c) = (dir.join("a.mgrid"), dir.join("b.mgrid"), dir.join("c.mgrid"));
+    let (a, b, c) = (
+        dir.join("a.mgrid"),
+        dir.join("b.mgrid"),
+        dir.join("c.mgrid"),
+    );
     write_grid(&a, &grid_header("x-slowest", "world"), &x_slowest);
     write_grid(&b, &grid_header("z-slowest", "world"), &z_slowest);
     // The same masses in two layouts: equal.
@@ -241,7 +263,11 @@ fn compare_reads_the_headers_order_and_refuses_what_it_cannot() {
     assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
     for (order, units, needle) in [
         ("banana", "world", "unsupported order 'banana'"),
-        ("x-slowest", "millimetres", "unsupported units 'millimetres'"),
+        (
+            "x-slowest",
+            "millimetres",
+            "unsupported units 'millimetres'",
+        ),
     ] {
         write_grid(&c, &grid_header(order, units), &x_slowest);
         let o = run(&dir, &["compare", "a.mgrid", "c.mgrid"]);
@@ -261,8 +287,10 @@ fn ply_junk_gives_a_short_error() {
     std::fs::write(&long, text).unwrap();
     let nul = dir.join("nul.ply");
     std::fs::write(&nul, vec![0u8; 8 << 20]).unwrap();
-    for (file, needle) in [(&long, "header line 3 is"), (&nul, "does not start with the line 'ply'")]
-    {
+    for (file, needle) in [
+        (&long, "header line 3 is"),
+        (&nul, "does not start with the line 'ply'"),
+    ] {
         let o = run(&dir, &["inspect", &file.display().to_string()]);
         assert_one_line_error(&o, 1, &[needle]);
         assert!(o.stderr.len() < 400, "{} bytes", o.stderr.len());
@@ -284,7 +312,10 @@ fn write_box(path: &Path, size: [f64; 3]) {
 #[test]
 fn inspect_warns_of_a_mesh_that_cannot_be_a_source() {
     let dir = scratch("probe3-inspect");
-    for (name, size) in [("needle.obj", [1.0, 1e-6, 1e-6]), ("slab.obj", [1.0, 1.0, 0.01])] {
+    for (name, size) in [
+        ("needle.obj", [1.0, 1e-6, 1e-6]),
+        ("slab.obj", [1.0, 1.0, 0.01]),
+    ] {
         let path = dir.join(name);
         write_box(&path, size);
         let (report, err) = inspect(&dir, &path);
@@ -307,7 +338,10 @@ fn inspect_warns_of_a_mesh_that_cannot_be_a_source() {
     let (report, _) = inspect(&dir, &path);
     assert!(report["particles"].as_u64().unwrap() > 0);
     assert!((report["volume"].as_f64().unwrap() - 6.0).abs() < 1e-9);
-    assert!(report["warnings"].as_array().unwrap().is_empty(), "{report}");
+    assert!(
+        report["warnings"].as_array().unwrap().is_empty(),
+        "{report}"
+    );
 }
 
 /// Defect 9: more targets than the shot has keyframes for are refused before any mesh is
@@ -321,7 +355,11 @@ fn too_many_targets_are_refused_before_loading() {
     args.extend(std::iter::repeat_n(cube.as_str(), 12));
     args.extend(["-o", "x", "--frames", "13"]);
     let o = run(&dir, &args);
-    assert_one_line_error(&o, 2, &["12 target meshes need a keyframe each", "room for"]);
+    assert_one_line_error(
+        &o,
+        2,
+        &["12 target meshes need a keyframe each", "room for"],
+    );
     assert!(!stderr(&o).contains("--at:"));
     // Meshes that do not exist show the check comes before any is read.
     let mut args = vec![s.as_str()];
@@ -339,7 +377,13 @@ fn farm_template_overwrite_after_the_meshes() {
     let (s, t) = (asset("sphere.obj"), asset("cube.obj"));
     std::fs::write(dir.join("job.json"), "old").unwrap();
     let args = [
-        "farm-template", "openjd", "--template", "job.json", &s, &t, "--overwrite",
+        "farm-template",
+        "openjd",
+        "--template",
+        "job.json",
+        &s,
+        &t,
+        "--overwrite",
     ];
     let o = run(&dir, &args);
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
@@ -403,8 +447,16 @@ fn a_second_interrupt_says_so_and_keeps_the_checkpoint() {
     assert_eq!(last["event"], "interrupted", "{stdout}");
     assert_eq!(last["exit_code"], 130);
     // The second signal comes while the first is stopping the run (at its next evaluation).
-    assert!(err.contains("morph: interrupted again by SIGINT while stopping"), "{err}");
-    assert!(last["message"].as_str().unwrap().contains("interrupted again"));
+    assert!(
+        err.contains("morph: interrupted again by SIGINT while stopping"),
+        "{err}"
+    );
+    assert!(
+        last["message"]
+            .as_str()
+            .unwrap()
+            .contains("interrupted again")
+    );
     args.retain(|a| *a != "--json");
     args.push("--resume");
     let o = run(&dir, &args);
@@ -424,7 +476,11 @@ fn quiet_prints_no_warning() {
     args.retain(|a| *a != "--quiet");
     args.push("--overwrite");
     let o = run(&dir, &args);
-    assert!(stderr(&o).contains("morph: warning: --threads 64"), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("morph: warning: --threads 64"),
+        "{}",
+        stderr(&o)
+    );
 }
 
 /// Defect 12c: an output folder whose staging folder cannot be made is a bad output folder,
@@ -435,7 +491,11 @@ fn an_output_folder_that_cannot_be_made_exits_2() {
     let (s, t) = (asset("sphere.obj"), asset("cube.obj"));
     // /proc refuses new folders even to root (a chmod'ed folder does not).
     let o = run(&dir, &morph_args(&s, &t, "/proc/morph-probe-out", TINY));
-    assert_one_line_error(&o, 2, &["cannot create folder '/proc/morph-probe-out.partial'"]);
+    assert_one_line_error(
+        &o,
+        2,
+        &["cannot create folder '/proc/morph-probe-out.partial'"],
+    );
 }
 
 /// Defect 12e: a JSON scene file naming a key twice is refused, naming it (TOML's parser
@@ -463,7 +523,10 @@ fn a_collider_overlapping_the_body_is_warned_about() {
     let (s, t) = (asset("sphere.obj"), asset("cube.obj"));
     // A box through the sphere's side (the unit sphere at the origin).
     let (v, f) = cube([0.0; 3]);
-    let v: Vec<[f64; 3]> = v.iter().map(|p| [0.6 + p[0], p[1] - 0.5, p[2] - 0.5]).collect();
+    let v: Vec<[f64; 3]> = v
+        .iter()
+        .map(|p| [0.6 + p[0], p[1] - 0.5, p[2] - 0.5])
+        .collect();
     write_obj(&dir.join("rock.obj"), &v, &f);
     let scene = format!(
         "source = \"{s}\"\ntargets = [\"{t}\"]\n[[colliders]]\nmesh = \"rock.obj\"\n[ground]\nheight = -0.9\n"
@@ -474,8 +537,14 @@ fn a_collider_overlapping_the_body_is_warned_about() {
     let o = run(&dir, &args);
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
     let err = stderr(&o);
-    assert!(err.contains("collider rock.obj overlaps the body at frame 1"), "{err}");
-    assert!(err.contains("the ground at height -0.9 cuts the body at frame 1"), "{err}");
+    assert!(
+        err.contains("collider rock.obj overlaps the body at frame 1"),
+        "{err}"
+    );
+    assert!(
+        err.contains("the ground at height -0.9 cuts the body at frame 1"),
+        "{err}"
+    );
     let m = common::cli::manifest(&dir.join("x"));
     let warnings = m["warnings"].to_string();
     assert!(warnings.contains("overlaps the body"), "{warnings}");
@@ -486,7 +555,21 @@ fn a_collider_overlapping_the_body_is_warned_about() {
 fn a_long_run_says_how_long_before_it_starts() {
     let dir = scratch("probe3-long");
     let (s, t) = (asset("sphere.obj"), asset("cube.obj"));
-    let args = morph_args(&s, &t, "o", &["--frames", "60001", "--usd", "none", "--preset", "draft", "--resolution", "16"]);
+    let args = morph_args(
+        &s,
+        &t,
+        "o",
+        &[
+            "--frames",
+            "60001",
+            "--usd",
+            "none",
+            "--preset",
+            "draft",
+            "--resolution",
+            "16",
+        ],
+    );
     let mut child = command(&dir, &args)
         .stdout(Stdio::null())
         .stderr(Stdio::piped())
@@ -504,8 +587,14 @@ fn a_long_run_says_how_long_before_it_starts() {
     let line = rx.recv_timeout(Duration::from_secs(60)).unwrap_or_default();
     signal(&child, "INT");
     let _ = child.wait();
-    assert!(line.starts_with("morph: warning: this run is long: about "), "{line}");
-    assert!(line.contains("hours") && line.contains("60001 frames"), "{line}");
+    assert!(
+        line.starts_with("morph: warning: this run is long: about "),
+        "{line}"
+    );
+    assert!(
+        line.contains("hours") && line.contains("60001 frames"),
+        "{line}"
+    );
 }
 
 /// Defect 12d: a memory refusal gives one figure for one morph, the run's or its USD file's,

@@ -409,9 +409,8 @@ pub fn rope_to_folder(
 ) -> Result<RopeReport, RopeError> {
     settings.validate()?;
     let plan = outdir::plan(out, &[], overwrite, "report.json").map_err(RopeError::Settings)?;
-    let mut staging =
-        outdir::Staging::take(&plan, ROPE_MARKER, ROPE_NAMES)
-            .map_err(|e| RopeError::Output(e.to_string()))?;
+    let mut staging = outdir::Staging::take(&plan, ROPE_MARKER, ROPE_NAMES)
+        .map_err(|e| RopeError::Output(e.to_string()))?;
     staging.clear().map_err(RopeError::Output)?;
     let marker = staging.dir.join(ROPE_MARKER);
     write_atomically(&marker, |w| w.write_all(b"{\"tool\": \"morph rope\"}\n"))

@@ -324,7 +324,10 @@ pub fn morph_to_folder(
             None
         };
         let lock = staging.lock_id().ok_or_else(|| {
-            MorphError::Output(format!("cannot read the lock of '{}'", staging.dir.display()))
+            MorphError::Output(format!(
+                "cannot read the lock of '{}'",
+                staging.dir.display()
+            ))
         })?;
         run::write_run(
             &prep,
@@ -365,8 +368,8 @@ pub fn morph_to_folder(
                 });
             }
             // A failed optimization is no work to continue: a resume would fail the same way.
-            let kept = checkpoint::exists(&staging.dir)
-                && !matches!(e, MorphError::Optimization(_));
+            let kept =
+                checkpoint::exists(&staging.dir) && !matches!(e, MorphError::Optimization(_));
             let dir = staging.dir.clone();
             if !kept {
                 staging.discard();

@@ -42,7 +42,8 @@ pub(super) fn write_run(
         .map(|p| checkpoint::describe(p, settings.passes, prep.settings.segments));
     let source = Path::new(&identity.inputs[0].path);
     let sinks = sinks::for_folder(prep, dir, source)?;
-    let (result, written, sinks) = run_writing_frames(prep, (dir, lock), run_id, resume, sinks, caller)?;
+    let (result, written, sinks) =
+        run_writing_frames(prep, (dir, lock), run_id, resume, sinks, caller)?;
     // A body the optimization never moved is no morph: refused before the sequence's files,
     // unless it began in its target's shape (a target the source's own shape at another size:
     // nothing was there to move).
