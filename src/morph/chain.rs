@@ -522,10 +522,9 @@ pub fn optimization_failure(
         return None;
     }
     let outsized = settings.outsized_weights();
-    let lower = format!("lower {}", outsized.join(", "));
+    let lower = lower_weights(&outsized);
     let optimized: Vec<&SegmentRecord> = segments.iter().filter(|r| r.evaluations > 1).collect();
-    let moved = |r: &&SegmentRecord| r.loss < (1.0 - MOVED_SHARE) * r.initial_loss;
-    if optimized.is_empty() || optimized.iter().any(moved) {
+    if optimized.is_empty() || optimized.iter().any(|r| moved(r)) {
         return None;
     }
     // Nothing moved. Undone steps raised the objective or blew the simulation up (steps too
@@ -571,10 +570,7 @@ impl OptimizationReport {
             evaluations: iterations.len(),
             undone_steps: iterations.iter().filter(|i| !i.loss.is_finite()).count(),
             segments: segments.len(),
-            segments_moved: segments
-                .iter()
-                .filter(|r| r.loss < (1.0 - MOVED_SHARE) * r.initial_loss)
-                .count(),
+            segments_moved: segments.iter().filter(|r| moved(r)).count(),
         }
     }
 }
@@ -587,16 +583,25 @@ pub const ARRIVED_IOU: f64 = 0.9;
 /// healthy morph's early segments remove 30-70%).
 pub const MOVED_SHARE: f64 = 0.01;
 
+/// What to lower: the weights set far above their defaults, or the weights in general.
+fn lower_weights(outsized: &[String]) -> String {
+    if outsized.is_empty() {
+        "lower the objective's weights".to_string()
+    } else {
+        format!("lower {}", outsized.join(", "))
+    }
+}
+
+/// Whether segment `r`'s optimization moved the body: its loss went down by [`MOVED_SHARE`].
+fn moved(r: &SegmentRecord) -> bool {
+    r.loss < (1.0 - MOVED_SHARE) * r.initial_loss
+}
+
 /// Why segment `r` could not be optimized, when its objective or its gradient was not finite
 /// (a weight that overflows 64-bit floats: no control can move); checked as each segment
 /// ends, so such a run stops at once.
 pub fn non_finite(settings: &MorphSettings, r: &SegmentRecord) -> Option<String> {
-    let outsized = settings.outsized_weights();
-    let lower = if outsized.is_empty() {
-        "lower the objective's weights".to_string()
-    } else {
-        format!("lower {}", outsized.join(", "))
-    };
+    let lower = lower_weights(&settings.outsized_weights());
     let at = format!("pass {} segment {}", r.pass + 1, r.segment + 1);
     if !r.initial_loss.is_finite() {
         return Some(format!(

@@ -282,9 +282,10 @@ pub struct Counts {
 
 /// The least memory a morph needs, in bytes: to run (the fixed part and the tape under the
 /// chunks of the smallest peak: what
-/// [`Prepared::plan_memory`] refuses below) and to write its USD file (what
-/// [`Prepared::check_writers`] refuses below). The same formula before setup, on estimated
-/// counts, and after, on exact ones, so a refusal gives one figure for one morph.
+/// [`Prepared::plan_memory`] refuses below) and to write its USD file, which is built once
+/// every frame is on disk, from all of them at once, beside the fixed part (the tapes are gone
+/// by then). The same formula before setup, on estimated counts, and after, on exact ones, so
+/// a refusal gives one figure for one morph.
 pub fn least_bytes(settings: &MorphSettings, c: &Counts) -> (u64, u64) {
     let n = c.particles as usize;
     let material = settings.material.build();
@@ -552,29 +553,6 @@ impl Prepared {
             source_vertices: source_vertices as u64,
             frames: self.frame_count() as u64,
         }
-    }
-
-    /// Refuses `plan` before any step when the whole-sequence writers would not fit in its
-    /// limit: the USD layer is built once every frame is on disk (the tapes are gone by then;
-    /// the rest of the fixed part is still held), from every frame at once.
-    pub fn check_writers(
-        &self,
-        plan: &MemoryPlan,
-        source_vertices: usize,
-    ) -> Result<(), MorphError> {
-        let n = self.initial.len() as u64;
-        let frames = self.frame_count() as u64;
-        let usd = usd_bytes(&self.settings, n, frames, source_vertices as u64);
-        let need =
-            plan.fixed + (usd as f64 * (1.0 + USD_WRITER_SHARE) * (1.0 + ALLOCATOR_SLACK)) as u64;
-        if usd > 0 && need > plan.limit {
-            return Err(MorphError::Settings(format!(
-                "--memory-limit {} is below the {} this morph's USD file needs while it is written ({frames} frames of {n} particles and their surfaces, held at once); raise it, write fewer frames, or pass --usd none",
-                show_bytes(plan.limit),
-                show_bytes(need.div_ceil(1 << 20) * (1 << 20)),
-            )));
-        }
-        Ok(())
     }
 }
 

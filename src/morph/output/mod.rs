@@ -283,7 +283,6 @@ pub fn morph_to_folder(
             request.memory_limit,
         )?;
         let memory = prep.plan_memory(request.memory_limit)?;
-        prep.check_writers(&memory, source_vertices)?;
         Ok((prep, memory))
     })();
     let (prep, memory) = match prepared {
