@@ -236,19 +236,39 @@ fn materially_covered(
     covered
 }
 
-/// Which points of `lattice` lie within `radius` of a particle.
+/// Which points of `lattice` lie within `radius` of a particle: each particle marks the
+/// points in its box, so a frame costs its particles times the few points each reaches,
+/// not the whole lattice times 27 cube lookups (3 ms a frame of the progress measure even
+/// for 8 particles). Non-finite particles cover nothing.
 fn covered(lattice: &Lattice, particles: &[Vector3<f64>], radius: f64) -> Vec<bool> {
-    let grid = PointGrid::new(particles, radius);
     let d = lattice.dims;
-    (0..lattice.len())
-        .into_par_iter()
-        .map(|index| {
-            let k = index % d[2];
-            let j = (index / d[2]) % d[1];
-            let i = index / (d[1] * d[2]);
-            grid.any_within(&lattice.point(i, j, k), radius)
-        })
-        .collect()
+    let mut out = vec![false; lattice.len()];
+    // The points with an index in lo..=hi along an axis may lie within `radius` of `c`: one
+    // more on each side than the box's own bounds, so rounding never leaves one out (the
+    // distance test decides).
+    let span = |c: f64, a: usize| {
+        let at = |x: f64| (x - lattice.origin[a]) / lattice.spacing - 0.5;
+        let lo = (at(c - radius).floor() - 1.0).max(0.0);
+        let hi = (at(c + radius).ceil() + 1.0).min(d[a] as f64 - 1.0);
+        if hi < lo {
+            #[allow(clippy::reversed_empty_ranges)]
+            return 1..=0;
+        }
+        lo as usize..=hi as usize
+    };
+    for p in particles.iter().filter(|p| p.iter().all(|c| c.is_finite())) {
+        for i in span(p[0], 0) {
+            for j in span(p[1], 1) {
+                for k in span(p[2], 2) {
+                    let index = (i * d[1] + j) * d[2] + k;
+                    if !out[index] && (p - lattice.point(i, j, k)).norm() <= radius {
+                        out[index] = true;
+                    }
+                }
+            }
+        }
+    }
+    out
 }
 
 /// The judge lattice over the target's box and which of its points are inside the target.
@@ -387,6 +407,47 @@ mod tests {
     use super::*;
     use crate::geometry::{assets, particles_in};
     use crate::mpm::GridSpec;
+
+    /// The particles' marks agree with asking every lattice point for a particle near it,
+    /// particles outside the lattice and non-finite ones included.
+    #[test]
+    fn covered_matches_the_point_by_point_query() {
+        let lattice = Lattice {
+            origin: Vector3::new(-1.0, -2.0, 0.5),
+            spacing: 0.3,
+            dims: [11, 7, 9],
+        };
+        let mut seed = 7u64;
+        let mut next = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut particles: Vec<Vector3<f64>> = (0..300)
+            .map(|_| Vector3::new(next() * 6.0 - 2.5, next() * 5.0 - 3.5, next() * 5.0 - 1.0))
+            .collect();
+        particles.push(Vector3::new(f64::NAN, 0.0, 1.0));
+        particles.push(Vector3::new(f64::INFINITY, 0.0, 1.0));
+        // Exactly on a point, and exactly the radius from one.
+        particles.push(lattice.point(3, 2, 1));
+        particles.push(lattice.point(5, 5, 5) + Vector3::new(0.2, 0.0, 0.0));
+        for radius in [0.05, 0.2, 0.31, 0.9] {
+            let grid = PointGrid::new(&particles, radius);
+            let d = lattice.dims;
+            let expected: Vec<bool> = (0..lattice.len())
+                .map(|index| {
+                    let (i, j, k) = (index / (d[1] * d[2]), (index / d[2]) % d[1], index % d[2]);
+                    grid.any_within(&lattice.point(i, j, k), radius)
+                })
+                .collect();
+            assert_eq!(
+                covered(&lattice, &particles, radius),
+                expected,
+                "radius {radius}"
+            );
+        }
+    }
 
     fn sphere() -> (TriMesh, GridSpec) {
         let mesh = assets::uv_sphere(5.0, 24, 48, |_, _| 1.0);

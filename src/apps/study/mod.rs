@@ -13,13 +13,12 @@
 use crate::integrator::IntegratorKind;
 use crate::morph::motion::MotionMeasures;
 use crate::morph::quality::{Progress, Quality};
+use crate::morph::usage;
 use crate::morph::{Frame, Job, MeshSource, MorphError, MorphSettings, Observer, Preset};
 use crate::mpm::KernelKind;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
-
-pub mod usage;
 
 /// The axes of a study: every combination is one configuration.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

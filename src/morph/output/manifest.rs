@@ -492,6 +492,11 @@ pub struct Timings {
     pub threads: usize,
     #[serde(default)]
     pub simd: String,
+    /// The most resident memory the process held, in MB, when the manifest was written (the
+    /// kernel's high-water mark of this process's own pages: Linux; absent elsewhere, and in
+    /// manifests written before it was recorded). A library call counts its host's memory too.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub peak_resident_mb: Option<f64>,
 }
 
 fn sha256_hex(bytes: &[u8]) -> String {

@@ -1,7 +1,7 @@
 //! Meshes in, surfaces out: loading, validation errors, voxelized volumes of the real test
 //! meshes, placement, surface extraction and the built-in assets.
 
-mod common;
+use crate::common;
 use common::cli::Scratch;
 use morph::geometry::{
     Jitter, MeshError, MorphGeometry, PlacementOptions, Solid, TargetFit, TriMesh, assets,

@@ -1,6 +1,6 @@
 //! Bad states and settings give typed errors naming the step and particle, never a panic.
 
-mod common;
+use crate::common;
 
 use common::*;
 use morph::mpm::{KernelKind, SimError};

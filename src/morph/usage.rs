@@ -1,4 +1,5 @@
-//! Resource use of this process, for the study's per-configuration figures: CPU seconds
+//! Resource use of this process, for the study's per-configuration figures and the manifest's
+//! peak memory: CPU seconds
 //! (`getrusage`, all threads) and peak resident memory (Linux: `VmHWM` in `/proc/self/status`,
 //! reset before each configuration by writing 5 to `/proc/self/clear_refs`). Elsewhere the
 //! figures are absent rather than wrong.

@@ -4,8 +4,7 @@
 //! trying `morph` as a new user would, in a scratch tree with sentinel files that must
 //! survive, through the real binary.
 
-mod common;
-#[path = "safety/third_probe.rs"]
+use crate::common;
 mod third_probe;
 use common::cli::Scratch;
 use std::path::{Path, PathBuf};

@@ -4,7 +4,7 @@
 //! schedules, the kinetic-energy cost, and the initial state (f64, 4th-order central
 //! differences).
 
-mod common;
+use crate::common;
 
 use common::Lcg;
 use morph::apps::rope::scene::{Actuation, ClampMode, RopeConfig};

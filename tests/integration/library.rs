@@ -8,7 +8,7 @@ use morph::{
 };
 use std::path::Path;
 
-mod common;
+use crate::common;
 
 /// A program's own output format: records each frame's time and its highest point.
 #[derive(Default)]

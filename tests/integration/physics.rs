@@ -1,6 +1,6 @@
 //! Physics checks of the forward step: rest, conservation, rigid rotation, free fall.
 
-mod common;
+use crate::common;
 
 use common::*;
 use morph::integrator::Integrator;

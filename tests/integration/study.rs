@@ -1,7 +1,7 @@
 //! `morph study` on a tiny grid: the three files, their columns, finite figures, a readable
 //! plot, a continued study that skips what it measured, and a refused foreign folder.
 
-mod common;
+use crate::common;
 use common::cli::Scratch;
 use std::path::PathBuf;
 use std::process::Command;

@@ -6,7 +6,7 @@ use morph::io::massgrid::MassGrid;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-mod common;
+use crate::common;
 use common::cli::{Scratch, manifest, morph, scratch_in};
 
 fn scratch(name: &str) -> Scratch {

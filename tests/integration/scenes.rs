@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-mod common;
+use crate::common;
 use common::cli::{Scratch, manifest, morph, ok, root, scratch_in};
 
 fn scratch(name: &str) -> Scratch {

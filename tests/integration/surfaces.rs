@@ -1,7 +1,7 @@
 //! The surfaces a morph writes: the source's own surface carried through the morph, and the
 //! surface rebuilt from the particles, measured against the source and the target.
 
-mod common;
+use crate::common;
 use common::cli::{manifest, morph, ok, scratch_in};
 
 /// Lines of an OBJ file that start with `tag` and a space.

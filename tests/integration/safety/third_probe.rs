@@ -22,6 +22,32 @@ fn signal(child: &Child, name: &str) {
     send(child, name);
 }
 
+/// Waits until the process has taken `signo` (its handler ran), so that a second one is not
+/// merged into the first while it is still pending (the kernel keeps one of each).
+fn wait_until_taken(child: &Child, signo: i32) {
+    let status = format!("/proc/{}/status", child.id());
+    let t0 = Instant::now();
+    loop {
+        let Ok(text) = std::fs::read_to_string(&status) else {
+            return;
+        };
+        let pending = ["ShdPnd:", "SigPnd:"].iter().any(|field| {
+            text.lines()
+                .find_map(|l| l.strip_prefix(field))
+                .and_then(|mask| u64::from_str_radix(mask.trim(), 16).ok())
+                .is_some_and(|mask| mask & (1 << (signo - 1)) != 0)
+        });
+        if !pending {
+            return;
+        }
+        assert!(
+            t0.elapsed() < Duration::from_secs(10),
+            "signal {signo} never taken"
+        );
+        std::thread::sleep(Duration::from_millis(1));
+    }
+}
+
 fn wait_for(path: &Path, what: &str) {
     let t0 = Instant::now();
     while !path.exists() {
@@ -73,41 +99,20 @@ fn a_failing_run_never_touches_another_runs_staging_folder() {
     assert_sentinel(&keep);
 }
 
-/// `morph ARGS` in `dir` with its peak resident memory (bytes, from the kernel's own count
-/// of the child: `wait4`).
-fn run_measuring_memory(dir: &Path, args: &[&str]) -> (Output, u64) {
-    let child = command(dir, args)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    let pid = child.id() as libc::pid_t;
-    // Read the pipes on threads so the child never blocks on them.
-    let mut child = child;
-    let (mut out, mut err) = (child.stdout.take().unwrap(), child.stderr.take().unwrap());
-    let read_out = std::thread::spawn(move || {
-        let mut v = Vec::new();
-        std::io::Read::read_to_end(&mut out, &mut v).unwrap();
-        v
-    });
-    let read_err = std::thread::spawn(move || {
-        let mut v = Vec::new();
-        std::io::Read::read_to_end(&mut err, &mut v).unwrap();
-        v
-    });
-    let mut status = 0;
-    let mut usage: libc::rusage = unsafe { std::mem::zeroed() };
-    // SAFETY: `pid` is this process's own child, not yet waited for; the pointers are live.
-    let waited = unsafe { libc::wait4(pid, &mut status, 0, &mut usage) };
-    assert_eq!(waited, pid);
-    let code = libc::WIFEXITED(status).then(|| libc::WEXITSTATUS(status));
-    let output = Output {
-        status: std::os::unix::process::ExitStatusExt::from_raw(status),
-        stdout: read_out.join().unwrap(),
-        stderr: read_err.join().unwrap(),
-    };
-    assert_eq!(output.status.code(), code);
-    (output, usage.ru_maxrss as u64 * 1024)
+/// Runs `morph ARGS` (which writes `OUT`) and returns its output and the peak resident bytes
+/// its manifest records (the kernel's high-water mark of morph's own pages: the `ru_maxrss`
+/// a parent gets from wait4 counts the parent's pages too, since the child starts as its copy).
+fn run_measuring_memory(dir: &Path, args: &[&str], out: &str) -> (Output, u64) {
+    let output = run(dir, args);
+    let manifest: serde_json::Value = serde_json::from_slice(
+        &std::fs::read(dir.join(out).join("manifest.json")).unwrap_or_default(),
+    )
+    .unwrap_or_default();
+    let mb = manifest["timings"]["peak_resident_mb"].as_f64();
+    (
+        output,
+        mb.map_or(u64::MAX, |mb| (mb * (1 << 20) as f64) as u64),
+    )
 }
 
 /// What the memory test allows above the limit: the allocator's slack over what the plan
@@ -148,13 +153,13 @@ fn memory_limit_holds_for_a_run_of_many_frames_with_usd() {
     // Without the USD the same limit holds the run.
     let none = args("none", "100M", &["--usd", "none"]);
     let none: Vec<&str> = none.iter().map(String::as_str).collect();
-    let (o, peak) = run_measuring_memory(&dir, &none);
+    let (o, peak) = run_measuring_memory(&dir, &none, "none");
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
     assert!(peak <= (100 << 20) + allowance(100 << 20), "peak {peak}");
     // With it, a limit the plan accepts holds the whole run.
     let usd = args("usd", "170M", &[]);
     let usd: Vec<&str> = usd.iter().map(String::as_str).collect();
-    let (o, peak) = run_measuring_memory(&dir, &usd);
+    let (o, peak) = run_measuring_memory(&dir, &usd, "usd");
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
     assert!(dir.join("usd/morph.usdc").is_file());
     assert!(peak <= (170 << 20) + allowance(170 << 20), "peak {peak}");
@@ -438,6 +443,7 @@ fn a_second_interrupt_says_so_and_keeps_the_checkpoint() {
         .unwrap();
     wait_for_checkpoint(&dir, &mut child);
     signal(&child, "INT");
+    wait_until_taken(&child, libc::SIGINT);
     signal(&child, "INT");
     let o = child.wait_with_output().unwrap();
     assert_eq!(o.status.code(), Some(130), "{}", stderr(&o));

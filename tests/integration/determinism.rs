@@ -1,6 +1,6 @@
 //! Results are bitwise identical for 1 and 2 worker threads (forward and reverse).
 
-mod common;
+use crate::common;
 
 use common::*;
 use morph::effects::WallMode;

@@ -3,7 +3,7 @@
 //! positions, and the measures (`morph::motion`) from those, against the manifest's
 //! own figures and against the goals.
 
-mod common;
+use crate::common;
 
 use common::cli::{manifest, morph, ok, root, scratch_in};
 use morph::geometry::load_mesh;

@@ -3,7 +3,7 @@
 //! dL/dx0, dL/dv0, dL/dF0, dL/dC0, and effect parameters. The control acts by the default
 //! plastic factor unless a test says otherwise; the reference's additive form has its own.
 
-mod common;
+use crate::common;
 
 use common::*;
 use morph::effects::{GridContext, GridForm, NodeMotion, WallMode};
