@@ -57,25 +57,35 @@ const SMALL: &[&str] = &[
     "10",
 ];
 
+/// SMALL on 1 and on 2 threads (into `-o` folders that stay while the binary runs), made
+/// once for the tests that read them, with what each printed. The default preset's path term
+/// (weight 1) and shape in-between are on in them.
+fn small_runs() -> &'static [(PathBuf, Vec<u8>); 2] {
+    static RUNS: std::sync::OnceLock<[(PathBuf, Vec<u8>); 2]> = std::sync::OnceLock::new();
+    RUNS.get_or_init(|| {
+        ["1", "2"].map(|threads| {
+            let out = scratch(&format!("small-{threads}"));
+            let mut args = vec!["--threads", threads];
+            args.extend_from_slice(SMALL);
+            args.extend_from_slice(&["-o", out.to_str().unwrap(), "--quiet"]);
+            let r = morph(&args);
+            assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+            let path = out.to_path_buf();
+            std::mem::forget(out);
+            (path, [r.stdout, r.stderr].concat())
+        })
+    })
+}
+
 /// Done-when 3: a small morph cuts the loss by at least 80%, every frame is finite and inside
 /// the grid, the folder has the documented layout, and 1 and 2 threads give the same bytes.
 #[test]
 fn small_morph_end_to_end_and_thread_independent() {
-    let mut outputs = Vec::new();
-    for threads in ["1", "2"] {
-        let out = scratch(&format!("small-{threads}"));
-        let mut args = vec!["--threads", threads];
-        args.extend_from_slice(SMALL);
-        args.extend_from_slice(&["-o", out.to_str().unwrap(), "--quiet"]);
-        let r = morph(&args);
-        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
-        assert!(
-            r.stdout.is_empty() && r.stderr.is_empty(),
-            "--quiet prints nothing"
-        );
-        outputs.push(out);
-    }
-    let (a, b) = (&outputs[0], &outputs[1]);
+    let [(a, printed_a), (b, printed_b)] = small_runs();
+    assert!(
+        printed_a.is_empty() && printed_b.is_empty(),
+        "--quiet prints nothing"
+    );
     let m = manifest(a);
     let (initial, fin) = (
         m["initial_loss"].as_f64().unwrap(),
@@ -452,19 +462,20 @@ fn json_mode_prints_one_object_per_line() {
 #[test]
 fn a_shot_starts_at_its_own_frame_number() {
     let mut grids = Vec::new();
-    for start in ["1", "1001"] {
-        let out = scratch(&format!("start-{start}"));
-        let mut args: Vec<&str> = SMALL.to_vec();
-        args.extend_from_slice(&[
-            "--start-frame",
-            start,
-            "-o",
-            out.to_str().unwrap(),
-            "--quiet",
-        ]);
-        let r = morph(&args);
-        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
-        let m = manifest(&out);
+    let later = scratch("start-1001");
+    let mut args: Vec<&str> = SMALL.to_vec();
+    args.extend_from_slice(&[
+        "--start-frame",
+        "1001",
+        "-o",
+        later.to_str().unwrap(),
+        "--quiet",
+    ]);
+    let r = morph(&args);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    // The default start (frame 1) is the shared small run's.
+    for (start, out) in [("1", &small_runs()[1].0), ("1001", &later.to_path_buf())] {
+        let m = manifest(out);
         let n = m["frames"].as_array().unwrap().len();
         let first: usize = start.parse().unwrap();
         let last = first + n - 1;
@@ -976,19 +987,20 @@ fn arrive_reaches_the_target_at_its_frame() {
 /// result, and keeps it independent of the thread count.
 #[test]
 fn path_term_changes_the_result_and_keeps_it_thread_independent() {
+    let off = scratch("path-1-0");
+    let mut args = vec!["--threads", "1", "--path-weight", "0"];
+    args.extend_from_slice(SMALL);
+    args.extend_from_slice(&["-o", off.to_str().unwrap(), "--quiet"]);
+    let r = morph(&args);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    // Weight 0, then the default's weight 1 on 1 and 2 threads.
     let mut grids = Vec::new();
-    for (threads, weight) in [("1", "0"), ("1", "1"), ("2", "1")] {
-        let out = scratch(&format!("path-{threads}-{weight}"));
-        let mut args = vec!["--threads", threads, "--path-weight", weight];
-        args.extend_from_slice(SMALL);
-        args.extend_from_slice(&["-o", out.to_str().unwrap(), "--quiet"]);
-        let r = morph(&args);
-        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
-        let m = manifest(&out);
-        assert_eq!(
-            m["settings"]["path_weight"].as_f64(),
-            Some(weight.parse().unwrap())
-        );
+    for (out, weight) in [(&off.to_path_buf(), 0.0)]
+        .into_iter()
+        .chain(small_runs().iter().map(|(out, _)| (out, 1.0)))
+    {
+        let m = manifest(out);
+        assert_eq!(m["settings"]["path_weight"].as_f64(), Some(weight));
         assert!(m["final_loss"].as_f64().unwrap().is_finite());
         grids.push(std::fs::read(out.join("final_mass.mgrid")).unwrap());
     }
@@ -1000,15 +1012,19 @@ fn path_term_changes_the_result_and_keeps_it_thread_independent() {
 /// result, and keeps it independent of the thread count.
 #[test]
 fn shape_inbetween_changes_the_result_and_keeps_it_thread_independent() {
+    let crossfade = scratch("inbetween-1-crossfade");
+    let mut args = vec!["--threads", "1", "--inbetween", "crossfade"];
+    args.extend_from_slice(SMALL);
+    args.extend_from_slice(&["-o", crossfade.to_str().unwrap(), "--quiet"]);
+    let r = morph(&args);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    // The crossfade, then the default's shape in-between on 1 and 2 threads.
     let mut grids = Vec::new();
-    for (threads, inbetween) in [("1", "crossfade"), ("1", "shape"), ("2", "shape")] {
-        let out = scratch(&format!("inbetween-{threads}-{inbetween}"));
-        let mut args = vec!["--threads", threads, "--inbetween", inbetween];
-        args.extend_from_slice(SMALL);
-        args.extend_from_slice(&["-o", out.to_str().unwrap(), "--quiet"]);
-        let r = morph(&args);
-        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
-        let m = manifest(&out);
+    for (out, inbetween) in [(&crossfade.to_path_buf(), "crossfade")]
+        .into_iter()
+        .chain(small_runs().iter().map(|(out, _)| (out, "shape")))
+    {
+        let m = manifest(out);
         assert_eq!(m["settings"]["inbetween"].as_str(), Some(inbetween));
         assert!(m["final_loss"].as_f64().unwrap().is_finite());
         grids.push(std::fs::read(out.join("final_mass.mgrid")).unwrap());
@@ -1017,8 +1033,8 @@ fn shape_inbetween_changes_the_result_and_keeps_it_thread_independent() {
     assert_eq!(grids[1], grids[2], "bitwise the same on 1 and 2 threads");
 }
 
-/// Coarse-to-fine: sphere -> two-lobes on a 32-cell grid, its segments started from a
-/// 16-cell solve, ends at a lower loss than the 32-cell grid alone given one evaluation more
+/// Coarse-to-fine: sphere -> two-lobes on a 32-cell grid in 13 frames, its segments started
+/// from a 16-cell solve, ends at a lower loss than the 32-cell grid alone given one evaluation more
 /// per segment (more than the coarse level costs: it has a tenth of the particles and half
 /// the substeps); and it stays independent of the thread count.
 #[test]
@@ -1031,7 +1047,7 @@ fn a_finer_level_started_from_a_coarser_one_beats_the_same_budget_alone() {
         "--resolution",
         "32",
         "--frames",
-        "19",
+        "13",
         "--surface",
         "none",
         "--quiet",

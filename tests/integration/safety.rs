@@ -154,6 +154,21 @@ fn reference(name: &str, args: &[&str]) -> Scratch {
     dir
 }
 
+/// The uninterrupted SMALL run (in `DIR/ref`) that the signal, kill and tidy-up tests compare
+/// against, made once for the whole test binary, and how long it took.
+fn small_reference() -> &'static (PathBuf, Duration) {
+    static SMALL_REF: std::sync::OnceLock<(PathBuf, Duration)> = std::sync::OnceLock::new();
+    SMALL_REF.get_or_init(|| {
+        let t0 = Instant::now();
+        let dir = reference("small-ref", SMALL);
+        let took = t0.elapsed();
+        let path = dir.to_path_buf();
+        // Kept while the binary runs (the next run's scratch folder replaces it).
+        std::mem::forget(dir);
+        (path, took)
+    })
+}
+
 /// Case 1: a trailing slash on -o replaces an earlier run in place (nothing written inside
 /// it, nothing lost after the run), and makes a new folder when there is none.
 #[test]
@@ -337,7 +352,7 @@ fn interrupted_after_checkpoint(dir: &Path, signal: &str) -> Output {
 /// --resume then finishes with results identical to an uninterrupted run.
 #[test]
 fn sigint_and_sigterm_stop_cleanly_and_resume() {
-    let reference = reference("signals-ref", SMALL);
+    let reference = &small_reference().0;
     for (signal, code) in [("INT", 130), ("TERM", 143)] {
         let dir = scratch(&format!("sig{signal}"));
         let (s, t) = (asset("sphere.obj"), asset("two-lobes.obj"));
@@ -421,17 +436,9 @@ fn resume_with_overwrite_starts_over_when_it_cannot_continue() {
 /// grid are byte for byte those of an uninterrupted run.
 #[test]
 fn sigkill_at_a_random_point_then_resume_is_bitwise_identical() {
-    let reference = reference("kill-ref", SMALL);
-    let (s, t) = (asset("sphere.obj"), asset("two-lobes.obj"));
     // The reference run's own length sets the range of kill times.
-    let t0 = Instant::now();
-    let probe = scratch("kill-probe");
-    assert!(
-        run(&probe, &morph_args(&s, &t, "out", SMALL))
-            .status
-            .success()
-    );
-    let full = t0.elapsed();
+    let (reference, full) = small_reference();
+    let (s, t) = (asset("sphere.obj"), asset("two-lobes.obj"));
     let seed = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
         .unwrap()
@@ -811,7 +818,7 @@ fn resume_with_a_shorter_last_segment_is_bitwise_identical() {
         "--preset",
         "draft",
         "--resolution",
-        "20",
+        "16",
         "--frames",
         "41",
         "--frame-every",
@@ -841,7 +848,7 @@ fn resume_with_lookahead_is_bitwise_identical() {
         "--preset",
         "draft",
         "--resolution",
-        "20",
+        "16",
         "--frames",
         "41",
         "--frame-every",
@@ -1635,7 +1642,7 @@ fn outputs_of_earlier_versions_are_refused_saying_why() {
 /// middle of that removal once left a checkpoint naming files already deleted.)
 #[test]
 fn killed_while_a_finished_run_tidies_up_then_resume_moves_it_into_place() {
-    let reference = reference("tidy-ref", SMALL);
+    let reference = &small_reference().0;
     let (s, t) = (asset("sphere.obj"), asset("two-lobes.obj"));
     for cut in [
         "before the checkpoint is removed",

@@ -175,7 +175,9 @@ fn a_source_s_own_normals_follow_the_carried_mesh() {
 /// has the surfaces before cleaning too (the narrow lattice kernel leaves voids to drop).
 #[test]
 fn rebuilt_surfaces_have_one_shell_and_no_slivers() {
-    // The README job at draft, resolution 20, rebuilt surface only, on `threads` ("0": all).
+    // The README job at draft, resolution 20, rebuilt surface only, on `threads` ("0": all),
+    // in 13 frames: a shorter shot deforms the body as much, and the lattice kernel still
+    // leaves void shells on its last frames.
     let run = |name: &str, method: &str, threads: &str| {
         let out = scratch_in("surface-tests", name);
         ok(&morph(
@@ -188,6 +190,8 @@ fn rebuilt_surfaces_have_one_shell_and_no_slivers() {
                 "draft",
                 "--resolution",
                 "20",
+                "--frames",
+                "13",
                 "--surface",
                 "rebuilt",
                 "--rebuilt-method",
