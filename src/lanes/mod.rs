@@ -6,7 +6,7 @@
 //! width, a comparison and a select pick values without rounding, and Rust never fuses a
 //! multiplication and an addition into an FMA on its own. So a lane kernel gives the bits of
 //! the scalar code on every width, and results do not depend on the machine
-//! (`tests/determinism.rs` runs both integrators, forward and reverse, at each width this CPU
+//! (`tests/integration/determinism.rs` runs both integrators, forward and reverse, at each width this CPU
 //! has and compares the bits).
 //!
 //! [`dispatch`] runs a kernel compiled for the widest instruction set the CPU has (or the one

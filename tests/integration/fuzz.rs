@@ -8,7 +8,7 @@
 //! bytes. Every input must give a result or a one-line error, never a panic, within 1 s.
 //!
 //! The long run a developer can start (documented in README.md):
-//! `MORPH_FUZZ_CASES=1000000 cargo test --release --test fuzz -- --nocapture`
+//! `MORPH_FUZZ_CASES=1000000 cargo test --release --test integration fuzz:: -- --nocapture`
 
 use morph::MorphSettings;
 use morph::geometry::parse_mesh;

@@ -1270,7 +1270,7 @@ fn particle_budget_is_met_in_order() {
 
 /// Case 12: checkpoints are sealed: a flipped bit in a state file, or progress.json edited
 /// back to `segments_done: 0`, is refused by name on --resume (it exited 0 with a different
-/// result). A checkpoint of another run is refused in `tests/fuzz.rs`.
+/// result). A checkpoint of another run is refused in `tests/integration/fuzz.rs`.
 #[test]
 fn damaged_checkpoints_are_refused_by_name() {
     let dir = scratch("sealed");

@@ -1,7 +1,7 @@
 //! The hard cases: morphs that break simulators (stiff materials, thin features, far-apart
 //! shapes, extreme units, topology changes, huge steps, long chains and horizons, many
 //! particles). Each either stays numerically stable, by the bounds below on every written
-//! frame, or is refused with a one-line error that says why. `tests/hard_cases.rs` runs the
+//! frame, or is refused with a one-line error that says why. `tests/integration/hard_cases.rs` runs the
 //! fast ones; `morph bench-hard-cases` runs them all and prints one JSON line per case.
 
 use crate::geometry::assets::{cube, torus, two_lobes, uv_sphere};
