@@ -57,6 +57,18 @@ const SMALL: &[&str] = &[
     "10",
 ];
 
+/// SMALL with `extra` options into the scratch folder `name`, quiet; returns the folder and
+/// what the run printed.
+fn run_small(name: &str, extra: &[&str]) -> (Scratch, Vec<u8>) {
+    let out = scratch(name);
+    let mut args = extra.to_vec();
+    args.extend_from_slice(SMALL);
+    args.extend_from_slice(&["-o", out.to_str().unwrap(), "--quiet"]);
+    let r = morph(&args);
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    (out, [r.stdout, r.stderr].concat())
+}
+
 /// SMALL on 1 and on 2 threads (into `-o` folders that stay while the binary runs), made
 /// once for the tests that read them, with what each printed. The default preset's path term
 /// (weight 1) and shape in-between are on in them.
@@ -64,15 +76,10 @@ fn small_runs() -> &'static [(PathBuf, Vec<u8>); 2] {
     static RUNS: std::sync::OnceLock<[(PathBuf, Vec<u8>); 2]> = std::sync::OnceLock::new();
     RUNS.get_or_init(|| {
         ["1", "2"].map(|threads| {
-            let out = scratch(&format!("small-{threads}"));
-            let mut args = vec!["--threads", threads];
-            args.extend_from_slice(SMALL);
-            args.extend_from_slice(&["-o", out.to_str().unwrap(), "--quiet"]);
-            let r = morph(&args);
-            assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+            let (out, printed) = run_small(&format!("small-{threads}"), &["--threads", threads]);
             let path = out.to_path_buf();
             std::mem::forget(out);
-            (path, [r.stdout, r.stderr].concat())
+            (path, printed)
         })
     })
 }
@@ -462,17 +469,7 @@ fn json_mode_prints_one_object_per_line() {
 #[test]
 fn a_shot_starts_at_its_own_frame_number() {
     let mut grids = Vec::new();
-    let later = scratch("start-1001");
-    let mut args: Vec<&str> = SMALL.to_vec();
-    args.extend_from_slice(&[
-        "--start-frame",
-        "1001",
-        "-o",
-        later.to_str().unwrap(),
-        "--quiet",
-    ]);
-    let r = morph(&args);
-    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let (later, _) = run_small("start-1001", &["--start-frame", "1001"]);
     // The default start (frame 1) is the shared small run's.
     for (start, out) in [("1", &small_runs()[1].0), ("1001", &later.to_path_buf())] {
         let m = manifest(out);
@@ -987,12 +984,7 @@ fn arrive_reaches_the_target_at_its_frame() {
 /// result, and keeps it independent of the thread count.
 #[test]
 fn path_term_changes_the_result_and_keeps_it_thread_independent() {
-    let off = scratch("path-1-0");
-    let mut args = vec!["--threads", "1", "--path-weight", "0"];
-    args.extend_from_slice(SMALL);
-    args.extend_from_slice(&["-o", off.to_str().unwrap(), "--quiet"]);
-    let r = morph(&args);
-    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let (off, _) = run_small("path-1-0", &["--threads", "1", "--path-weight", "0"]);
     // Weight 0, then the default's weight 1 on 1 and 2 threads.
     let mut grids = Vec::new();
     for (out, weight) in [(&off.to_path_buf(), 0.0)]
@@ -1012,12 +1004,10 @@ fn path_term_changes_the_result_and_keeps_it_thread_independent() {
 /// result, and keeps it independent of the thread count.
 #[test]
 fn shape_inbetween_changes_the_result_and_keeps_it_thread_independent() {
-    let crossfade = scratch("inbetween-1-crossfade");
-    let mut args = vec!["--threads", "1", "--inbetween", "crossfade"];
-    args.extend_from_slice(SMALL);
-    args.extend_from_slice(&["-o", crossfade.to_str().unwrap(), "--quiet"]);
-    let r = morph(&args);
-    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let (crossfade, _) = run_small(
+        "inbetween-1-crossfade",
+        &["--threads", "1", "--inbetween", "crossfade"],
+    );
     // The crossfade, then the default's shape in-between on 1 and 2 threads.
     let mut grids = Vec::new();
     for (out, inbetween) in [(&crossfade.to_path_buf(), "crossfade")]
