@@ -15,6 +15,7 @@ mod bench;
 mod compare;
 mod farm;
 mod inspect;
+mod liken;
 mod morph;
 mod rope;
 mod study;
@@ -91,6 +92,15 @@ enum Command {
     /// non-finite value. Exit 0: equal; 1: different, incompatible grids (shape, origin,
     /// spacing) or a non-finite value; 2: unreadable file or bad option.
     Compare(compare::CompareArgs),
+    /// The last frame's silhouettes and tips against the target, recomputed from a morph's
+    /// written files, as JSON.
+    ///
+    /// The surface's last frame (the rebuilt one, or --surface carried) and the target mesh
+    /// placed by the manifest's `target` map, seen along x, y and z (silhouette IoU), and the
+    /// distance from the target's extremities (its 3% of vertices farthest along each axis
+    /// direction) to the surface, 90th percentile, as a share of the target's size. Exit 0:
+    /// printed; 1: an unreadable folder or file.
+    Liken(liken::LikenArgs),
     /// Active damping of a swinging rope: uncontrolled vs MPPI vs gradient control (RK4 by
     /// default, or --integrator euler).
     ///
@@ -186,6 +196,7 @@ fn dispatch(cli: &Cli) -> ExitCode {
         Some(Command::BenchAccuracy) => report(::morph::apps::bench::physics::run()),
         Some(Command::Inspect(args)) => inspect::run(args),
         Some(Command::Compare(args)) => compare::run(args),
+        Some(Command::Liken(args)) => liken::run(args),
         Some(Command::Rope(args)) => rope::run(args),
         Some(Command::Assets(args)) => assets::run(args),
         Some(Command::FarmTemplate(args)) => farm::run(args),

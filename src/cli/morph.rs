@@ -773,6 +773,14 @@ pub fn run(args: &MorphArgs) -> ExitCode {
                         100.0 * q.inverted
                     );
                 }
+                if let Some(l) = summary
+                    .frames_summary
+                    .as_ref()
+                    .and_then(|f| f.surfaces.as_ref())
+                    .and_then(|s| s.likeness.as_ref())
+                {
+                    say!("{}", likeness_line(l));
+                }
                 if let Some(m) = &summary.motion {
                     let ease = m
                         .ease_error
@@ -856,6 +864,19 @@ pub fn run(args: &MorphArgs) -> ExitCode {
             fail_run(args, code, &e.to_string())
         }
     }
+}
+
+/// The summary's likeness line: what a render of the last frame's rebuilt surface shows
+/// against the target.
+fn likeness_line(l: &morph::geometry::likeness::Likeness) -> String {
+    let [x, y, z] = l.silhouette_iou;
+    let (worst, direction) = l.worst_tips();
+    format!(
+        "likeness: silhouette IoU {x:.3} / {y:.3} / {z:.3} (seen along x / y / z), tips {:.1}% of the target's size from the surface at the top and {:.1}% at worst ({direction}; 90th percentile of its {:.0}% farthest vertices each way)",
+        100.0 * l.top_tips(),
+        100.0 * worst,
+        100.0 * morph::geometry::likeness::TIP_SHARE
+    )
 }
 
 /// The summary's surfaces line: each surface against its reference (normal deviation, share

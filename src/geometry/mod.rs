@@ -8,6 +8,7 @@ pub mod cleanup;
 pub mod error;
 pub mod features;
 pub mod fidelity;
+pub mod likeness;
 pub mod mesh;
 pub mod neighbourhood;
 pub mod placement;

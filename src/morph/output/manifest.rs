@@ -10,6 +10,7 @@ use super::sinks::RebuiltStats;
 use crate::geometry::Similarity;
 use crate::geometry::carried::CarriedStats;
 use crate::geometry::fidelity::Fidelity;
+use crate::geometry::likeness::Likeness;
 use crate::io::sha256_file;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
@@ -102,6 +103,10 @@ pub struct SurfaceSummary {
     pub rebuilt_last: Option<Fidelity>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub carried_last: Option<Fidelity>,
+    /// The last frame's rebuilt surface's silhouettes and tips against the target
+    /// ([`crate::geometry::likeness`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub likeness: Option<Likeness>,
     /// The source's own fold share (the carried surface on the first frame) and the largest
     /// over the frames.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -230,6 +235,7 @@ impl FramesSummary {
             rebuilt_first: first.rebuilt.and_then(|r| r.fidelity),
             rebuilt_last: last.rebuilt.and_then(|r| r.fidelity),
             carried_last: last.carried.and_then(|c| c.fidelity),
+            likeness: last.rebuilt.and_then(|r| r.likeness),
             source_fold_share: first.carried.map(|c| c.fold_share),
             max_carried_fold_share: s.carried.map(|c| c.fold_share),
             rebuilt_first_crease_share: first.rebuilt.and_then(|r| r.crease_share),

@@ -15,6 +15,7 @@
 //! complete. Each completed segment leaves a checkpoint there ([`super::checkpoint`]); an
 //! interrupted run keeps it and `--resume` continues bit for bit.
 
+mod liken;
 mod manifest;
 mod run;
 pub mod sinks;
@@ -24,6 +25,7 @@ pub use manifest::{
     FrameStats, FramesSummary, JudgedFrame, KeyframeReport, RebuiltSummary, RunIdentity,
     SurfaceSummary, Timings,
 };
+pub use liken::{WrittenSurface, written_likeness};
 pub use sinks::{RebuiltStats, frame_name};
 
 use super::memory::MemoryLimit;

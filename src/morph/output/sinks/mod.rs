@@ -133,8 +133,8 @@ pub fn for_folder(
         crate::morph::settings::Surfaces::None => None,
         _ => Some(crate::geometry::load_mesh(source)?),
     };
+    let target = Arc::new(to_world.apply_mesh(&prep.geometry.target_sim));
     let references = loaded.as_ref().and_then(|l| {
-        let target = to_world.apply_mesh(&prep.geometry.target_sim);
         Some(Arc::new((
             Reference::new(&l.mesh)?,
             Reference::new(&target)?,
@@ -183,6 +183,7 @@ pub fn for_folder(
             body_volume: prep.geometry.source_solid.volume / to_world.scale.powi(3),
             to_world,
             references,
+            target,
         }));
     }
     if settings.volume {

@@ -7,7 +7,9 @@ use super::{FrameRecord, FrameSink, SinkFrame, out_err};
 use crate::geometry::Similarity;
 use crate::geometry::cleanup::{CleanReport, SurfaceQuality, clean, keep_volume, quality};
 use crate::geometry::features::{SourcePlanes, sharpen};
+use crate::geometry::TriMesh;
 use crate::geometry::fidelity::{Fidelity, Reference, crease_share, mesh_fidelity};
+use crate::geometry::likeness::{Likeness, likeness};
 use crate::geometry::splashsurf::extract_splashsurf_surface;
 use crate::geometry::surface::{FillField, SurfaceError, deformed_fill_field, fill_field};
 use crate::morph::MorphError;
@@ -31,6 +33,10 @@ pub struct RebuiltStats {
     /// their neighbours: crack-like lines a render shows (every frame).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub crease_share: Option<f64>,
+    /// The last frame's silhouettes and tips against the target
+    /// ([`crate::geometry::likeness`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub likeness: Option<Likeness>,
     /// Seconds spent making, cleaning, writing and measuring it (the frame writer's thread).
     #[serde(default)]
     pub seconds: f64,
@@ -81,6 +87,8 @@ pub struct RebuiltObj {
     /// The source and the target surfaces (world units), which the first and the last
     /// frames' surfaces are measured against.
     pub references: Option<Arc<(Reference, Reference)>>,
+    /// The target as the run placed it (world units), which the last frame is likened to.
+    pub target: Arc<TriMesh>,
 }
 
 impl FrameSink for RebuiltObj {
@@ -125,12 +133,14 @@ impl FrameSink for RebuiltObj {
             _ => None,
         };
         let world_spacing = self.spacing * self.to_world.scale;
+        let last = frame.index + 1 == frame.count;
         record.rebuilt = Some(RebuiltStats {
             before: quality(&raw),
             after: quality(&surface),
             cleanup,
             fidelity: reference.map(|r| mesh_fidelity(&world, r, world_spacing)),
             crease_share: Some(crease_share(&surface)),
+            likeness: last.then(|| likeness(&world, &self.target)).flatten(),
             seconds: clock.elapsed().as_secs_f64(),
         });
         record.surface_volume = Some(world.signed_volume());
