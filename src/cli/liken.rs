@@ -31,7 +31,10 @@ pub fn run(args: &LikenArgs) -> ExitCode {
     };
     match morph::output::written_likeness(&args.output, surface) {
         Ok(l) => {
-            say!("{}", serde_json::to_string_pretty(&l).expect("plain report"));
+            say!(
+                "{}",
+                serde_json::to_string_pretty(&l).expect("plain report")
+            );
             ExitCode::SUCCESS
         }
         Err(e) => fail(false, 1, &e.to_string()),

@@ -359,6 +359,7 @@ impl MorphArgs {
         if let Some(r) = self.resolution {
             s.resolution = r;
             s.particles = None;
+            s.thin_across = 0.0;
         }
         if self.particles.is_some() {
             s.particles = self.particles;
@@ -372,7 +373,10 @@ impl MorphArgs {
         if self.refine_iterations.is_some() {
             s.refine_iterations = self.refine_iterations;
         }
-        set(&mut s.particles_per_cell, self.particles_per_cell);
+        if let Some(k) = self.particles_per_cell {
+            s.particles_per_cell = k;
+            s.thin_across = 0.0;
+        }
         set(&mut s.start_frame, self.start_frame);
         if let Some(n) = self.frame_every {
             // A frame every n steps replaces the frame rate.
@@ -744,6 +748,9 @@ pub fn run(args: &MorphArgs) -> ExitCode {
                     100.0 * summary.fill.particles_ejected,
                     summary.seconds
                 );
+                if let Some(z) = &summary.sizing {
+                    say!("{}", sizing_line(z));
+                }
                 if let Some(o) = &summary.optimization {
                     say!(
                         "optimization: {} evaluations, {} steps undone (they raised the objective or blew the simulation up), {} of {} segments moved (loss down by {}% or more)",
@@ -864,6 +871,29 @@ pub fn run(args: &MorphArgs) -> ExitCode {
             fail_run(args, code, &e.to_string())
         }
     }
+}
+
+/// The summary's particles line: what the thin parts' rule chose and why.
+fn sizing_line(z: &morph::sizing::Sizing) -> String {
+    let name = std::path::Path::new(&z.thinnest)
+        .file_name()
+        .map_or(z.thinnest.clone(), |n| n.to_string_lossy().into_owned());
+    let mut line = format!(
+        "particles: {} per cell, the thinnest parts ({name}'s) {:.1} particles across (about {:.0} particles)",
+        z.per_cell, z.across, z.particles
+    );
+    if z.wanted_per_cell > z.per_cell {
+        line += &format!(
+            "; {} per cell would give them {:.1} across with about {:.0} particles, over the budget of {} (--particles-per-cell {} or --particles {:.0} asks for them)",
+            z.wanted_per_cell,
+            z.across / z.per_cell as f64 * z.wanted_per_cell as f64,
+            z.wanted_particles,
+            morph::sizing::DETAIL_BUDGET,
+            z.wanted_per_cell,
+            z.wanted_particles
+        );
+    }
+    line
 }
 
 /// The summary's likeness line: what a render of the last frame's rebuilt surface shows

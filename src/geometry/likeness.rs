@@ -44,7 +44,10 @@ pub const DIRECTIONS: [&str; 6] = ["+x", "-x", "+y", "-y", "+z", "-z"];
 impl Likeness {
     /// The least of the three views' IoU.
     pub fn min_silhouette_iou(&self) -> f64 {
-        self.silhouette_iou.iter().copied().fold(f64::INFINITY, f64::min)
+        self.silhouette_iou
+            .iter()
+            .copied()
+            .fold(f64::INFINITY, f64::min)
     }
 
     /// The topmost tips' reach (up is +y).
@@ -86,7 +89,9 @@ pub fn likeness(surface: &TriMesh, target: &TriMesh) -> Option<Likeness> {
 /// by row.
 pub fn silhouette(mesh: &TriMesh, frame: &Aabb, axis: usize) -> Vec<bool> {
     let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
-    let side = frame.extent()[u].max(frame.extent()[v]).max(f64::MIN_POSITIVE);
+    let side = frame.extent()[u]
+        .max(frame.extent()[v])
+        .max(f64::MIN_POSITIVE);
     let pixel = side / SILHOUETTE_PIXELS as f64;
     let n = SILHOUETTE_PIXELS;
     // Pixel coordinates: the frame's corner at 0, one pixel per unit.
@@ -237,7 +242,10 @@ mod tests {
         let expected = lens / (2.0 * std::f64::consts::PI - lens);
         assert!((l.silhouette_iou[0] - 1.0).abs() < 0.01, "{l:?}");
         for view in [1, 2] {
-            assert!((l.silhouette_iou[view] - expected).abs() < 0.01, "{l:?} {expected}");
+            assert!(
+                (l.silhouette_iou[view] - expected).abs() < 0.01,
+                "{l:?} {expected}"
+            );
         }
         // b's tips along +x are a radius beyond a's surface; its other tips near a's.
         let (worst, direction) = l.worst_tips();
@@ -261,7 +269,13 @@ mod tests {
         let size = target.bounds().extent().norm();
         assert!(l.top_tips() * size > 0.6, "{l:?}");
         assert_eq!(l.worst_tips().1, "+y");
-        assert!(l.silhouette_iou[1] > 0.99, "seen from above the ear hides in the head: {l:?}");
-        assert!(l.silhouette_iou[0] < 0.97 && l.silhouette_iou[2] < 0.97, "{l:?}");
+        assert!(
+            l.silhouette_iou[1] > 0.99,
+            "seen from above the ear hides in the head: {l:?}"
+        );
+        assert!(
+            l.silhouette_iou[0] < 0.97 && l.silhouette_iou[2] < 0.97,
+            "{l:?}"
+        );
     }
 }

@@ -15,6 +15,7 @@ pub mod placement;
 pub mod point_grid;
 pub mod splashsurf;
 pub mod surface;
+pub mod thickness;
 pub mod voxelize;
 pub mod winding;
 
@@ -68,6 +69,8 @@ pub struct SizeEstimate {
     pub source_particles: f64,
     /// Particles of every target together (the last and the keyframes before it).
     pub target_particles: f64,
+    /// Each target's particles, in keyframe order.
+    pub each_target_particles: Vec<f64>,
 }
 
 impl MorphGeometry {
@@ -93,7 +96,7 @@ impl MorphGeometry {
             solid.unit_volume * (solid.length * scale / spacing).powi(3)
         };
         let last = solids.len() - 1;
-        let target_particles = solids
+        let each_target_particles: Vec<f64> = solids
             .iter()
             .enumerate()
             .map(|(k, solid)| {
@@ -104,12 +107,14 @@ impl MorphGeometry {
                 };
                 particles(solid, to_sim.scale)
             })
-            .sum();
+            .collect();
+        let target_particles = each_target_particles.iter().sum();
         Ok(SizeEstimate {
             nodes: placement.grid.node_count(),
             dx: placement.grid.dx,
             source_particles: particles(&source, placement.world_to_sim.scale),
             target_particles,
+            each_target_particles,
         })
     }
 
@@ -358,6 +363,8 @@ pub struct MeshReport {
     pub resolution: usize,
     /// Particles at `resolution` cells across, 2x2x2 per cell, placed as a morph source.
     pub particles: usize,
+    /// Its thin parts' and its body's local thickness, the mesh's units ([`thickness`]).
+    pub thickness: Option<thickness::Thickness>,
     pub warnings: Vec<String>,
 }
 
@@ -433,6 +440,7 @@ pub fn inspect(path: &Path, resolution: usize) -> Result<MeshReport, MeshError> 
         centroid: solid.centroid,
         resolution,
         particles: particles.positions.len(),
+        thickness: thickness::thickness(mesh),
         warnings,
     })
 }

@@ -24,6 +24,7 @@ pub mod reach;
 pub mod scene_file;
 pub mod segment;
 pub mod settings;
+pub mod sizing;
 pub mod usage;
 
 pub use api::*;

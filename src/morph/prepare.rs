@@ -20,6 +20,8 @@ use std::path::Path;
 /// Everything set up for a morph: particles, the model and its integrator, loss.
 pub struct Prepared {
     pub settings: MorphSettings,
+    /// What the thin parts' rule chose ([`super::sizing`]; `None` when it was off).
+    pub sizing: Option<super::sizing::Sizing>,
     pub geometry: MorphGeometry,
     pub engine: Engine,
     pub loss: MassLoss,
@@ -92,6 +94,8 @@ impl Prepared {
         source: (&LoadedMesh, &Path),
         targets: &[(&LoadedMesh, &Path)],
     ) -> Result<crate::geometry::SizeEstimate, MorphError> {
+        let (settings, _) = super::sizing::size(settings, source, targets)?;
+        let settings = &settings;
         let resolution = match settings.particles {
             None => settings.resolution,
             Some(_) => Prepared::resolution_for_budget(settings, source, targets)?,
@@ -119,6 +123,8 @@ impl Prepared {
         settings
             .validate_targets(targets.len())
             .map_err(MorphError::Settings)?;
+        let (settings, sizing) = super::sizing::size(settings, source, targets)?;
+        let settings = &settings;
         let jitter = (settings.jitter > 0.0).then_some(Jitter {
             amount: settings.jitter,
             seed: settings.seed,
@@ -324,6 +330,7 @@ impl Prepared {
             let mut below = settings.clone();
             below.resolution = settings.resolution.div_ceil(2);
             below.particles = None;
+            below.thin_across = 0.0;
             below.levels -= 1;
             below.refine_iterations = None;
             below.surfaces = settings::Surfaces::None;
@@ -342,6 +349,7 @@ impl Prepared {
         };
         Ok(Prepared {
             settings: settings.clone(),
+            sizing,
             geometry,
             engine,
             loss,
@@ -489,7 +497,11 @@ impl Prepared {
     /// What the settings' weights are multiplied by on this grid and for this material, so
     /// that they weigh the same at any resolution and stiffness (see [`WeightScale`]).
     pub fn weight_scale(&self) -> WeightScale {
-        WeightScale::at(self.settings.resolution, self.settings.material.mu)
+        WeightScale::at(
+            self.settings.resolution,
+            self.settings.particles_per_cell,
+            self.settings.material.mu,
+        )
     }
 
     /// The volume cost's weight on this grid.
@@ -825,14 +837,18 @@ pub struct WeightScale {
 }
 
 impl WeightScale {
-    /// The scales on a grid of `resolution` cells for a body of shear modulus `mu`.
-    pub fn at(resolution: usize, mu: f64) -> WeightScale {
+    /// The scales on a grid of `resolution` cells with `per_cell` particles per cell along
+    /// each axis, for a body of shear modulus `mu`.
+    pub fn at(resolution: usize, per_cell: usize, mu: f64) -> WeightScale {
         // Never up: on coarser grids the scaled-up weights made more iterations judge worse
         // (24 cells, 2 / 4 / 8 evaluations: fill 0.716, 0.827, 0.760).
         let ratio = (settings::TUNED_RESOLUTION as f64 / resolution as f64).min(1.0);
+        // More particles per cell split each cell's mass among more of them the same way.
+        let split = (settings::TUNED_PER_CELL as f64 / per_cell as f64).min(1.0);
+        let particles = ratio.powi(3) * split.powi(3);
         WeightScale {
-            volume: ratio.powi(3),
-            arrival: ratio.powi(3),
+            volume: particles,
+            arrival: particles,
             smoothing: mu / settings::TUNED_SHEAR_MODULUS,
         }
     }

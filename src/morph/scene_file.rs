@@ -128,6 +128,14 @@ impl SceneFile {
         if table.contains_key("resolution") && !table.contains_key("particles") {
             merged.remove("particles");
         }
+        // A grid or particles per cell it gives are what it asks for: the thin parts' rule
+        // does not change them (unless the file sets it too).
+        let sized = ["resolution", "particles_per_cell"]
+            .iter()
+            .any(|k| table.contains_key(*k));
+        if sized && !table.contains_key("thin_across") {
+            merged.insert("thin_across".into(), toml::Value::Float(0.0));
+        }
         merge(&mut merged, table);
         let mut settings: MorphSettings = toml::Value::Table(merged)
             .try_into()

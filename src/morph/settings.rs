@@ -18,6 +18,8 @@ pub mod limits {
     /// Particle budget (`--particles`).
     pub const PARTICLES: RangeInclusive<usize> = 100..=20_000_000;
     pub const PARTICLES_PER_CELL: RangeInclusive<usize> = 1..=4;
+    /// `thin_across`: particles across the thinnest parts, at most.
+    pub const MAX_THIN_ACROSS: f64 = 8.0;
     pub const SEGMENTS: RangeInclusive<usize> = 1..=10_000;
     pub const STEPS: RangeInclusive<usize> = 1..=10_000;
     pub const PASSES: RangeInclusive<usize> = 1..=100;
@@ -87,6 +89,13 @@ pub struct MorphSettings {
     pub particles: Option<usize>,
     /// Particles per cell along each axis (k; k^3 per cell).
     pub particles_per_cell: usize,
+    /// Particles the shapes' thin parts should get across (0: off): when no budget is set,
+    /// the particles per cell are raised on the same grid until the thinnest parts of the
+    /// source and the targets get this many, within [`super::sizing::DETAIL_BUDGET`]
+    /// (docs/morph.md, "Particles for thin parts"). A resolution or particles per cell given
+    /// on the command line or in a scene file turns it off.
+    #[serde(default)]
+    pub thin_across: f64,
     /// Random particle offsets in particle spacings (0 = regular lattice).
     pub jitter: f64,
     pub seed: u64,
@@ -386,6 +395,9 @@ impl Default for WallSettings {
 /// weigh the same against the mass loss ([`super::WeightScale`]).
 pub const TUNED_RESOLUTION: usize = 32;
 
+/// The particles per cell (along each axis) the objective's weights were tuned at.
+pub const TUNED_PER_CELL: usize = 2;
+
 /// The shear modulus the controls' continuity was tuned at (the presets' material): for a
 /// stiffer or softer body its weight is scaled by `mu / TUNED_SHEAR_MODULUS`
 /// ([`super::WeightScale`]).
@@ -452,11 +464,16 @@ impl MorphSettings {
         // spacings, spot level (0.974 -> 0.975), bob -> spot 0.920 -> 0.914. An option at
         // the others (it wins on six of seven morphs at `default` and loses on a small one).
         let reach_weight = if preset == Preset::Final { 10.0 } else { 0.0 };
+        // `default` gives a thin leg or ear particles to hold it where the grid's two per
+        // cell cannot (docs/morph.md, "Particles for thin parts"); `final` has its budget,
+        // `draft` is the quick look.
+        let thin_across = if preset == Preset::Default { 2.5 } else { 0.0 };
         MorphSettings {
             preset,
             resolution: 32,
             particles,
-            particles_per_cell: 2,
+            particles_per_cell: TUNED_PER_CELL,
+            thin_across,
             jitter: 0.0,
             seed: 0,
             target_fit: TargetFit::MatchVolume,
@@ -595,6 +612,15 @@ impl MorphSettings {
             self.particles_per_cell,
             limits::PARTICLES_PER_CELL,
         )?;
+        if !(self.thin_across.is_finite()
+            && (0.0..=limits::MAX_THIN_ACROSS).contains(&self.thin_across))
+        {
+            return Err(format!(
+                "thin_across must be between 0 (off) and {}, got {}",
+                limits::MAX_THIN_ACROSS,
+                self.thin_across
+            ));
+        }
         range("segments", self.segments, limits::SEGMENTS)?;
         range("steps", self.steps_per_segment, limits::STEPS)?;
         range(

@@ -22,3 +22,4 @@ mod safety;
 mod scenes;
 mod study;
 mod surfaces;
+mod thin_parts;

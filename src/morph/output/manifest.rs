@@ -421,6 +421,9 @@ pub(super) struct Manifest {
     /// Target mesh -> world: world = scale * mesh + translation.
     pub(super) target: TargetPlacement,
     pub(super) particles: usize,
+    /// What the thin parts' rule chose for the particles ([`crate::morph::sizing`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub(super) sizing: Option<crate::morph::sizing::Sizing>,
     pub(super) target_particles: usize,
     pub(super) initial_loss: f64,
     pub(super) final_loss: f64,

@@ -21,11 +21,11 @@ mod run;
 pub mod sinks;
 mod writer;
 
+pub use liken::{WrittenSurface, written_likeness};
 pub use manifest::{
     FrameStats, FramesSummary, JudgedFrame, KeyframeReport, RebuiltSummary, RunIdentity,
     SurfaceSummary, Timings,
 };
-pub use liken::{WrittenSurface, written_likeness};
 pub use sinks::{RebuiltStats, frame_name};
 
 use super::memory::MemoryLimit;
@@ -51,6 +51,8 @@ pub const RUN_FILE: &str = "run.json";
 pub struct Summary {
     pub output: PathBuf,
     pub particles: usize,
+    /// What the thin parts' rule chose for the particles, and why.
+    pub sizing: Option<super::sizing::Sizing>,
     pub frames: usize,
     pub initial_loss: f64,
     pub final_loss: f64,
@@ -82,6 +84,7 @@ impl Summary {
         Summary {
             output: output.to_path_buf(),
             particles: m.particles,
+            sizing: m.sizing.clone(),
             frames: m.frames.len(),
             initial_loss: m.initial_loss,
             final_loss: m.final_loss,

@@ -93,6 +93,7 @@ pub(super) fn write_run(
             translation: t.translation,
         },
         particles: prep.initial.len(),
+        sizing: prep.sizing.clone(),
         target_particles: prep.geometry.target.positions.len(),
         initial_loss: result.initial_loss,
         final_loss: result.final_loss,

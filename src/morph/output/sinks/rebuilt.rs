@@ -5,9 +5,9 @@
 
 use super::{FrameRecord, FrameSink, SinkFrame, out_err};
 use crate::geometry::Similarity;
+use crate::geometry::TriMesh;
 use crate::geometry::cleanup::{CleanReport, SurfaceQuality, clean, keep_volume, quality};
 use crate::geometry::features::{SourcePlanes, sharpen};
-use crate::geometry::TriMesh;
 use crate::geometry::fidelity::{Fidelity, Reference, crease_share, mesh_fidelity};
 use crate::geometry::likeness::{Likeness, likeness};
 use crate::geometry::splashsurf::extract_splashsurf_surface;
