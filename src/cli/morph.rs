@@ -193,7 +193,7 @@ pub struct MorphArgs {
     reach_weight: Option<f64>,
     #[arg(long, value_parser = choice(&TargetFit::ALL), help = format!("How each target is placed (on-ground needs a scene's ground) [default {}]", name(&defaults().target_fit)))]
     target_fit: Option<TargetFit>,
-    #[arg(long, help = help("Particles per cell along each axis (k^3 per cell)", Some(limits::PARTICLES_PER_CELL), defaults().particles_per_cell))]
+    #[arg(long, help = help("Particles per cell along each axis (k^3 per cell; at `default` raised to 3 or 4 where the shapes have thin parts, docs/morph.md; giving it or --resolution keeps it as given)", Some(limits::PARTICLES_PER_CELL), defaults().particles_per_cell))]
     particles_per_cell: Option<usize>,
     #[arg(long, help = help("Random particle offsets, in particle spacings, 0 to 1", None, defaults().jitter))]
     jitter: Option<f64>,

@@ -95,42 +95,42 @@ pub fn local_thickness(inside: &[bool], dims: [usize; 3]) -> Vec<f64> {
 }
 
 /// The squared Euclidean distance, in samples, from every sample to the nearest where `seed`
-/// holds (infinite where none does): three passes of the exact 1D transform.
+/// holds (infinite where none does): the exact 1D transform along z, then y, then x.
 fn squared_distance_to(dims: [usize; 3], seed: impl Fn(usize) -> bool + Sync) -> Vec<f64> {
-    let index = |i: usize, j: usize, k: usize| (i * dims[1] + j) * dims[2] + k;
-    let mut d: Vec<f64> = (0..dims.iter().product())
+    let [nx, ny, nz] = dims;
+    let mut d: Vec<f64> = (0..nx * ny * nz)
         .into_par_iter()
         .map(|i| if seed(i) { 0.0 } else { f64::INFINITY })
         .collect();
-    for axis in [2, 1, 0] {
-        let (a, b) = match axis {
-            2 => (0, 1),
-            1 => (0, 2),
-            _ => (1, 2),
-        };
-        let lines: Vec<(usize, usize)> = (0..dims[a])
-            .flat_map(|p| (0..dims[b]).map(move |q| (p, q)))
-            .collect();
-        let at = |(p, q): (usize, usize), s: usize| {
-            let mut c = [0; 3];
-            c[a] = p;
-            c[b] = q;
-            c[axis] = s;
-            index(c[0], c[1], c[2])
-        };
-        let done: Vec<Vec<f64>> = lines
-            .par_iter()
-            .map(|&line| {
-                let f: Vec<f64> = (0..dims[axis]).map(|s| d[at(line, s)]).collect();
-                transform_1d(&f)
-            })
-            .collect();
-        for (line, values) in lines.iter().zip(done) {
-            for (s, v) in values.into_iter().enumerate() {
-                d[at(*line, s)] = v;
+    // Along z: each line is contiguous.
+    d.par_chunks_mut(nz).for_each(|line| {
+        let t = transform_1d(line);
+        line.copy_from_slice(&t);
+    });
+    // Along y: within each x plane, lines `nz` apart.
+    d.par_chunks_mut(ny * nz).for_each(|plane| {
+        let mut line = vec![0.0; ny];
+        for k in 0..nz {
+            for (j, v) in line.iter_mut().enumerate() {
+                *v = plane[j * nz + k];
+            }
+            for (j, v) in transform_1d(&line).into_iter().enumerate() {
+                plane[j * nz + k] = v;
             }
         }
-    }
+    });
+    // Along x: lines `ny * nz` apart, gathered per (y, z) and written back.
+    let columns: Vec<Vec<f64>> = (0..ny * nz)
+        .into_par_iter()
+        .map(|jk| transform_1d(&(0..nx).map(|i| d[i * ny * nz + jk]).collect::<Vec<_>>()))
+        .collect();
+    d.par_chunks_mut(ny * nz)
+        .enumerate()
+        .for_each(|(i, plane)| {
+            for (jk, v) in plane.iter_mut().enumerate() {
+                *v = columns[jk][i];
+            }
+        });
     d
 }
 

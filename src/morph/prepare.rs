@@ -88,14 +88,13 @@ impl Prepared {
     }
 
     /// The grid and particle counts this morph will have, estimated before setup (see
-    /// [`MorphGeometry::estimate`]): what [`super::memory::check_before_setup`] checks.
+    /// [`MorphGeometry::estimate`]; `settings` as [`super::sizing::size`] left them): what
+    /// [`super::memory::check_before_setup`] checks.
     pub fn estimate(
         settings: &MorphSettings,
         source: (&LoadedMesh, &Path),
         targets: &[(&LoadedMesh, &Path)],
     ) -> Result<crate::geometry::SizeEstimate, MorphError> {
-        let (settings, _) = super::sizing::size(settings, source, targets)?;
-        let settings = &settings;
         let resolution = match settings.particles {
             None => settings.resolution,
             Some(_) => Prepared::resolution_for_budget(settings, source, targets)?,
@@ -124,7 +123,17 @@ impl Prepared {
             .validate_targets(targets.len())
             .map_err(MorphError::Settings)?;
         let (settings, sizing) = super::sizing::size(settings, source, targets)?;
-        let settings = &settings;
+        Prepared::from_sized(&settings, sizing, source, targets)
+    }
+
+    /// [`Prepared::from_meshes`] with the thin parts' rule already applied to `settings`
+    /// ([`super::sizing::size`]), which `sizing` records.
+    pub fn from_sized(
+        settings: &MorphSettings,
+        sizing: Option<super::sizing::Sizing>,
+        source: (&LoadedMesh, &Path),
+        targets: &[(&LoadedMesh, &Path)],
+    ) -> Result<Prepared, MorphError> {
         let jitter = (settings.jitter > 0.0).then_some(Jitter {
             amount: settings.jitter,
             seed: settings.seed,

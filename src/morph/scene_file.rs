@@ -470,6 +470,24 @@ mod tests {
     }
 
     #[test]
+    fn a_grid_the_file_gives_turns_the_thin_parts_rule_off() {
+        let parse = |text: &str| {
+            SceneFile::parse(text, Path::new("shot.toml"), None)
+                .unwrap()
+                .settings
+        };
+        assert_eq!(parse("").thin_across, 2.5);
+        assert_eq!(parse("resolution = 40\n").thin_across, 0.0);
+        assert_eq!(parse("particles_per_cell = 3\n").thin_across, 0.0);
+        assert_eq!(
+            parse("resolution = 40\nthin_across = 3.0\n").thin_across,
+            3.0
+        );
+        let negative = SceneFile::parse("thin_across = -1.0\n", Path::new("shot.toml"), None);
+        assert!(negative.is_err() || negative.unwrap().settings.validate().is_err());
+    }
+
+    #[test]
     fn the_resolved_scene_reads_back_to_the_same_settings() {
         let mut s = MorphSettings::preset(Preset::Final);
         s.gravity = Some([0.0, -9.81, 0.0]);

@@ -271,6 +271,9 @@ pub fn morph_to_folder(
             .map(|(m, p)| (m, p.as_path()))
             .collect();
         // The memory limit holds for setup too: refused before the fill when it cannot.
+        // The thin parts' rule once: the estimate and the setup use what it chose.
+        let (settings, sizing) = super::sizing::size(settings, (&src, source), &meshes)?;
+        let settings = &settings;
         let estimate = Prepared::estimate(settings, (&src, source), &meshes)?;
         let source_vertices = src.mesh.vertices.len();
         super::memory::check_before_setup(
@@ -279,7 +282,7 @@ pub fn morph_to_folder(
             (targets.len() - 1, source_vertices),
             request.memory_limit,
         )?;
-        let mut prep = Prepared::from_meshes(settings, (&src, source), &meshes)?;
+        let mut prep = Prepared::from_sized(settings, sizing, (&src, source), &meshes)?;
         // On the exact counts: the same figure as before setup, the larger of the run's and
         // the writers' needs.
         super::memory::check_least(
