@@ -91,33 +91,6 @@ fn show(bytes: u64) -> String {
     }
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn devices_fifos_and_oversized_files_are_refused() {
-        let e = read(Path::new("/dev/zero"), 1 << 20).unwrap_err();
-        assert!(e.to_string().contains("a device"), "{e}");
-        let dir = std::env::temp_dir().join(format!("morph-bounded-{}", std::process::id()));
-        std::fs::create_dir_all(&dir).unwrap();
-        let fifo = dir.join("fifo");
-        let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
-        // SAFETY: a plain libc call on a valid C string.
-        assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
-        let e = read(&fifo, 1 << 20).unwrap_err();
-        assert!(e.to_string().contains("FIFO"), "{e}");
-        let big = dir.join("big");
-        std::fs::write(&big, vec![b'x'; 2000]).unwrap();
-        let e = read(&big, 1000).unwrap_err();
-        assert!(e.to_string().contains("more than the 1000 bytes"), "{e}");
-        assert_eq!(read(&big, 2000).unwrap().len(), 2000);
-        let e = read(&dir, 1000).unwrap_err();
-        assert!(e.to_string().contains("a folder"), "{e}");
-        std::fs::remove_dir_all(&dir).unwrap();
-    }
-}
-
 /// The longest piece of a file's text an error message quotes, in bytes as shown.
 pub const QUOTE_CHARS: usize = 40;
 
@@ -160,4 +133,31 @@ pub fn short_message(message: &str) -> String {
         out.push_str(&quote_short(word));
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn devices_fifos_and_oversized_files_are_refused() {
+        let e = read(Path::new("/dev/zero"), 1 << 20).unwrap_err();
+        assert!(e.to_string().contains("a device"), "{e}");
+        let dir = std::env::temp_dir().join(format!("morph-bounded-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let fifo = dir.join("fifo");
+        let c = std::ffi::CString::new(fifo.to_str().unwrap()).unwrap();
+        // SAFETY: a plain libc call on a valid C string.
+        assert_eq!(unsafe { libc::mkfifo(c.as_ptr(), 0o600) }, 0);
+        let e = read(&fifo, 1 << 20).unwrap_err();
+        assert!(e.to_string().contains("FIFO"), "{e}");
+        let big = dir.join("big");
+        std::fs::write(&big, vec![b'x'; 2000]).unwrap();
+        let e = read(&big, 1000).unwrap_err();
+        assert!(e.to_string().contains("more than the 1000 bytes"), "{e}");
+        assert_eq!(read(&big, 2000).unwrap().len(), 2000);
+        let e = read(&dir, 1000).unwrap_err();
+        assert!(e.to_string().contains("a folder"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }

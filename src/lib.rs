@@ -33,20 +33,13 @@
 //! world units and may cancel. `examples/library.rs` shows one.
 
 pub mod apps;
-pub mod effects;
-pub mod engine;
+pub use morph_engine as engine;
 pub mod files;
 pub mod geometry;
-pub mod integrator;
 pub mod io;
-pub mod lanes;
 pub mod loss;
-pub mod material;
 mod morph;
-pub mod mpm;
-pub mod ode;
 pub mod optim;
-pub mod scene;
 
 pub use morph::*;
 

@@ -4,7 +4,7 @@
 //! - log: `L = sum_i 1/2 (ln(m_i + 1) - ln(m*_i + 1))^2` (default; less sensitive to outliers,
 //!   so it ejects fewer particles when source and target overlap little)
 
-use crate::mpm::{GridSpec, KernelKind, SimError, transfer};
+use crate::engine::mpm::{GridSpec, KernelKind, SimError, transfer};
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};

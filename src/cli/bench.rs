@@ -2,8 +2,8 @@
 
 use super::fail;
 use clap::Args;
-use morph::integrator::IntegratorKind;
-use morph::mpm::KernelKind;
+use morph::engine::integrator::IntegratorKind;
+use morph::engine::mpm::KernelKind;
 use morph::settings::limits;
 use std::path::PathBuf;
 use std::process::ExitCode;

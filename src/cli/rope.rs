@@ -38,10 +38,10 @@ pub struct RopeArgs {
     dt: Option<f64>,
     #[arg(long, help = h("Grid cells along the rope (dx = rope length / cells), at least 4", d().rope.cells_along))]
     cells_along: Option<i64>,
-    #[arg(long, value_parser = choice(&morph::material::MaterialModel::ALL), help = h("Constitutive model of the rope", name(&d().rope.material)))]
-    material: Option<morph::material::MaterialModel>,
-    #[arg(long, value_parser = choice(&morph::integrator::IntegratorKind::ALL), help = h("Time integrator: rk4 (four evaluations a step, little numerical damping) or euler (the MLS-MPM step)", name(&d().rope.integrator)))]
-    integrator: Option<morph::integrator::IntegratorKind>,
+    #[arg(long, value_parser = choice(&morph::engine::material::MaterialModel::ALL), help = h("Constitutive model of the rope", name(&d().rope.material)))]
+    material: Option<morph::engine::material::MaterialModel>,
+    #[arg(long, value_parser = choice(&morph::engine::integrator::IntegratorKind::ALL), help = h("Time integrator: rk4 (four evaluations a step, little numerical damping) or euler (the MLS-MPM step)", name(&d().rope.integrator)))]
+    integrator: Option<morph::engine::integrator::IntegratorKind>,
     #[arg(long, help = h("Young's modulus (Pa)", d().rope.youngs_modulus))]
     youngs_modulus: Option<f64>,
     #[arg(long, value_parser = choice(&Actuation::ALL), help = h("What the controllers actuate: segment forces, the tip force, the clamp, or the clamp and the tip", name(&d().rope.actuation)))]
@@ -50,8 +50,8 @@ pub struct RopeArgs {
     clamp_mode: Option<ClampMode>,
     #[arg(long, help = h("Steps per control interval", d().rope.control_interval))]
     control_interval: Option<i64>,
-    #[arg(long, value_parser = choice(&morph::mpm::Interpolation::ALL), help = h("Controls inside an interval: constant or linear", name(&d().rope.interpolation)))]
-    interpolation: Option<morph::mpm::Interpolation>,
+    #[arg(long, value_parser = choice(&morph::engine::mpm::Interpolation::ALL), help = h("Controls inside an interval: constant or linear", name(&d().rope.interpolation)))]
+    interpolation: Option<morph::engine::mpm::Interpolation>,
     #[arg(long, help = h("Largest clamp offset per axis (m), clamp-mode position", d().rope.max_clamp_offset))]
     max_clamp_offset: Option<f64>,
     #[arg(long, help = h("Largest clamp speed per axis (m/s), clamp-mode velocity", d().rope.max_clamp_speed))]

@@ -4,8 +4,8 @@ use super::{choice, fail};
 use clap::Args;
 use morph::Preset;
 use morph::apps::study::{self, StudyError, StudyEvent, StudyGrid};
-use morph::integrator::IntegratorKind;
-use morph::mpm::KernelKind;
+use morph::engine::integrator::IntegratorKind;
+use morph::engine::mpm::KernelKind;
 use std::path::PathBuf;
 use std::process::ExitCode;
 

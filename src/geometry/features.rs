@@ -241,10 +241,10 @@ impl CarriedPlanes {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::engine::mpm::GridSpec;
     use crate::geometry::cleanup::clean;
     use crate::geometry::surface::{deformed_fill_field, edge_weights};
     use crate::geometry::{assets, particles_in};
-    use crate::mpm::GridSpec;
 
     /// A cube's particles at rest, `deformation` applied to positions and `F` alike: the
     /// rebuilt surface (as the `deformed` method makes it, cleaned) and the planes.

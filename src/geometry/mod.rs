@@ -5,6 +5,7 @@
 pub mod assets;
 pub mod carried;
 pub mod cleanup;
+pub mod collider_solid;
 pub mod error;
 pub mod features;
 pub mod fidelity;
@@ -19,6 +20,7 @@ pub mod thickness;
 pub mod voxelize;
 pub mod winding;
 
+pub use collider_solid::{MeshSolid, MeshSolids};
 pub use error::MeshError;
 pub use mesh::{Aabb, LoadedMesh, TriMesh, load_mesh, parse_mesh, prepare_mesh};
 pub use placement::{Placement, PlacementOptions, Similarity, Solid, TargetFit};
@@ -288,19 +290,19 @@ impl MorphGeometry {
     /// another mass could not be matched; the scale is within voxelization error of 1).
     pub fn target_masses(
         &self,
-        kernel: crate::mpm::KernelKind,
+        kernel: crate::engine::mpm::KernelKind,
         density: f64,
-    ) -> Result<Vec<f64>, crate::mpm::SimError> {
+    ) -> Result<Vec<f64>, crate::engine::mpm::SimError> {
         self.target_masses_on(&self.placement.grid, kernel, density)
     }
 
     /// [`MorphGeometry::target_masses`] on another grid over the same domain.
     pub fn target_masses_on(
         &self,
-        grid: &crate::mpm::GridSpec,
-        kernel: crate::mpm::KernelKind,
+        grid: &crate::engine::mpm::GridSpec,
+        kernel: crate::engine::mpm::KernelKind,
         density: f64,
-    ) -> Result<Vec<f64>, crate::mpm::SimError> {
+    ) -> Result<Vec<f64>, crate::engine::mpm::SimError> {
         self.masses_of(&self.target.positions, grid, kernel, density)
     }
 
@@ -309,10 +311,10 @@ impl MorphGeometry {
     pub fn keyframe_masses_on(
         &self,
         k: usize,
-        grid: &crate::mpm::GridSpec,
-        kernel: crate::mpm::KernelKind,
+        grid: &crate::engine::mpm::GridSpec,
+        kernel: crate::engine::mpm::KernelKind,
         density: f64,
-    ) -> Result<Vec<f64>, crate::mpm::SimError> {
+    ) -> Result<Vec<f64>, crate::engine::mpm::SimError> {
         self.masses_of(
             &self.keyframes[k].particles.positions,
             grid,
@@ -325,14 +327,14 @@ impl MorphGeometry {
     fn masses_of(
         &self,
         positions: &[Vector3<f64>],
-        grid: &crate::mpm::GridSpec,
-        kernel: crate::mpm::KernelKind,
+        grid: &crate::engine::mpm::GridSpec,
+        kernel: crate::engine::mpm::KernelKind,
         density: f64,
-    ) -> Result<Vec<f64>, crate::mpm::SimError> {
+    ) -> Result<Vec<f64>, crate::engine::mpm::SimError> {
         let source_mass = density * self.source.volume * self.source.positions.len() as f64;
         let per_particle = source_mass / positions.len() as f64;
         let masses = vec![per_particle; positions.len()];
-        crate::mpm::transfer::mass_grid(grid, kernel, positions, &masses)
+        crate::engine::mpm::transfer::mass_grid(grid, kernel, positions, &masses)
     }
 }
 

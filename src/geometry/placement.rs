@@ -8,7 +8,7 @@
 use super::error::MeshError;
 use super::mesh::{Aabb, TriMesh};
 use super::voxelize::{Lattice, voxelize};
-use crate::mpm::GridSpec;
+use crate::engine::mpm::GridSpec;
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 use std::path::Path;

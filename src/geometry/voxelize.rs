@@ -19,7 +19,7 @@
 
 use super::mesh::{Aabb, TriMesh};
 use super::winding::WindingNumber;
-use crate::mpm::grid::{GridSpec, SharedMut};
+use crate::engine::mpm::grid::{GridSpec, SharedMut};
 use nalgebra::Vector3;
 use rand::{RngExt, SeedableRng};
 use rayon::prelude::*;

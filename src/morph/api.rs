@@ -4,8 +4,8 @@
 
 use super::{MorphSettings, Prepared, RunProgress, run_prepared};
 
+use crate::engine::mpm::{SimError, State};
 use crate::geometry::{LoadedMesh, MeshError};
-use crate::mpm::{SimError, State};
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};

@@ -9,7 +9,7 @@
 //! when the segment starts: `Fc_p = Fc0_p + sum_i w_ip theta_i`. The controls are then smooth
 //! across the body by construction, and the gradient is `dL/dtheta_i = sum_p w_ip dL/dFc_p`.
 
-use crate::mpm::kernel::Stencil;
+use crate::engine::mpm::kernel::Stencil;
 use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 use std::collections::BTreeMap;

@@ -7,8 +7,8 @@ use super::{
     Observer, Prepared, SegmentRecord, levels, segment,
 };
 
-use crate::integrator::Integrator;
-use crate::mpm::State;
+use crate::engine::integrator::Integrator;
+use crate::engine::mpm::State;
 use nalgebra::{Matrix3, Vector3};
 use segment::{Layers, OptimizerSettings, Segment};
 use std::time::Instant;
@@ -220,8 +220,15 @@ fn chain<I: Integrator>(
         iterations: prep.level_iterations(),
         ..s.optimizer.clone()
     };
-    let offset_s = progress.elapsed_s;
-    let seconds = |clock: &Instant| offset_s + clock.elapsed().as_secs_f64();
+    let run = ChainRun {
+        prep,
+        sim,
+        optimizer,
+        clock,
+        offset_s: progress.elapsed_s,
+        warm,
+        keep_controls,
+    };
     let (first_pass, first_segment) = (progress.pass, progress.segments_done);
     for pass in first_pass..s.passes {
         let last_pass = pass + 1 == s.passes;
@@ -236,195 +243,11 @@ fn chain<I: Integrator>(
             }
         }
         for k in from..s.segments {
-            let seg_clock = Instant::now();
-            // Segment k alone: what is kept, replayed and written.
-            let (loss, fine_loss) = prep.segment_losses(k)?;
-            // A segment before the shape change begins runs without controls: evaluated once,
-            // not optimized, with no window reaching past it.
-            let before_begin = prep.segment_before_begin(k);
-            // The scheduled path of segment k, then of the rest of its look-ahead window.
-            let end = if before_begin { k } else { prep.window_end(k) };
-            let mut path = prep.segment_path(k)?;
-            let own_path = path.len();
-            for j in k + 1..=end {
-                path.extend(prep.segment_path(j)?);
-            }
-            // The last control layer before segment k, which its first continues.
-            let anchor = k
-                .checked_sub(1)
-                .and_then(|j| progress.controls[j].last())
-                .cloned();
-            let segment = Segment {
-                sim,
-                loss: &loss,
-                fine_loss: fine_loss.as_deref(),
-                reach: prep.segment_reach(k),
-                start: &progress.state,
-                first_step: prep.sim_segment_first(k),
-                steps: prep.sim_segment_steps(k),
-                stride: prep.sim_control_stride(),
-                arrival_weight: prep.segment_arrival_weight(k),
-                volume_weight: prep.volume_weight(),
-                path: &path[..own_path],
-                path_weight: s.path_weight,
-                waypoints: &[],
-                waypoint_weight: s.waypoint_weight,
-                smoothing: prep.segment_smoothing(k),
-                anchor: anchor.as_deref(),
-                resolution: s.control_resolution,
-                tape_budget: prep.tape_budget,
-            };
-            // What is optimized: segment k, or its look-ahead window k..=end, which ends at
-            // segment end's target and passes through each earlier segment's on its way.
-            let (window_loss, window_fine, waypoints) = if end > k {
-                let (end_loss, fine) = prep.segment_losses(end)?;
-                let waypoints = prep.window_waypoints(k, end, &loss)?;
-                (Some(end_loss), fine, waypoints)
-            } else {
-                (None, None, Vec::new())
-            };
-            let window = window_loss.as_deref().map(|loss| Segment {
-                loss,
-                fine_loss: window_fine.as_deref(),
-                reach: prep.segment_reach(end),
-                steps: (k..=end).map(|j| prep.sim_segment_steps(j)).sum(),
-                arrival_weight: prep.segment_arrival_weight(end),
-                path: &path,
-                waypoints: &waypoints,
-                ..segment
-            });
-            let zeros = |j: usize| {
-                vec![vec![Matrix3::zeros(); prep.initial.len()]; prep.segment_layers()[j]]
-            };
-            let start_of = |j: usize, progress: &RunProgress| match (&progress.controls[j], warm) {
-                _ if before_begin => zeros(j),
-                (l, None) if l.is_empty() => zeros(j),
-                (l, Some(w)) if l.is_empty() => w.prolongation.apply(&w.controls[j]),
-                (l, _) => l.clone(),
-            };
-            // A window's segments after k that were never optimized start from zero, or from
-            // `carry_controls` times the last layer before them (continuing the flow).
-            let mut init: Layers = Vec::new();
-            for j in k..=end {
-                let fresh = progress.controls[j].is_empty() && warm.is_none();
-                let mut layers = start_of(j, &progress);
-                let carried = init
-                    .last()
-                    .filter(|_| fresh && s.carry_controls > 0.0 && prep.segment_smoothing(j) > 0.0);
-                if let Some(last) = carried {
-                    let layer: Vec<Matrix3<f64>> =
-                        last.iter().map(|c| c * s.carry_controls).collect();
-                    layers.iter_mut().for_each(|l| l.clone_from(&layer));
-                }
-                init.extend(layers);
-            }
-            let optimized = window.as_ref().unwrap_or(&segment);
-            let mut stop = observer.stop_requested();
-            let iterations = &mut progress.iterations;
-            let evaluate_only = OptimizerSettings {
-                iterations: 1,
-                ..optimizer.clone()
-            };
-            let settings = if before_begin {
-                &evaluate_only
-            } else {
-                &optimizer
-            };
-            let result = optimized.optimize(init, settings, |iteration, loss| {
-                let at = seconds(&clock);
-                iterations.push(IterationRecord {
-                    pass,
-                    segment: k,
-                    iteration,
-                    loss,
-                    seconds: at,
-                });
-                observer.event(&MorphEvent::Iteration {
-                    pass,
-                    segment: k,
-                    iteration,
-                    loss,
-                    seconds: at,
-                });
-                stop = observer.stop_requested();
-                stop == 0
-            })?;
-            let Some(result) = result.filter(|_| stop == 0) else {
-                return Err(MorphError::Interrupted {
-                    signal: stop,
-                    kept: false,
-                });
-            };
-            let (min_j, max_j) = result.j_range;
-            let record = SegmentRecord {
-                pass,
-                segment: k,
-                initial_loss: result.initial_loss,
-                loss: result.loss,
-                evaluations: result.evaluations,
-                seconds: seg_clock.elapsed().as_secs_f64(),
-                min_j,
-                max_j,
-                grad_norm_first: result.grad_norms.0,
-                grad_norm_last: result.grad_norms.1,
-            };
-            observer.event(&MorphEvent::Segment {
-                pass,
-                segment: k,
-                initial_loss: record.initial_loss,
-                loss: record.loss,
-                evaluations: record.evaluations,
-                seconds: record.seconds,
-            });
-            if let Some(why) = non_finite(&prep.settings, &record) {
-                return Err(MorphError::Optimization(why));
-            }
-            progress.segments.push(record);
-            // A window keeps segment k's layers; the rest start the next window's
-            // optimization (and are in the checkpoint, so a resume continues bit for bit).
-            let mut layers = result.layers;
-            let mut rest = layers.split_off(segment.num_layers()).into_iter();
-            for j in k + 1..=end {
-                progress.controls[j] = rest.by_ref().take(prep.segment_layers()[j]).collect();
-            }
-            progress.ahead = end - k;
-            // The kept controls once more: to write the frames (the optimization keeps no tape
-            // of every step: memory stays within its budget), and to find where segment k
-            // ends when a window was optimized.
-            let last = if last_pass || window.is_some() {
-                let mut frame_err = Ok(());
-                let last = segment.replay(&layers, &mut |global, state| {
-                    if last_pass
-                        && frame_err.is_ok()
-                        && (global + 1).is_multiple_of(prep.sim_frame_every())
-                    {
-                        frame_err =
-                            observer.frame(&Frame::new(prep, progress.frames, global + 1, state));
-                        progress.frames += 1;
-                    }
-                })?;
-                frame_err?;
-                debug_assert!(
-                    window.is_some() || last == result.last,
-                    "a replay reproduces the rollout"
-                );
-                last
-            } else {
-                result.last
-            };
-            progress.controls[k] = layers;
-            progress.state = last;
-            progress.segments_done = k + 1;
-            progress.elapsed_s = seconds(&clock);
-            observer.segment_done(&progress, k)?;
-            // Segment k's last layer anchors segment k+1's first; the one before is done with.
-            if last_pass && !keep_controls && k > 0 {
-                progress.controls[k - 1] = Vec::new();
-            }
+            run.segment(k, last_pass, &mut progress, observer)?;
         }
     }
     let final_loss = prep.loss_of(&progress.state)?;
-    let seconds = seconds(&clock);
+    let seconds = run.seconds();
     observer.event(&MorphEvent::Done {
         seconds,
         loss: final_loss,
@@ -442,6 +265,243 @@ fn chain<I: Integrator>(
         },
         progress.controls,
     ))
+}
+
+/// What every segment of one level's chain shares.
+struct ChainRun<'a, I: Integrator> {
+    prep: &'a Prepared,
+    sim: &'a I,
+    optimizer: OptimizerSettings,
+    clock: Instant,
+    /// Seconds spent before this run (a resumed run's).
+    offset_s: f64,
+    warm: Option<&'a WarmStart>,
+    keep_controls: bool,
+}
+
+impl<I: Integrator> ChainRun<'_, I> {
+    /// Seconds since the run began, the interrupted run's included.
+    fn seconds(&self) -> f64 {
+        self.offset_s + self.clock.elapsed().as_secs_f64()
+    }
+
+    /// Segment `k` of pass `progress.pass`: optimized (with its look-ahead window), recorded,
+    /// replayed for its frames on the last pass, and kept in `progress`.
+    fn segment(
+        &self,
+        k: usize,
+        last_pass: bool,
+        progress: &mut RunProgress,
+        observer: &mut dyn Observer,
+    ) -> Result<(), MorphError> {
+        let (prep, s, pass) = (self.prep, &self.prep.settings, progress.pass);
+        let seg_clock = Instant::now();
+        // Segment k alone: what is kept, replayed and written.
+        let (loss, fine_loss) = prep.segment_losses(k)?;
+        // A segment before the shape change begins runs without controls: evaluated once,
+        // not optimized, with no window reaching past it.
+        let before_begin = prep.segment_before_begin(k);
+        // The scheduled path of segment k, then of the rest of its look-ahead window.
+        let end = if before_begin { k } else { prep.window_end(k) };
+        let mut path = prep.segment_path(k)?;
+        let own_path = path.len();
+        for j in k + 1..=end {
+            path.extend(prep.segment_path(j)?);
+        }
+        // The last control layer before segment k, which its first continues.
+        let anchor = k
+            .checked_sub(1)
+            .and_then(|j| progress.controls[j].last())
+            .cloned();
+        let segment = Segment {
+            sim: self.sim,
+            loss: &loss,
+            fine_loss: fine_loss.as_deref(),
+            reach: prep.segment_reach(k),
+            start: &progress.state,
+            first_step: prep.sim_segment_first(k),
+            steps: prep.sim_segment_steps(k),
+            stride: prep.sim_control_stride(),
+            arrival_weight: prep.segment_arrival_weight(k),
+            volume_weight: prep.volume_weight(),
+            path: &path[..own_path],
+            path_weight: s.path_weight,
+            waypoints: &[],
+            waypoint_weight: s.waypoint_weight,
+            smoothing: prep.segment_smoothing(k),
+            anchor: anchor.as_deref(),
+            resolution: s.control_resolution,
+            tape_budget: prep.tape_budget,
+        };
+        // What is optimized: segment k, or its look-ahead window k..=end, which ends at
+        // segment end's target and passes through each earlier segment's on its way.
+        let (window_loss, window_fine, waypoints) = if end > k {
+            let (end_loss, fine) = prep.segment_losses(end)?;
+            let waypoints = prep.window_waypoints(k, end, &loss)?;
+            (Some(end_loss), fine, waypoints)
+        } else {
+            (None, None, Vec::new())
+        };
+        let window = window_loss.as_deref().map(|loss| Segment {
+            loss,
+            fine_loss: window_fine.as_deref(),
+            reach: prep.segment_reach(end),
+            steps: (k..=end).map(|j| prep.sim_segment_steps(j)).sum(),
+            arrival_weight: prep.segment_arrival_weight(end),
+            path: &path,
+            waypoints: &waypoints,
+            ..segment
+        });
+        let init = self.initial_layers(progress, k, end, before_begin);
+        let optimized = window.as_ref().unwrap_or(&segment);
+        let evaluate_only = OptimizerSettings {
+            iterations: 1,
+            ..self.optimizer.clone()
+        };
+        let settings = match before_begin {
+            true => &evaluate_only,
+            false => &self.optimizer,
+        };
+        let mut stop = observer.stop_requested();
+        let iterations = &mut progress.iterations;
+        let result = optimized.optimize(init, settings, |iteration, loss| {
+            let at = self.seconds();
+            let segment = k;
+            iterations.push(IterationRecord {
+                pass,
+                segment,
+                iteration,
+                loss,
+                seconds: at,
+            });
+            observer.event(&MorphEvent::Iteration {
+                pass,
+                segment,
+                iteration,
+                loss,
+                seconds: at,
+            });
+            stop = observer.stop_requested();
+            stop == 0
+        })?;
+        let Some(result) = result.filter(|_| stop == 0) else {
+            return Err(MorphError::Interrupted {
+                signal: stop,
+                kept: false,
+            });
+        };
+        let record = SegmentRecord::of(pass, k, &result, seg_clock.elapsed().as_secs_f64());
+        observer.event(&MorphEvent::Segment {
+            pass,
+            segment: k,
+            initial_loss: record.initial_loss,
+            loss: record.loss,
+            evaluations: record.evaluations,
+            seconds: record.seconds,
+        });
+        if let Some(why) = non_finite(&prep.settings, &record) {
+            return Err(MorphError::Optimization(why));
+        }
+        progress.segments.push(record);
+        // A window keeps segment k's layers; the rest start the next window's optimization
+        // (and are in the checkpoint, so a resume continues bit for bit).
+        let mut layers = result.layers;
+        let mut rest = layers.split_off(segment.num_layers()).into_iter();
+        for j in k + 1..=end {
+            progress.controls[j] = rest.by_ref().take(prep.segment_layers()[j]).collect();
+        }
+        progress.ahead = end - k;
+        // The kept controls once more: to write the frames (the optimization keeps no tape of
+        // every step: memory stays within its budget), and to find where segment k ends when
+        // a window was optimized.
+        let last = if last_pass || window.is_some() {
+            let mut frames = progress.frames;
+            let mut frame_err = Ok(());
+            let last = segment.replay(&layers, &mut |global, state| {
+                if last_pass
+                    && frame_err.is_ok()
+                    && (global + 1).is_multiple_of(prep.sim_frame_every())
+                {
+                    frame_err = observer.frame(&Frame::new(prep, frames, global + 1, state));
+                    frames += 1;
+                }
+            })?;
+            frame_err?;
+            progress.frames = frames;
+            debug_assert!(
+                window.is_some() || last == result.last,
+                "a replay reproduces the rollout"
+            );
+            last
+        } else {
+            result.last
+        };
+        progress.controls[k] = layers;
+        progress.state = last;
+        progress.segments_done = k + 1;
+        progress.elapsed_s = self.seconds();
+        observer.segment_done(progress, k)?;
+        // Segment k's last layer anchors segment k+1's first; the one before is done with.
+        if last_pass && !self.keep_controls && k > 0 {
+            progress.controls[k - 1] = Vec::new();
+        }
+        Ok(())
+    }
+
+    /// The controls the optimization of segments `k..=end` starts from: what an earlier pass
+    /// (or the coarser level, prolonged) found; zero before the shape change begins and where
+    /// nothing was found, or `carry_controls` times the last layer before (continuing the
+    /// flow) for a window's segments after k that were never optimized.
+    fn initial_layers(
+        &self,
+        progress: &RunProgress,
+        k: usize,
+        end: usize,
+        before_begin: bool,
+    ) -> Layers {
+        let (prep, s) = (self.prep, &self.prep.settings);
+        let zeros =
+            |j: usize| vec![vec![Matrix3::zeros(); prep.initial.len()]; prep.segment_layers()[j]];
+        let start_of = |j: usize| match (&progress.controls[j], self.warm) {
+            _ if before_begin => zeros(j),
+            (l, None) if l.is_empty() => zeros(j),
+            (l, Some(w)) if l.is_empty() => w.prolongation.apply(&w.controls[j]),
+            (l, _) => l.clone(),
+        };
+        let mut init: Layers = Vec::new();
+        for j in k..=end {
+            let fresh = progress.controls[j].is_empty() && self.warm.is_none();
+            let mut layers = start_of(j);
+            let carried = init
+                .last()
+                .filter(|_| fresh && s.carry_controls > 0.0 && prep.segment_smoothing(j) > 0.0);
+            if let Some(last) = carried {
+                let layer: Vec<Matrix3<f64>> = last.iter().map(|c| c * s.carry_controls).collect();
+                layers.iter_mut().for_each(|l| l.clone_from(&layer));
+            }
+            init.extend(layers);
+        }
+        init
+    }
+}
+
+impl SegmentRecord {
+    /// The record of segment `segment` of pass `pass`, optimized to `result` in `seconds`.
+    fn of(pass: usize, segment: usize, result: &segment::SegmentResult, seconds: f64) -> Self {
+        let (min_j, max_j) = result.j_range;
+        SegmentRecord {
+            pass,
+            segment,
+            initial_loss: result.initial_loss,
+            loss: result.loss,
+            evaluations: result.evaluations,
+            seconds,
+            min_j,
+            max_j,
+            grad_norm_first: result.grad_norms.0,
+            grad_norm_last: result.grad_norms.1,
+        }
+    }
 }
 
 /// A gradient this many times the first segment's first one has exploded.

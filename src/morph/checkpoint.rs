@@ -27,8 +27,8 @@
 //! A finished run removes `progress.json` before the rest ([`remove`]).
 
 use super::{IterationRecord, MorphError, RunProgress, SegmentRecord, segment::Layers};
+use crate::engine::mpm::State;
 use crate::io::write_atomically;
-use crate::mpm::State;
 use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 use std::io::Write;

@@ -5,7 +5,7 @@
 //! states) is fixed by the particle and node counts. A [`MemoryLimit`] caps the whole
 //! process: what is left after the fixed part is the tape budget, and the segment keeps
 //! checkpoints and recomputes instead of holding every step when its tape would not fit
-//! ([`crate::integrator::recompute`]). The budget never changes results, only memory and time.
+//! ([`crate::engine::integrator::recompute`]). The budget never changes results, only memory and time.
 //!
 //! The plan is computed from the inputs and settings alone ([`fixed_bytes`]: counts times
 //! bytes per particle and per node), never from the process's resident size, so the same
@@ -16,8 +16,8 @@
 //! its cgroup) is refused.
 
 use super::{MorphError, MorphSettings, Prepared};
-use crate::integrator::recompute::ChunkPlan;
-use crate::mpm::State;
+use crate::engine::integrator::recompute::ChunkPlan;
+use crate::engine::mpm::State;
 use nalgebra::Matrix3;
 use serde::Serialize;
 use std::str::FromStr;
@@ -293,7 +293,7 @@ pub fn least_bytes(settings: &MorphSettings, c: &Counts) -> (u64, u64) {
     let substeps = match settings.dt {
         Some(_) => 1,
         None => {
-            let (bound, _) = crate::material::stable_dt(
+            let (bound, _) = crate::engine::material::stable_dt(
                 material.wave_modulus(),
                 settings.material.density,
                 c.dx,
@@ -314,10 +314,14 @@ pub fn least_bytes(settings: &MorphSettings, c: &Counts) -> (u64, u64) {
     let gradient = n * size_of::<Matrix3<f64>>();
     let step = gradient
         + match settings.integrator {
-            crate::integrator::IntegratorKind::Euler => {
-                crate::mpm::StepTape::bytes_for(n, c.nodes as usize, material.kept_per_particle())
+            crate::engine::integrator::IntegratorKind::Euler => {
+                crate::engine::mpm::StepTape::bytes_for(
+                    n,
+                    c.nodes as usize,
+                    material.kept_per_particle(),
+                )
             }
-            crate::integrator::IntegratorKind::Rk4 => {
+            crate::engine::integrator::IntegratorKind::Rk4 => {
                 n * (4 * State::ODE_BYTES_PER_PARTICLE + size_of::<Matrix3<f64>>())
             }
         };

@@ -7,7 +7,7 @@
 //!   stands for a cube of side h, so "outside by more than 2h" means no target particle
 //!   within 2.5 h.
 
-use crate::mpm::GridSpec;
+use crate::engine::mpm::GridSpec;
 use nalgebra::Vector3;
 use rustc_hash::FxHashSet;
 use serde::{Deserialize, Serialize};

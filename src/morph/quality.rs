@@ -405,8 +405,8 @@ impl Judge {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::engine::mpm::GridSpec;
     use crate::geometry::{assets, particles_in};
-    use crate::mpm::GridSpec;
 
     /// The particles' marks agree with asking every lattice point for a particle near it,
     /// particles outside the lattice and non-finite ones included.

@@ -296,7 +296,7 @@ fn young_poisson_to_lame(m: &mut toml::Table) -> Result<(), String> {
         }
     };
     let d = MorphSettings::default().material;
-    let (e0, nu0) = crate::material::young_poisson_from_lame(d.mu, d.lambda);
+    let (e0, nu0) = crate::engine::material::young_poisson_from_lame(d.mu, d.lambda);
     let e = e
         .map(|v| number(v, "youngs_modulus"))
         .transpose()?
@@ -313,7 +313,7 @@ fn young_poisson_to_lame(m: &mut toml::Table) -> Result<(), String> {
             "[material] poisson_ratio must be between 0 and 0.49, got {nu}"
         ));
     }
-    let (mu, lambda) = crate::material::lame_from_young_poisson(e, nu);
+    let (mu, lambda) = crate::engine::material::lame_from_young_poisson(e, nu);
     m.insert("mu".into(), mu.into());
     m.insert("lambda".into(), lambda.into());
     Ok(())

@@ -3,12 +3,12 @@
 use crate::common;
 
 use common::*;
-use morph::effects::WallMode;
-use morph::integrator::{Integrator, IntegratorKind};
-use morph::lanes::SimdLevel;
+use morph::engine::effects::WallMode;
+use morph::engine::integrator::{Integrator, IntegratorKind};
+use morph::engine::lanes::SimdLevel;
+use morph::engine::mpm::{Gradients, KernelKind, State};
+use morph::engine::scene::{EffectConfig, SceneConfig};
 use morph::loss::MassLossKind;
-use morph::mpm::{Gradients, KernelKind, State};
-use morph::scene::{EffectConfig, SceneConfig};
 use nalgebra::Vector3;
 
 fn run_with_threads(threads: usize, kernel: KernelKind) -> (State, Gradients) {
@@ -105,7 +105,7 @@ fn rk4_one_and_two_threads_give_identical_bits() {
     same_bits(KernelKind::Cubic, &run(1), &run(2));
 }
 
-/// Every vector width this CPU has (`morph::lanes`: the x86-64 baseline, AVX2, AVX-512)
+/// Every vector width this CPU has (`morph::engine::lanes`: the x86-64 baseline, AVX2, AVX-512)
 /// gives the bits of the baseline, forward and reverse, under both integrators: a golden
 /// file made on one machine holds on another.
 #[test]
@@ -158,7 +158,7 @@ fn ode_parallel_path_is_bitwise_identical_across_thread_counts() {
 
 fn controlled_rope_bits(integrator: IntegratorKind) {
     use morph::apps::rope::scene::{Actuation, RopeConfig};
-    use morph::integrator::Controlled;
+    use morph::engine::integrator::Controlled;
     let run = |threads: usize| {
         let pool = rayon::ThreadPoolBuilder::new()
             .num_threads(threads)

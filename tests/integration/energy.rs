@@ -4,10 +4,10 @@
 //! far more, at the same grid and dt and also at equal compute (Euler with dt/4, four steps
 //! per RK4 step).
 
-use morph::material::{ConstitutiveModel, FixedCorotated};
-use morph::mpm::model::Model;
-use morph::mpm::{Euler, GridSpec, KernelKind, State};
-use morph::ode::Rk4;
+use morph::engine::material::{ConstitutiveModel, FixedCorotated};
+use morph::engine::mpm::model::Model;
+use morph::engine::mpm::{Euler, GridSpec, KernelKind, State};
+use morph::engine::ode::Rk4;
 use nalgebra::{Matrix3, Vector3};
 use std::sync::Arc;
 use std::time::Instant;

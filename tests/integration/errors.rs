@@ -3,8 +3,8 @@
 use crate::common;
 
 use common::*;
-use morph::mpm::{KernelKind, SimError};
-use morph::scene::SceneConfig;
+use morph::engine::mpm::{KernelKind, SimError};
+use morph::engine::scene::SceneConfig;
 use nalgebra::{Matrix3, Vector3};
 
 #[test]
@@ -84,7 +84,7 @@ fn nan_in_the_state_or_controls() {
 fn unstable_time_step_is_refused() {
     let mut scene = small_scene(KernelKind::Cubic, vec![]);
     scene.dt = 0.05; // wave speed sqrt(136111 / 40) = 58.3 cells/s: limit dx / c = 0.0171
-    let (_, vol) = morph::scene::ball_particles(&scene.grid, Vector3::zeros(), 3.0, 2);
+    let (_, vol) = morph::engine::scene::ball_particles(&scene.grid, Vector3::zeros(), 3.0, 2);
     let err = scene.build(vol).unwrap_err();
     match err {
         SimError::UnstableTimeStep { dt, limit, .. } => {
@@ -94,8 +94,12 @@ fn unstable_time_step_is_refused() {
         e => panic!("expected UnstableTimeStep, got {e:?}"),
     }
     // The reference dt is within the bound.
-    let (_, vol) =
-        morph::scene::ball_particles(&SceneConfig::reference().grid, Vector3::zeros(), 3.0, 2);
+    let (_, vol) = morph::engine::scene::ball_particles(
+        &SceneConfig::reference().grid,
+        Vector3::zeros(),
+        3.0,
+        2,
+    );
     assert!(SceneConfig::reference().build(vol).is_ok());
 }
 
@@ -120,7 +124,7 @@ fn runaway_velocity_exceeds_cfl() {
 #[test]
 fn absurd_scene_settings() {
     let mut scene = small_scene(KernelKind::Cubic, vec![]);
-    let (_, vol) = morph::scene::ball_particles(&scene.grid, Vector3::zeros(), 3.0, 2);
+    let (_, vol) = morph::engine::scene::ball_particles(&scene.grid, Vector3::zeros(), 3.0, 2);
     scene.dt = -1.0;
     assert!(matches!(
         scene.build(vol.clone()),
@@ -135,7 +139,7 @@ fn absurd_scene_settings() {
     scene.material.density = 40.0;
     // A drag that switches on at a negative time or eases in over a non-finite ramp.
     for (start, ramp) in [(-1.0, 0.0), (0.0, f64::NAN)] {
-        scene.effects = vec![morph::scene::EffectConfig::Drag {
+        scene.effects = vec![morph::engine::scene::EffectConfig::Drag {
             coefficient: 1.0,
             start,
             ramp,

@@ -320,7 +320,7 @@ fn settings_parser() {
 #[test]
 fn checkpoint_reader() {
     use morph::checkpoint;
-    use morph::mpm::State;
+    use morph::engine::mpm::State;
     use morph::{RunProgress, segment::Layers};
     use nalgebra::{Matrix3, Vector3};
     // A real checkpoint of a tiny run: 3 particles, 2 segments of 2 layers; segment 0 done
@@ -395,10 +395,10 @@ fn checkpoint_reader() {
 
 #[test]
 fn scene_parser() {
-    use morph::scene::{EffectConfig, SceneConfig};
+    use morph::engine::scene::{EffectConfig, SceneConfig};
     let mut with_effects = SceneConfig::reference();
     with_effects.effects.push(EffectConfig::Walls {
-        mode: morph::effects::WallMode::Slip,
+        mode: morph::engine::effects::WallMode::Slip,
         thickness: 3,
     });
     let seeds = [SceneConfig::reference(), with_effects]

@@ -3,11 +3,11 @@
 
 use crate::common;
 use common::cli::Scratch;
+use morph::engine::mpm::{GridSpec, KernelKind};
 use morph::geometry::{
     Jitter, MeshError, MorphGeometry, PlacementOptions, Solid, TargetFit, TriMesh, assets,
     extract_surface, load_mesh, particles_in,
 };
-use morph::mpm::{GridSpec, KernelKind};
 use nalgebra::Vector3;
 use std::path::{Path, PathBuf};
 

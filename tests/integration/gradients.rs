@@ -6,12 +6,12 @@
 use crate::common;
 
 use common::*;
-use morph::effects::{GridContext, GridForm, NodeMotion, WallMode};
 use morph::engine::Engine;
-use morph::integrator::{Integrator, IntegratorKind};
+use morph::engine::effects::{GridContext, GridForm, NodeMotion, WallMode};
+use morph::engine::integrator::{Integrator, IntegratorKind};
+use morph::engine::mpm::{ControlForm, KernelKind, State, Tape};
+use morph::engine::scene::EffectConfig;
 use morph::loss::{FINE_KERNEL, FineMassLoss, MassLoss, MassLossKind};
-use morph::mpm::{ControlForm, KernelKind, State, Tape};
-use morph::scene::EffectConfig;
 use nalgebra::{Matrix3, Vector3};
 
 /// (name, <gradient, direction> for one field, perturb that field along the direction).
@@ -61,7 +61,7 @@ fn check_case_with(
 }
 
 fn check_scene(
-    scene: morph::scene::SceneConfig,
+    scene: morph::engine::scene::SceneConfig,
     kind: MassLossKind,
     steps: usize,
     h: f64,
@@ -72,7 +72,7 @@ fn check_scene(
 
 /// [`check_scene`] with the integrator `integrator`.
 fn check_scene_on(
-    scene: morph::scene::SceneConfig,
+    scene: morph::engine::scene::SceneConfig,
     integrator: IntegratorKind,
     kind: MassLossKind,
     steps: usize,
@@ -93,7 +93,7 @@ fn check_scene_on(
 /// [`check_scene_on`] along one random direction per quantity instead of two (for the long
 /// lists of rows that each add one effect to what the other tests check).
 fn check_scene_once(
-    scene: morph::scene::SceneConfig,
+    scene: morph::engine::scene::SceneConfig,
     integrator: IntegratorKind,
     kind: MassLossKind,
     steps: usize,
@@ -106,7 +106,7 @@ fn check_scene_once(
 
 /// [`check_scene_on`] with the control acting by `form`.
 fn check_scene_form(
-    scene: morph::scene::SceneConfig,
+    scene: morph::engine::scene::SceneConfig,
     integrator: IntegratorKind,
     form: ControlForm,
     kind: MassLossKind,
@@ -295,7 +295,7 @@ fn reverse_pass_matches_fd_cubic_l2() {
 /// (a new material is checked here without a line of its own).
 #[test]
 fn every_material_matches_fd_through_the_reverse_pass() {
-    for model in morph::material::MaterialModel::ALL {
+    for model in morph::engine::material::MaterialModel::ALL {
         let mut scene = small_scene(KernelKind::Cubic, vec![EffectConfig::drag(0.5)]);
         scene.material.model = model;
         check_scene(scene, MassLossKind::Log, STEPS, H, |_| {});
@@ -360,7 +360,7 @@ fn reverse_pass_matches_fd_with_slip_walls() {
 /// (friction as a rate, see `effects/collider.rs`) through the same impact.
 #[test]
 fn reverse_pass_matches_fd_with_a_ground_collider() {
-    use morph::scene::ColliderConfig;
+    use morph::engine::scene::ColliderConfig;
     let ground = |friction: f64| {
         vec![EffectConfig::Collider {
             shape: ColliderConfig::Plane {
@@ -458,9 +458,13 @@ fn check_segment<I: Integrator>(sim: &I, mut init: State) {
         .map(|x| x + Vector3::new(1.1, 0.4, -0.6))
         .collect();
     let fine_grid = FineMassLoss::refine(&sim.model().grid, 2);
-    let fine_target =
-        morph::mpm::transfer::mass_grid(&fine_grid, FINE_KERNEL, &shifted, &sim.model().mass)
-            .unwrap();
+    let fine_target = morph::engine::mpm::transfer::mass_grid(
+        &fine_grid,
+        FINE_KERNEL,
+        &shifted,
+        &sim.model().mass,
+    )
+    .unwrap();
     let fine = FineMassLoss {
         grid: fine_grid,
         loss: MassLoss::new(MassLossKind::Log, fine_target),
@@ -612,7 +616,7 @@ impl Pulse {
     }
 }
 
-impl morph::effects::Effect for Pulse {
+impl morph::engine::effects::Effect for Pulse {
     fn name(&self) -> &'static str {
         "pulse"
     }
@@ -678,7 +682,8 @@ fn time_dependent_effect_case(kind: IntegratorKind) {
             thickness: 3,
         }],
     );
-    let (x, vol) = morph::scene::ball_particles(&scene.grid, Vector3::new(0.1, -0.2, 0.05), 3.0, 2);
+    let (x, vol) =
+        morph::engine::scene::ball_particles(&scene.grid, Vector3::new(0.1, -0.2, 0.05), 3.0, 2);
     let build = |k: f64| {
         let mut model = scene.model(vol.clone()).unwrap();
         model.effects.insert(0, Box::new(Pulse { k }));
@@ -819,7 +824,7 @@ fn additive_control_reverse_pass_matches_fd() {
 /// tape holds (`RunTape::bytes`), for both integrators, with a control on every step.
 #[test]
 fn planned_tape_bytes_match_a_real_tape() {
-    use morph::integrator::RunTape;
+    use morph::engine::integrator::RunTape;
     let scene = small_scene(KernelKind::Cubic, Vec::new());
     for integrator in IntegratorKind::ALL {
         let (engine, init) = ball_engine(&scene, 3.2, integrator);
@@ -845,7 +850,7 @@ fn planned_tape_bytes_match_a_real_tape() {
 /// along one random direction per quantity. A new effect adds its row.
 #[test]
 fn every_effect_alone_matches_fd_with_both_integrators() {
-    use morph::scene::ColliderConfig;
+    use morph::engine::scene::ColliderConfig;
     let cube = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("assets/cube.obj");
     let ground = |friction| EffectConfig::Collider {
         shape: ColliderConfig::Plane {

@@ -132,7 +132,7 @@ fn a_memory_budget_never_changes_the_morph() {
             let mut frames = FrameStates::default();
             let result = morph::run_prepared(&prep, None, &mut frames).unwrap();
             let chunked =
-                prep.segment_chunk_plan() != morph::integrator::recompute::ChunkPlan::WHOLE;
+                prep.segment_chunk_plan() != morph::engine::integrator::recompute::ChunkPlan::WHOLE;
             (result.final_state, frames.0, chunked)
         };
         let (whole, whole_frames, chunked) = run(usize::MAX);
@@ -146,7 +146,7 @@ fn a_memory_budget_never_changes_the_morph() {
 
 /// Every frame's simulation state.
 #[derive(Default)]
-struct FrameStates(Vec<morph::mpm::State>);
+struct FrameStates(Vec<morph::engine::mpm::State>);
 
 impl Observer for FrameStates {
     fn frame(&mut self, frame: &Frame) -> Result<(), MorphError> {

@@ -9,10 +9,10 @@ use crate::common;
 use common::Lcg;
 use morph::apps::rope::scene::{Actuation, ClampMode, RopeConfig};
 use morph::engine::Engine;
-use morph::integrator::{Controlled, IntegratorKind};
-use morph::material::MaterialModel;
-use morph::mpm::{ControlParams, Interpolation};
-use morph::mpm::{KernelKind, State};
+use morph::engine::integrator::{Controlled, IntegratorKind};
+use morph::engine::material::MaterialModel;
+use morph::engine::mpm::{ControlParams, Interpolation};
+use morph::engine::mpm::{KernelKind, State};
 use nalgebra::{Matrix3, Vector3};
 
 const STEPS: usize = 12;

@@ -3,12 +3,12 @@
 use crate::common;
 
 use common::*;
-use morph::integrator::Integrator;
-use morph::mpm::{KernelKind, State};
-use morph::scene::EffectConfig;
+use morph::engine::integrator::Integrator;
+use morph::engine::mpm::{KernelKind, State};
+use morph::engine::scene::EffectConfig;
 use nalgebra::{Matrix3, Vector3};
 
-fn run(sim: &morph::mpm::Euler, state: &mut State, steps: usize) {
+fn run(sim: &morph::engine::mpm::Euler, state: &mut State, steps: usize) {
     sim.forward(state, &[], 0, steps, None).expect("forward");
 }
 
@@ -101,7 +101,7 @@ fn rigidly_rotating_ball_stays_nearly_stress_free() {
             "{kernel:?}: kinetic energy {ke0} -> {ke1}"
         );
         for f in &s.f {
-            let svd = morph::material::svd::svd3(f);
+            let svd = morph::engine::material::svd::svd3(f);
             let stretch = (svd.sigma.add_scalar(-1.0)).amax();
             assert!(
                 stretch < 1.2 * expected,
@@ -173,7 +173,7 @@ fn drag_decays_momentum_geometrically() {
 /// holds, and the elastic body drags on it), a slip wall lets it slide on.
 #[test]
 fn sticky_wall_stops_a_body_slip_wall_does_not() {
-    use morph::effects::WallMode;
+    use morph::engine::effects::WallMode;
     let mut kept = Vec::new();
     for mode in [WallMode::Sticky, WallMode::Slip] {
         let scene = small_scene(
@@ -208,7 +208,7 @@ fn sticky_wall_stops_a_body_slip_wall_does_not() {
 /// error, not a panic.
 #[test]
 fn step_with_a_short_control_is_an_error() {
-    use morph::mpm::Workspace;
+    use morph::engine::mpm::Workspace;
     let (sim, init) = ball(&small_scene(KernelKind::Cubic, vec![]), 3.0);
     let mut s = init.clone();
     let short = vec![Matrix3::zeros(); init.len() - 1];
@@ -230,8 +230,8 @@ fn step_with_a_short_control_is_an_error() {
 /// 1.74 cells/s in 0.4 s, from 4; the two contact forms differ where a node presses in).
 #[test]
 fn friction_on_the_ground_slows_a_sliding_body_with_both_integrators() {
-    use morph::integrator::IntegratorKind;
-    use morph::scene::ColliderConfig;
+    use morph::engine::integrator::IntegratorKind;
+    use morph::engine::scene::ColliderConfig;
     let floor = |friction| {
         vec![
             EffectConfig::Gravity {

@@ -3,8 +3,8 @@
 //! controller's committed steps replay exactly and MPPI is deterministic across thread counts.
 
 use morph::apps::rope::compare::{RopeSettings, run_rope};
-use morph::integrator::Controlled;
-use morph::mpm::{ControlParams, ControlPlan};
+use morph::engine::integrator::Controlled;
+use morph::engine::mpm::{ControlParams, ControlPlan};
 use nalgebra::Vector3;
 use std::process::Command;
 

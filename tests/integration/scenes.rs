@@ -224,7 +224,7 @@ fn the_examples_run() {
             }
             "stiff-material.toml" => {
                 let d = &m["settings"]["material"];
-                let (e, _) = morph::material::young_poisson_from_lame(
+                let (e, _) = morph::engine::material::young_poisson_from_lame(
                     d["mu"].as_f64().unwrap(),
                     d["lambda"].as_f64().unwrap(),
                 );

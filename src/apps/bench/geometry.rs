@@ -6,11 +6,11 @@
 //! the particle volume in the mesh's own units (compare with `../shared/meshes/README.md`).
 //! Then times surface extraction from balls of about 17k and 100k particles.
 
+use crate::engine::mpm::GridSpec;
+use crate::engine::scene::ball_particles;
 use crate::geometry::{
     Placement, PlacementOptions, Solid, extract_surface, load_mesh, particles_in,
 };
-use crate::mpm::GridSpec;
-use crate::scene::ball_particles;
 use nalgebra::Vector3;
 use serde_json::json;
 use std::path::Path;

@@ -10,12 +10,12 @@ pub mod physics;
 pub mod roofline;
 
 use crate::engine::Engine;
-use crate::integrator::{Integrator, IntegratorKind};
-use crate::lanes::SimdLevel;
+use crate::engine::integrator::{Integrator, IntegratorKind};
+use crate::engine::lanes::SimdLevel;
+use crate::engine::material::svd::{svd3, svd3_batch};
+use crate::engine::mpm::{KernelKind, SimError, State, StateGrad};
+use crate::engine::scene::{EffectConfig, SceneConfig, ball_particles};
 use crate::loss::{MassLoss, MassLossKind};
-use crate::material::svd::{svd3, svd3_batch};
-use crate::mpm::{KernelKind, SimError, State, StateGrad};
-use crate::scene::{EffectConfig, SceneConfig, ball_particles};
 use nalgebra::{Matrix3, Vector3};
 use serde_json::json;
 use std::time::Instant;
@@ -25,7 +25,7 @@ use std::time::Instant;
 pub struct Workload {
     pub engine: Engine,
     pub initial: State,
-    pub controls: Vec<Option<crate::integrator::StepControl>>,
+    pub controls: Vec<Option<crate::engine::integrator::StepControl>>,
     pub loss: MassLoss,
 }
 
@@ -55,9 +55,9 @@ pub fn ball_workload(
 }
 
 /// The grid a ball of `radius` cells is simulated on (see [`ball_workload`]).
-pub fn ball_grid(radius: f64) -> crate::mpm::grid::GridSpec {
+pub fn ball_grid(radius: f64) -> crate::engine::mpm::grid::GridSpec {
     let cells = ((2.0 * radius).ceil() as usize + 8).max(32);
-    crate::mpm::grid::GridSpec::centred_cube(cells, 1.0)
+    crate::engine::mpm::grid::GridSpec::centred_cube(cells, 1.0)
 }
 
 /// The reference ball with the given effects, with or without control `Fc`.
@@ -92,7 +92,10 @@ fn workload_on(
     scene.kernel = kernel;
     scene.effects = effects;
     let (x, vol) = ball_particles(&scene.grid, Vector3::zeros(), radius, 2);
-    let engine = Engine::new(scene.model(vol)?, integrator)?;
+    let engine = Engine::new(
+        scene.model_with(vol, &crate::geometry::MeshSolids)?,
+        integrator,
+    )?;
     let mut initial = State::at_rest(x);
     for p in 0..initial.len() {
         let r = initial.x[p];
@@ -108,7 +111,7 @@ fn workload_on(
                         let a = 0.02 * (0.4 * x[0] + 0.3 * x[1]).sin();
                         Matrix3::new(a, 0.01, 0.0, -0.01, -a, 0.005, 0.0, 0.002, 0.5 * a)
                     })
-                    .collect::<crate::integrator::StepControl>()
+                    .collect::<crate::engine::integrator::StepControl>()
             })
         })
         .collect();
@@ -141,7 +144,7 @@ impl Workload {
     pub fn run_forward_reverse(
         &self,
         steps: usize,
-    ) -> Result<(f64, crate::mpm::Gradients), SimError> {
+    ) -> Result<(f64, crate::engine::mpm::Gradients), SimError> {
         crate::engine::with_integrator!(&self.engine, sim => {
             let mut s = self.initial.clone();
             let mut tape = Default::default();
@@ -258,7 +261,7 @@ pub fn run(
 /// and forward+reverse (on the largest thread count asked), with no effects, with each
 /// effect alone, and with everything.
 fn effect_costs(steps: usize, repeats: usize) -> anyhow::Result<()> {
-    use crate::effects::WallMode;
+    use crate::engine::effects::WallMode;
     let drag = EffectConfig::drag(0.5);
     let gravity = EffectConfig::Gravity {
         acceleration: [0.0, -9.81, 0.0],
@@ -267,7 +270,7 @@ fn effect_costs(steps: usize, repeats: usize) -> anyhow::Result<()> {
     // A ground a half cell into the ball's bottom, and a cube of 8 cells under it (a mesh
     // collider, written to a temporary file), both with friction.
     let ground = EffectConfig::Collider {
-        shape: crate::scene::ColliderConfig::Plane {
+        shape: crate::engine::scene::ColliderConfig::Plane {
             point: [0.0, -7.5, 0.0],
             normal: [0.0, 1.0, 0.0],
         },
@@ -277,7 +280,7 @@ fn effect_costs(steps: usize, repeats: usize) -> anyhow::Result<()> {
         std::env::temp_dir().join(format!("morph-bench-cube-{}.obj", std::process::id()));
     // Written just before its case and removed right after.
     let cube = EffectConfig::Collider {
-        shape: crate::scene::ColliderConfig::Mesh {
+        shape: crate::engine::scene::ColliderConfig::Mesh {
             path: cube_path.clone(),
             scale: 4.0,
             translation: [0.0, -11.5, 0.0],

@@ -6,10 +6,10 @@
 //! case and the observed orders of convergence.
 
 use crate::engine::Engine;
-use crate::integrator::{Integrator, IntegratorKind};
-use crate::material::{ConstitutiveModel, FixedCorotated};
-use crate::mpm::model::Model;
-use crate::mpm::{GridSpec, KernelKind, SimError, State};
+use crate::engine::integrator::{Integrator, IntegratorKind};
+use crate::engine::material::{ConstitutiveModel, FixedCorotated};
+use crate::engine::mpm::model::Model;
+use crate::engine::mpm::{GridSpec, KernelKind, SimError, State};
 use nalgebra::{Matrix3, Vector3};
 use serde::Serialize;
 use std::f64::consts::PI;

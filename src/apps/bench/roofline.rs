@@ -8,9 +8,9 @@
 
 use super::ball_workload;
 use crate::engine::Engine;
-use crate::integrator::IntegratorKind;
-use crate::mpm::profile::{Stage, StageClock};
-use crate::mpm::{KernelKind, SimError};
+use crate::engine::integrator::IntegratorKind;
+use crate::engine::mpm::profile::{Stage, StageClock};
+use crate::engine::mpm::{KernelKind, SimError};
 use nalgebra::Vector3;
 use rayon::prelude::*;
 use serde_json::json;
@@ -199,7 +199,7 @@ fn stage_seconds(
 /// particles over `threads`, against the longest thread's load when the blocks are shared
 /// out largest first to the least loaded thread (rayon's work stealing does about as well; a
 /// block is never split). 1 on one thread.
-pub fn scatter_efficiency(bins: &crate::mpm::grid::Bins, threads: usize) -> f64 {
+pub fn scatter_efficiency(bins: &crate::engine::mpm::grid::Bins, threads: usize) -> f64 {
     let mut sizes: Vec<usize> = bins.blocks.iter().map(|b| b.particle_count()).collect();
     sizes.sort_unstable_by(|a, b| b.cmp(a));
     let mut load = vec![0usize; threads.max(1)];
@@ -226,8 +226,8 @@ pub fn run(radius: f64, steps: usize, repeats: usize, threads: &[usize]) -> anyh
     // ball of about 300,000 particles.
     for ball in [super::REFERENCE_RADIUS, 21.0] {
         let grid = super::ball_grid(ball);
-        let (x, _) = crate::scene::ball_particles(&grid, Vector3::zeros(), ball, 2);
-        let bins = crate::mpm::grid::Bins::build(&grid, &x, 4, 0)?;
+        let (x, _) = crate::engine::scene::ball_particles(&grid, Vector3::zeros(), ball, 2);
+        let bins = crate::engine::mpm::grid::Bins::build(&grid, &x, 4, 0)?;
         let blocks = bins.blocks.len();
         let efficiency: serde_json::Map<String, serde_json::Value> = [1, 2, 4, 8, 16, 32]
             .iter()

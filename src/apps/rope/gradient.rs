@@ -7,10 +7,10 @@
 //! committed and its end state carried over.
 
 use super::{ControlEvent, ControllerRun, Online, free_knots};
-use crate::integrator::Controlled;
-use crate::mpm::ControlParams;
-use crate::mpm::SimError;
-use crate::mpm::State;
+use crate::engine::integrator::Controlled;
+use crate::engine::mpm::ControlParams;
+use crate::engine::mpm::SimError;
+use crate::engine::mpm::State;
 use crate::optim::Adam;
 use serde::Serialize;
 

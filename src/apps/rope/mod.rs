@@ -12,7 +12,7 @@ pub mod gradient;
 pub mod mppi;
 pub mod scene;
 
-use crate::mpm::{ControlParams, ControlSchedule, Interpolation, State};
+use crate::engine::mpm::{ControlParams, ControlSchedule, Interpolation, State};
 use serde::Serialize;
 use std::ops::Range;
 use std::time::Instant;

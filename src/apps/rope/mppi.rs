@@ -8,10 +8,10 @@
 //! generator, so runs are identical whatever the thread count.
 
 use super::{ControlEvent, ControllerRun, Online, free_knots};
-use crate::integrator::Controlled;
-use crate::mpm::ControlParams;
-use crate::mpm::SimError;
-use crate::mpm::State;
+use crate::engine::integrator::Controlled;
+use crate::engine::mpm::ControlParams;
+use crate::engine::mpm::SimError;
+use crate::engine::mpm::State;
 use rand::SeedableRng;
 use rand_distr::{Distribution, StandardNormal};
 use rand_pcg::Pcg64;

@@ -6,12 +6,12 @@
 //! Units are SI. docs/control.md gives the numbers and why they were chosen.
 
 use crate::engine::Engine;
-use crate::integrator::IntegratorKind;
-use crate::material::{MaterialModel, lame_from_young_poisson};
-use crate::mpm::State;
-use crate::mpm::{ControlEffect, ControlKind, ControlPlan, ControlSchedule, Interpolation};
-use crate::mpm::{GridSpec, KernelKind, SimError};
-use crate::scene::{EffectConfig, MaterialConfig, SceneConfig};
+use crate::engine::integrator::IntegratorKind;
+use crate::engine::material::{MaterialModel, lame_from_young_poisson};
+use crate::engine::mpm::State;
+use crate::engine::mpm::{ControlEffect, ControlKind, ControlPlan, ControlSchedule, Interpolation};
+use crate::engine::mpm::{GridSpec, KernelKind, SimError};
+use crate::engine::scene::{EffectConfig, MaterialConfig, SceneConfig};
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 

@@ -10,12 +10,12 @@
 //! `study.json` (every row), `study.csv` (the same as a table), `study.png` (IoU against wall
 //! seconds, log axis, with the front).
 
-use crate::integrator::IntegratorKind;
+use crate::engine::integrator::IntegratorKind;
+use crate::engine::mpm::KernelKind;
 use crate::morph::motion::MotionMeasures;
 use crate::morph::quality::{Progress, Quality};
 use crate::morph::usage;
 use crate::morph::{Frame, Job, MeshSource, MorphError, MorphSettings, Observer, Preset};
-use crate::mpm::KernelKind;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 use std::time::Instant;

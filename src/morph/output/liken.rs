@@ -56,10 +56,11 @@ pub fn written_likeness(dir: &Path, surface: WrittenSurface) -> Result<Likeness,
 /// An input as the manifest names it: as given when that exists from here, else beside
 /// the output folder (a relative path written from the folder's parent).
 fn find_input(dir: &Path, path: &Path) -> PathBuf {
-    if path.is_relative() && !path.exists() {
-        if let Some(parent) = dir.parent() {
-            return parent.join(path);
-        }
+    if path.is_relative()
+        && !path.exists()
+        && let Some(parent) = dir.parent()
+    {
+        return parent.join(path);
     }
     path.to_path_buf()
 }

@@ -173,34 +173,8 @@ pub fn morph_to_folder(
     .map_err(MorphError::Settings)?;
     let identity = RunIdentity::new(settings, source, targets)?;
     let run_id = identity.id();
-    if plan.existing == outdir::Existing::Ours {
-        let done = read_manifest(&plan.out.join(MANIFEST));
-        let missing = outdir::check_owned(&plan.out, MANIFEST)
-            .map(|o| o.missing)
-            .unwrap_or_default();
-        match done {
-            Some(m) if request.resume && m.run_id == run_id && missing.is_empty() => {
-                return Ok(Summary {
-                    already_complete: true,
-                    ..Summary::of(&m, &plan.out)
-                });
-            }
-            Some(m) if m.run_id == run_id && !request.overwrite => {
-                return Err(MorphError::Settings(format!(
-                    "output folder '{}' is this run's, but '{}' that its manifest lists is missing ({} file(s) in all); pass --overwrite to make the folder again",
-                    plan.out.display(),
-                    missing[0],
-                    missing.len()
-                )));
-            }
-            _ if !request.overwrite => {
-                return Err(MorphError::Settings(format!(
-                    "output folder '{}' holds a different run; pass --overwrite to replace it",
-                    plan.out.display()
-                )));
-            }
-            _ => {}
-        }
+    if let Some(done) = existing_output(&plan, request, &run_id)? {
+        return Ok(done);
     }
     let mut staging = Staging::take(&plan, RUN_FILE, STAGING_NAMES).map_err(|e| match e {
         outdir::TakeError::InUse(why) => MorphError::Output(why),
@@ -208,43 +182,7 @@ pub fn morph_to_folder(
     })?;
     let run_path = staging.dir.join(RUN_FILE);
     // What to do with an earlier run's staging folder, decided now, done once the inputs load.
-    let mut resuming = false;
-    let mut clear_earlier = false;
-    if staging.previous == Previous::Run {
-        let earlier: Option<RunIdentity> =
-            crate::files::read(&run_path, crate::files::SMALL_FILE_BYTES)
-                .ok()
-                .and_then(|b| serde_json::from_slice(&b).ok());
-        let shown = staging.dir.display().to_string();
-        // What keeps the earlier run from being continued, if anything.
-        let obstacle = match &earlier {
-            None => Some(format!("'{shown}' has an unreadable {RUN_FILE}")),
-            Some(earlier) => {
-                let diff = identity.differences(earlier);
-                (!diff.is_empty()).then(|| {
-                    format!(
-                        "cannot resume '{shown}': it is a run of other inputs or settings ({})",
-                        diff.join("; ")
-                    )
-                })
-            }
-        };
-        if request.resume && obstacle.is_none() {
-            resuming = true;
-        } else if request.overwrite {
-            // --overwrite (alone, or with --resume when the earlier run cannot be continued)
-            // starts over, once the new inputs have loaded.
-            clear_earlier = true;
-        } else if let (true, Some(why)) = (request.resume, obstacle) {
-            return Err(MorphError::Resume(format!(
-                "{why}; start over with --overwrite"
-            )));
-        } else {
-            return Err(MorphError::Settings(format!(
-                "'{shown}' holds an interrupted run; continue it with --resume or start over with --overwrite"
-            )));
-        }
-    }
+    let (resuming, clear_earlier) = earlier_staging(&staging, &identity, request)?;
     // Killed after its manifest was written (while its checkpoint was being removed, or
     // before the folder was moved into place): every file is there, only the move is left.
     if resuming && let Some(m) = finished_staging(&staging.dir, &run_id) {
@@ -259,41 +197,7 @@ pub fn morph_to_folder(
         });
     }
     let had_checkpoint = staging.previous == Previous::Run;
-    let prepared = (|| {
-        let src = crate::geometry::load_mesh(source)?;
-        let loaded = targets
-            .iter()
-            .map(|t| crate::geometry::load_mesh(t))
-            .collect::<Result<Vec<_>, _>>()?;
-        let meshes: Vec<(&crate::geometry::LoadedMesh, &Path)> = loaded
-            .iter()
-            .zip(targets)
-            .map(|(m, p)| (m, p.as_path()))
-            .collect();
-        // The memory limit holds for setup too: refused before the fill when it cannot.
-        // The thin parts' rule once: the estimate and the setup use what it chose.
-        let (settings, sizing) = super::sizing::size(settings, (&src, source), &meshes)?;
-        let settings = &settings;
-        let estimate = Prepared::estimate(settings, (&src, source), &meshes)?;
-        let source_vertices = src.mesh.vertices.len();
-        super::memory::check_before_setup(
-            settings,
-            &estimate,
-            (targets.len() - 1, source_vertices),
-            request.memory_limit,
-        )?;
-        let mut prep = Prepared::from_sized(settings, sizing, (&src, source), &meshes)?;
-        // On the exact counts: the same figure as before setup, the larger of the run's and
-        // the writers' needs.
-        super::memory::check_least(
-            &prep.settings,
-            &prep.memory_counts(source_vertices),
-            request.memory_limit,
-        )?;
-        let memory = prep.plan_memory(request.memory_limit)?;
-        Ok((prep, memory))
-    })();
-    let (prep, memory) = match prepared {
+    let (prep, memory) = match prepare_within(settings, source, targets, request.memory_limit) {
         Ok(p) => p,
         Err(e) => {
             // The inputs did not load: leave an earlier run's files exactly as they were.
@@ -320,15 +224,14 @@ pub fn morph_to_folder(
         })
         .map_err(|e| out_err("resolved scene", &scene_path, e))?;
         let setup_s = clock.elapsed().as_secs_f64();
-        let resume = if resuming {
-            checkpoint::load(
+        let resume = match resuming {
+            true => checkpoint::load(
                 &staging.dir,
                 &run_id,
                 prep.initial.len(),
                 &prep.segment_layers(),
-            )?
-        } else {
-            None
+            )?,
+            false => None,
         };
         let lock = staging.lock_id().ok_or_else(|| {
             MorphError::Output(format!(
@@ -336,20 +239,14 @@ pub fn morph_to_folder(
                 staging.dir.display()
             ))
         })?;
+        let caller = writer::Caller {
+            stop: request.stop,
+            on_frame: request.on_frame,
+            on_event: &mut on_event,
+        };
+        let place = (staging.dir.as_path(), lock);
         run::write_run(
-            &prep,
-            &identity,
-            &run_id,
-            (&staging.dir, lock),
-            resume,
-            memory,
-            setup_s,
-            clock,
-            writer::Caller {
-                stop: request.stop,
-                on_frame: request.on_frame,
-                on_event: &mut on_event,
-            },
+            &prep, &identity, &run_id, place, resume, memory, setup_s, clock, caller,
         )
     })();
     match result {
@@ -358,38 +255,156 @@ pub fn morph_to_folder(
             summary.output = plan.out.clone();
             Ok(summary)
         }
-        Err(e) => {
-            // Keep whatever a later --resume can use; remove a staging folder with nothing in it.
-            // Only while the folder is still the one this run locked: removed and made again
-            // by another run, it is that run's.
-            if !staging.is_ours() {
-                return Err(match e {
-                    MorphError::Interrupted { signal, .. } => MorphError::Interrupted {
-                        signal,
-                        kept: false,
-                    },
-                    e => MorphError::Output(format!(
-                        "{e}; the staging folder '{}' was removed or replaced during the run (by another run?): nothing there was touched",
-                        staging.dir.display()
-                    )),
-                });
-            }
-            // A failed optimization is no work to continue: a resume would fail the same way.
-            let kept =
-                checkpoint::exists(&staging.dir) && !matches!(e, MorphError::Optimization(_));
-            let dir = staging.dir.clone();
-            if !kept {
-                staging.discard();
-            }
-            Err(match e {
-                MorphError::Interrupted { signal, .. } => MorphError::Interrupted { signal, kept },
-                MorphError::Output(why) if kept => MorphError::Output(format!(
-                    "{why}; the completed segments are kept in '{}': once the cause is fixed (e.g. disk space freed), run the same command with --resume to continue",
-                    dir.display()
-                )),
-                e => e,
+        Err(e) => Err(failed(staging, e)),
+    }
+}
+
+/// An output folder this program wrote before: its summary when it is this run's, complete,
+/// and `--resume` was asked; refused when it is this run's with files missing, or another
+/// run's, unless `--overwrite` replaces it.
+fn existing_output(
+    plan: &outdir::OutputPlan,
+    request: &OutputRequest,
+    run_id: &str,
+) -> Result<Option<Summary>, MorphError> {
+    if plan.existing != outdir::Existing::Ours {
+        return Ok(None);
+    }
+    let done = read_manifest(&plan.out.join(MANIFEST));
+    let missing = outdir::check_owned(&plan.out, MANIFEST)
+        .map(|o| o.missing)
+        .unwrap_or_default();
+    match done {
+        Some(m) if request.resume && m.run_id == run_id && missing.is_empty() => {
+            Ok(Some(Summary {
+                already_complete: true,
+                ..Summary::of(&m, &plan.out)
+            }))
+        }
+        Some(m) if m.run_id == run_id && !request.overwrite => Err(MorphError::Settings(format!(
+            "output folder '{}' is this run's, but '{}' that its manifest lists is missing ({} file(s) in all); pass --overwrite to make the folder again",
+            plan.out.display(),
+            missing[0],
+            missing.len()
+        ))),
+        _ if !request.overwrite => Err(MorphError::Settings(format!(
+            "output folder '{}' holds a different run; pass --overwrite to replace it",
+            plan.out.display()
+        ))),
+        _ => Ok(None),
+    }
+}
+
+/// What to do with an interrupted run's staging folder: `(resume it, clear it once the new
+/// inputs have loaded)`; refused when neither `--resume` (of the same run) nor `--overwrite`
+/// says.
+fn earlier_staging(
+    staging: &Staging,
+    identity: &RunIdentity,
+    request: &OutputRequest,
+) -> Result<(bool, bool), MorphError> {
+    if staging.previous != Previous::Run {
+        return Ok((false, false));
+    }
+    let earlier: Option<RunIdentity> =
+        crate::files::read(&staging.dir.join(RUN_FILE), crate::files::SMALL_FILE_BYTES)
+            .ok()
+            .and_then(|b| serde_json::from_slice(&b).ok());
+    let shown = staging.dir.display().to_string();
+    // What keeps the earlier run from being continued, if anything.
+    let obstacle = match &earlier {
+        None => Some(format!("'{shown}' has an unreadable {RUN_FILE}")),
+        Some(earlier) => {
+            let diff = identity.differences(earlier);
+            (!diff.is_empty()).then(|| {
+                format!(
+                    "cannot resume '{shown}': it is a run of other inputs or settings ({})",
+                    diff.join("; ")
+                )
             })
         }
+    };
+    if request.resume && obstacle.is_none() {
+        Ok((true, false))
+    } else if request.overwrite {
+        // --overwrite (alone, or with --resume when the earlier run cannot be continued)
+        // starts over, once the new inputs have loaded.
+        Ok((false, true))
+    } else if let (true, Some(why)) = (request.resume, obstacle) {
+        Err(MorphError::Resume(format!(
+            "{why}; start over with --overwrite"
+        )))
+    } else {
+        Err(MorphError::Settings(format!(
+            "'{shown}' holds an interrupted run; continue it with --resume or start over with --overwrite"
+        )))
+    }
+}
+
+/// Loads the meshes and sets the morph up, within the memory limit: refused before the fill
+/// when the estimate is over it, and again on the exact counts.
+fn prepare_within(
+    settings: &MorphSettings,
+    source: &Path,
+    targets: &[PathBuf],
+    limit: MemoryLimit,
+) -> Result<(Prepared, super::memory::MemoryPlan), MorphError> {
+    let src = crate::geometry::load_mesh(source)?;
+    let loaded = targets
+        .iter()
+        .map(|t| crate::geometry::load_mesh(t))
+        .collect::<Result<Vec<_>, _>>()?;
+    let meshes: Vec<(&crate::geometry::LoadedMesh, &Path)> = loaded
+        .iter()
+        .zip(targets)
+        .map(|(m, p)| (m, p.as_path()))
+        .collect();
+    // The thin parts' rule once: the estimate and the setup use what it chose.
+    let (settings, sizing) = super::sizing::size(settings, (&src, source), &meshes)?;
+    let settings = &settings;
+    let estimate = Prepared::estimate(settings, (&src, source), &meshes)?;
+    let source_vertices = src.mesh.vertices.len();
+    let keyframes = targets.len() - 1;
+    super::memory::check_before_setup(settings, &estimate, (keyframes, source_vertices), limit)?;
+    let mut prep = Prepared::from_sized(settings, sizing, (&src, source), &meshes)?;
+    // On the exact counts: the same figure as before setup, the larger of the run's and the
+    // writers' needs.
+    let counts = prep.memory_counts(source_vertices);
+    super::memory::check_least(&prep.settings, &counts, limit)?;
+    let memory = prep.plan_memory(limit)?;
+    Ok((prep, memory))
+}
+
+/// What a run that failed after setup leaves: whatever a later `--resume` can use (a staging
+/// folder with nothing in it is removed), and the error that says so.
+fn failed(staging: Staging, e: MorphError) -> MorphError {
+    // Only while the folder is still the one this run locked: removed and made again by
+    // another run, it is that run's.
+    if !staging.is_ours() {
+        return match e {
+            MorphError::Interrupted { signal, .. } => MorphError::Interrupted {
+                signal,
+                kept: false,
+            },
+            e => MorphError::Output(format!(
+                "{e}; the staging folder '{}' was removed or replaced during the run (by another run?): nothing there was touched",
+                staging.dir.display()
+            )),
+        };
+    }
+    // A failed optimization is no work to continue: a resume would fail the same way.
+    let kept = checkpoint::exists(&staging.dir) && !matches!(e, MorphError::Optimization(_));
+    let dir = staging.dir.clone();
+    if !kept {
+        staging.discard();
+    }
+    match e {
+        MorphError::Interrupted { signal, .. } => MorphError::Interrupted { signal, kept },
+        MorphError::Output(why) if kept => MorphError::Output(format!(
+            "{why}; the completed segments are kept in '{}': once the cause is fixed (e.g. disk space freed), run the same command with --resume to continue",
+            dir.display()
+        )),
+        e => e,
     }
 }
 

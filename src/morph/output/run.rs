@@ -8,13 +8,13 @@ use super::manifest::{
 use super::sinks::{self, frame_name, out_err};
 use super::writer::{Caller, Sinks, WrittenFrames, halfway, run_writing_frames};
 use super::{MANIFEST, Summary};
+use crate::engine::mpm::State;
 use crate::io::outdir;
 use crate::io::{images, massgrid::MassGrid};
 use crate::morph::memory::MemoryPlan;
 use crate::morph::metrics::{FillMetrics, fill_metrics};
 use crate::morph::motion::MotionMeasures;
 use crate::morph::{MorphError, MorphResult, Prepared, RunProgress, checkpoint};
-use crate::mpm::State;
 use std::collections::HashMap;
 use std::path::Path;
 use std::time::Instant;

@@ -3,6 +3,7 @@
 
 use super::manifest::FrameStats;
 use super::sinks::{FrameRecord, FrameSink, SinkFrame, out_err};
+use crate::engine::mpm::State;
 use crate::io::outdir::LockId;
 use crate::morph::memory::WRITE_QUEUE;
 use crate::morph::quality::{Progress, Quality, close_neighbour_share};
@@ -10,7 +11,6 @@ use crate::morph::{
     Frame, MorphError, MorphEvent, MorphResult, Observer, Prepared, RunProgress, WorldFrame,
     checkpoint, run_prepared,
 };
-use crate::mpm::State;
 use nalgebra::Vector3;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};

@@ -5,11 +5,11 @@
 pub mod cli;
 
 use morph::engine::Engine;
-use morph::integrator::{Integrator, IntegratorKind};
+use morph::engine::integrator::{Integrator, IntegratorKind};
+use morph::engine::mpm::model::Model;
+use morph::engine::mpm::{Euler, GridSpec, KernelKind, State, StateGrad};
+use morph::engine::scene::{EffectConfig, MaterialConfig, SceneConfig, ball_particles};
 use morph::loss::{MassLoss, MassLossKind};
-use morph::mpm::model::Model;
-use morph::mpm::{Euler, GridSpec, KernelKind, State, StateGrad};
-use morph::scene::{EffectConfig, MaterialConfig, SceneConfig, ball_particles};
 use nalgebra::{Matrix3, Vector3};
 
 /// A small scene with the reference material and time step: 16^3 cells, dx 1.
@@ -81,7 +81,9 @@ pub fn controls(
 
 /// Controls as the integrators take them (shared per step), from the owned ones the tests
 /// build and perturb.
-pub fn shared(ctrl: &[Option<Vec<Matrix3<f64>>>]) -> Vec<Option<morph::integrator::StepControl>> {
+pub fn shared(
+    ctrl: &[Option<Vec<Matrix3<f64>>>],
+) -> Vec<Option<morph::engine::integrator::StepControl>> {
     ctrl.iter()
         .map(|c| c.as_ref().map(|c| c.as_slice().into()))
         .collect()
@@ -106,7 +108,12 @@ pub fn rollout_loss<I: Integrator>(
 
 /// The ball of [`ball`] with the integrator `kind`.
 pub fn ball_engine(scene: &SceneConfig, radius: f64, kind: IntegratorKind) -> (Engine, State) {
-    ball_engine_with(scene, radius, kind, morph::mpm::ControlForm::default())
+    ball_engine_with(
+        scene,
+        radius,
+        kind,
+        morph::engine::mpm::ControlForm::default(),
+    )
 }
 
 /// [`ball_engine`] with the deformation-gradient control acting by `form`.
@@ -114,10 +121,12 @@ pub fn ball_engine_with(
     scene: &SceneConfig,
     radius: f64,
     kind: IntegratorKind,
-    form: morph::mpm::ControlForm,
+    form: morph::engine::mpm::ControlForm,
 ) -> (Engine, State) {
     let (x, vol) = ball_particles(&scene.grid, Vector3::new(0.1, -0.2, 0.05), radius, 2);
-    let mut model = scene.model(vol).expect("valid scene");
+    let mut model = scene
+        .model_with(vol, &morph::geometry::MeshSolids)
+        .expect("valid scene");
     model.control_form = form;
     let engine = Engine::new(model, kind).expect("engine");
     (engine, State::at_rest(x))

@@ -19,12 +19,12 @@ pub use rebuilt::{RebuiltObj, RebuiltStats};
 pub use usd::UsdSequence;
 pub use volume::VolumeVdb;
 
+use crate::engine::mpm::State;
 use crate::geometry::carried::{CarriedStats, CarriedSurface};
 use crate::geometry::features::SourcePlanes;
 use crate::geometry::fidelity::Reference;
 use crate::morph::settings::RebuiltMethod;
 use crate::morph::{Frame, MorphError, Prepared, WorldFrame};
-use crate::mpm::State;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 

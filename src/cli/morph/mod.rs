@@ -2,23 +2,20 @@
 //! default comes from [`MorphSettings::preset`]), watches SIGINT/SIGTERM, and reports progress
 //! as a bar or JSON lines.
 
-use super::{choice, defaults, fail, help, name};
+use super::{choice, defaults, help, name};
 use clap::Args;
 use morph::basis::ControlResolution;
+use morph::engine::integrator::IntegratorKind;
+use morph::engine::material::MaterialModel;
+use morph::engine::mpm::ControlForm;
 use morph::geometry::TargetFit;
-use morph::integrator::IntegratorKind;
 use morph::loss::MassLossKind;
-use morph::material::MaterialModel;
 use morph::memory::MemoryLimit;
-use morph::mpm::ControlForm;
 use morph::scene_file::SceneFile;
 use morph::segment::Optimizer;
 use morph::settings::{Inbetween, RebuiltMethod, Surfaces, UsdFormat, limits};
-use morph::{MorphError, MorphEvent, MorphSettings, Preset};
+use morph::{MorphSettings, Preset};
 use std::path::PathBuf;
-use std::process::ExitCode;
-use std::sync::Arc;
-use std::sync::atomic::AtomicUsize;
 
 pub const LONG_ABOUT: &str = "\
 morph turns the shape in SOURCE into the shape in TARGET: SOURCE is filled with particles of an
@@ -285,7 +282,7 @@ fn parse_memory_limit(s: &str) -> Result<MemoryLimit, String> {
 /// The default material as Young's modulus and Poisson's ratio.
 fn default_young_poisson() -> (f64, f64) {
     let m = defaults().material;
-    morph::material::young_poisson_from_lame(m.mu, m.lambda)
+    morph::engine::material::young_poisson_from_lame(m.mu, m.lambda)
 }
 
 impl MorphArgs {
@@ -348,13 +345,19 @@ impl MorphArgs {
         Ok((self.settings(settings)?, source, targets))
     }
 
+    /// `base` (the preset's, or the scene file's) with the options given on the command line.
     fn settings(&self, base: MorphSettings) -> Result<MorphSettings, String> {
         let mut s = base;
-        let set = |dst: &mut usize, v: Option<usize>| {
-            if let Some(v) = v {
-                *dst = v;
-            }
-        };
+        self.apply_counts(&mut s);
+        self.apply_method(&mut s);
+        self.apply_physics(&mut s)?;
+        self.apply_shot(&mut s)?;
+        self.apply_choices(&mut s);
+        Ok(s)
+    }
+
+    /// The particles, the grid and the chain's counts.
+    fn apply_counts(&self, s: &mut MorphSettings) {
         // A resolution replaces the preset's particle budget; a budget replaces both.
         if let Some(r) = self.resolution {
             s.resolution = r;
@@ -383,6 +386,10 @@ impl MorphArgs {
             s.frame_every = n;
             s.fps = None;
         }
+    }
+
+    /// The optimizer and the objective's weights.
+    fn apply_method(&self, s: &mut MorphSettings) {
         if let Some(o) = self.optimizer {
             s.optimizer.kind = o;
             s.optimizer.learning_rate = o.default_learning_rate();
@@ -423,6 +430,10 @@ impl MorphArgs {
         if let Some(j) = self.jitter {
             s.jitter = j;
         }
+    }
+
+    /// The material, the control and the integrator.
+    fn apply_physics(&self, s: &mut MorphSettings) -> Result<(), String> {
         if let Some(m) = self.material {
             s.material.model = m;
         }
@@ -449,11 +460,17 @@ impl MorphArgs {
                     "--poisson-ratio must be between 0 and 0.49, got {nu}"
                 ));
             }
-            (s.material.mu, s.material.lambda) = morph::material::lame_from_young_poisson(e, nu);
+            (s.material.mu, s.material.lambda) =
+                morph::engine::material::lame_from_young_poisson(e, nu);
         }
         if let Some(d) = self.density {
             s.material.density = d;
         }
+        Ok(())
+    }
+
+    /// The shot's timing, keyframes and seed.
+    fn apply_shot(&self, s: &mut MorphSettings) -> Result<(), String> {
         if self.dt.is_some() {
             // A set dt is the step: frames come every --frame-every of them.
             s.dt = self.dt;
@@ -481,6 +498,11 @@ impl MorphArgs {
         if let Some(seed) = self.seed {
             s.seed = seed;
         }
+        Ok(())
+    }
+
+    /// The loss, the target's fit, the in-between and the outputs.
+    fn apply_choices(&self, s: &mut MorphSettings) {
         if let Some(loss) = self.loss {
             s.loss = loss;
         }
@@ -508,459 +530,17 @@ impl MorphArgs {
         if self.volume {
             s.volume = true;
         }
-        Ok(s)
     }
 }
 
-/// SIGINT, SIGTERM and SIGHUP (a closed terminal or SSH session) set `stop` to the signal's
-/// number: the run stops at its next evaluation and keeps its checkpoint. A second signal
-/// while stopping exits at once, with its line (and, with `--json`, its `interrupted` event)
-/// written from the handler: the checkpoint's files are written under temporary names and
-/// renamed, so the last one a resume needs is whole. SIGPIPE is ignored so that a closed stdout
-/// (a log reader that went away) is seen as a failed write, which stops the run the same way.
-fn stop_on_signals(json: bool, staging: &std::path::Path) -> std::io::Result<Arc<AtomicUsize>> {
-    use signal_hook::consts::{SIGHUP, SIGINT, SIGTERM};
-    // SAFETY: setting one signal's disposition to "ignore" is async-signal-safe.
-    unsafe {
-        libc::signal(libc::SIGPIPE, libc::SIG_IGN);
-    }
-    let stop = Arc::new(AtomicUsize::new(0));
-    let stopping = Arc::new(std::sync::atomic::AtomicBool::new(false));
-    for sig in [SIGINT, SIGTERM, SIGHUP] {
-        let code = 128 + sig;
-        let message = format!(
-            "interrupted again by {} while stopping: exited at once; the last checkpoint in '{}', if one was written, is kept for --resume",
-            signal_name(sig as usize),
-            staging.display()
-        );
-        // Made now: the handler only writes bytes (no allocation, no lock).
-        let line = format!("morph: {message}\n").into_bytes();
-        let event = json.then(|| {
-            let e = serde_json::json!({ "event": "interrupted", "signal": signal_name(sig as usize), "message": message, "exit_code": code });
-            format!("{e}\n").into_bytes()
-        });
-        let again = Arc::clone(&stopping);
-        let second = move || {
-            if again.load(std::sync::atomic::Ordering::SeqCst) {
-                // SAFETY: write(2) and _exit(2) are async-signal-safe; the buffers are owned
-                // by this closure and never change.
-                unsafe {
-                    libc::write(2, line.as_ptr().cast(), line.len());
-                    if let Some(e) = &event {
-                        libc::write(1, e.as_ptr().cast(), e.len());
-                    }
-                    libc::_exit(code);
-                }
-            }
-        };
-        // SAFETY: the action does only async-signal-safe work (see above).
-        unsafe { signal_hook::low_level::register(sig, second)? };
-        signal_hook::flag::register(sig, Arc::clone(&stopping))?;
-        signal_hook::flag::register_usize(sig, Arc::clone(&stop), sig as usize)?;
-    }
-    Ok(stop)
-}
-
-fn signal_name(signal: usize) -> &'static str {
-    match signal as i32 {
-        signal_hook::consts::SIGINT => "SIGINT",
-        signal_hook::consts::SIGTERM => "SIGTERM",
-        signal_hook::consts::SIGHUP => "SIGHUP (the terminal closed)",
-        libc::SIGPIPE => "SIGPIPE (stdout was closed)",
-        _ => "a signal",
+/// `*dst = v` when the option was given.
+fn set(dst: &mut usize, v: Option<usize>) {
+    if let Some(v) = v {
+        *dst = v;
     }
 }
 
-/// `morph SOURCE TARGET`: progress bars on a terminal, JSON lines with --json.
-pub fn run(args: &MorphArgs) -> ExitCode {
-    use indicatif::{ProgressBar, ProgressStyle};
-    use std::io::IsTerminal;
-    // The library checks the settings (morph_to_folder, before the folder is touched).
-    let (settings, source, targets) = match args.job() {
-        Ok(j) => j,
-        Err(e) => return fail_run(args, 2, &e),
-    };
-    let stop = match stop_on_signals(args.json, &morph::io::outdir::partial_dir(&args.output)) {
-        Ok(s) => s,
-        Err(e) => return fail_run(args, 1, &format!("cannot watch for signals: {e}")),
-    };
-    let openjd = args.progress == ProgressShown::Openjd;
-    let show_bar = !args.quiet && !args.json && !openjd && std::io::stderr().is_terminal();
-    // Open Job Description progress: the percent when its first decimal changes; 100 only
-    // once every file is written.
-    let mut meter = morph::progress::ProgressMeter::new();
-    let mut shown_percent = String::new();
-    let bar = ProgressBar::hidden();
-    let mut last_loss = f64::NAN;
-    let on_event = |e: &MorphEvent| {
-        if args.json {
-            use std::io::Write;
-            let line = serde_json::to_string(e).expect("plain event");
-            if writeln!(std::io::stdout(), "{line}").is_err() {
-                // Nobody reads the events any more: stop as for a signal, keeping the work.
-                stop.store(libc::SIGPIPE as usize, std::sync::atomic::Ordering::Relaxed);
-            }
-            return;
-        }
-        if openjd {
-            let percent = format!("{:.1}", 100.0 * meter.observe(e).min(0.999));
-            // With --resume, setup and a level's start know no progress yet (a resumed run's
-            // starts at its checkpoint): shown from the first step or segment on, so it never
-            // goes back. A fresh run starts at 0.
-            let measured =
-                !args.resume || !matches!(e, MorphEvent::Setup { .. } | MorphEvent::Level { .. });
-            if measured && percent != shown_percent {
-                say!("openjd_progress: {percent}");
-                shown_percent = percent;
-            }
-            match e {
-                MorphEvent::Setup {
-                    particles,
-                    segments,
-                    passes,
-                    ..
-                } => say!(
-                    "openjd_status: morphing {particles} particles: {segments} segments x {passes} passes"
-                ),
-                MorphEvent::Level { level, levels, .. } => {
-                    say!("openjd_status: level {level} of {levels}")
-                }
-                MorphEvent::Segment { pass, segment, .. } => {
-                    let (passes, segments) = meter.level_plan();
-                    say!(
-                        "openjd_status: pass {} of {passes}, segment {} of {segments} done",
-                        pass + 1,
-                        segment + 1
-                    )
-                }
-                MorphEvent::Done { .. } => say!("openjd_status: writing the whole-sequence files"),
-                MorphEvent::Iteration { .. } => {}
-            }
-        }
-        match e {
-            MorphEvent::Setup {
-                particles,
-                grid_cells,
-                segments,
-                passes,
-                iterations,
-                warnings,
-                ..
-            } => {
-                if !args.quiet {
-                    for w in warnings {
-                        eprintln!("morph: warning: {w}");
-                    }
-                }
-                if show_bar {
-                    bar.set_draw_target(indicatif::ProgressDrawTarget::stderr());
-                    bar.set_length((segments * passes * iterations) as u64);
-                    bar.set_style(
-                        ProgressStyle::with_template(
-                            "{elapsed_precise} [{bar:30}] {pos}/{len} evaluations  {msg}",
-                        )
-                        .expect("valid template")
-                        .progress_chars("=> "),
-                    );
-                    bar.println(format!(
-                        "morph: {particles} particles on a {}x{}x{} grid, {segments} segments x {passes} passes",
-                        grid_cells[0], grid_cells[1], grid_cells[2]
-                    ));
-                }
-            }
-            MorphEvent::Iteration {
-                pass,
-                segment,
-                loss,
-                ..
-            } => {
-                if loss.is_finite() {
-                    last_loss = *loss;
-                }
-                bar.inc(1);
-                bar.set_message(format!(
-                    "pass {}  segment {}  loss {last_loss:.4e}",
-                    pass + 1,
-                    segment + 1
-                ));
-            }
-            MorphEvent::Level {
-                level,
-                levels,
-                particles,
-                grid_cells,
-                segments,
-                iterations,
-            } => {
-                if show_bar {
-                    bar.set_position(0);
-                    bar.set_length((segments * iterations) as u64);
-                    bar.println(format!(
-                        "morph: level {level} of {levels}: {particles} particles on a {}x{}x{} grid",
-                        grid_cells[0], grid_cells[1], grid_cells[2]
-                    ));
-                }
-            }
-            MorphEvent::Segment { .. } | MorphEvent::Done { .. } => {}
-        }
-    };
-    let request = morph::output::OutputRequest {
-        out: &args.output,
-        overwrite: args.overwrite,
-        resume: args.resume,
-        stop: Some(&stop),
-        memory_limit: args.memory_limit,
-        scene: args.scene.as_deref(),
-        on_frame: None,
-    };
-    let result = morph::output::morph_to_folder(&settings, &source, &targets, &request, on_event);
-    bar.finish_and_clear();
-    match result {
-        Ok(summary) => {
-            if args.progress == ProgressShown::Openjd {
-                say!("openjd_progress: 100.0");
-            }
-            if args.json {
-                say!(
-                    "{}",
-                    serde_json::json!({ "event": "written", "summary": summary })
-                );
-            } else if !args.quiet {
-                if summary.already_complete {
-                    say!(
-                        "{} is already complete for these inputs and settings; nothing to do",
-                        summary.output.display()
-                    );
-                    return ExitCode::SUCCESS;
-                }
-                if let Some(from) = &summary.resumed_from {
-                    say!("resumed from the checkpoint ({from})");
-                }
-                say!(
-                    "wrote {}: {} frames of {} particles; loss {:.4e} -> {:.4e}; target cells filled {:.1}%, particles outside {:.2}% (ejected {:.2}%); {:.1} s",
-                    summary.output.display(),
-                    summary.frames,
-                    summary.particles,
-                    summary.initial_loss,
-                    summary.final_loss,
-                    100.0 * summary.fill.target_cells_filled,
-                    100.0 * summary.fill.particles_outside,
-                    100.0 * summary.fill.particles_ejected,
-                    summary.seconds
-                );
-                if let Some(z) = &summary.sizing {
-                    say!("{}", sizing_line(z));
-                }
-                if let Some(o) = &summary.optimization {
-                    say!(
-                        "optimization: {} evaluations, {} steps undone (they raised the objective or blew the simulation up), {} of {} segments moved (loss down by {}% or more)",
-                        o.evaluations,
-                        o.undone_steps,
-                        o.segments_moved,
-                        o.segments,
-                        100.0 * morph::MOVED_SHARE
-                    );
-                }
-                if let Some(q) = &summary.quality {
-                    say!(
-                        "quality: IoU with the target {:.3}, fill {:.3} (1 = a lattice fill of the target; of its material {:.3}), surface gap {:.2} spacings, reach {:.2} (99%) and {:.2} (most) spacings (a lattice fill's {:.2} and {:.2}), ejected {:.2}%, close neighbours {:.1}%, J {:.2} to {:.2} (mean {:.2}, {:.2}% inverted)",
-                        q.iou,
-                        q.fill,
-                        q.material_fill,
-                        q.surface_gap,
-                        q.reach_p99,
-                        q.reach_max,
-                        q.perfect_reach_p99,
-                        q.perfect_reach_max,
-                        100.0 * q.ejected,
-                        100.0 * q.close_share,
-                        q.min_j,
-                        q.max_j,
-                        q.mean_j,
-                        100.0 * q.inverted
-                    );
-                }
-                if let Some(l) = summary
-                    .frames_summary
-                    .as_ref()
-                    .and_then(|f| f.surfaces.as_ref())
-                    .and_then(|s| s.likeness.as_ref())
-                {
-                    say!("{}", likeness_line(l));
-                }
-                if let Some(m) = &summary.motion {
-                    let ease = m
-                        .ease_error
-                        .map_or("n/a".to_string(), |e| format!("{e:.2}"));
-                    let from = if m.first_frame > 1 {
-                        format!(
-                            " (from frame {}, where the shape change begins)",
-                            m.first_frame
-                        )
-                    } else {
-                        String::new()
-                    };
-                    say!(
-                        "motion: pulse {:.2}, dip {:.2}, wobble {:.2}, settle {:.2}, ease error {ease}, {} frozen frames{from}",
-                        m.pulse,
-                        m.dip,
-                        m.wobble,
-                        m.settle,
-                        m.frozen_frames
-                    );
-                }
-                if let Some(f) = &summary.frames_summary {
-                    let volume = f.max_surface_volume_error.map_or(String::new(), |e| {
-                        format!("; surface volume within {:.1}% of the body's", 100.0 * e)
-                    });
-                    say!(
-                        "all frames: J {:.3} to {:.3}, {} frames with inverted particles, close neighbours at most {:.1}%{volume}",
-                        f.min_j,
-                        f.max_j,
-                        f.frames_inverted,
-                        100.0 * f.max_close_share
-                    );
-                    if let Some(line) = f.surfaces.as_ref().and_then(surfaces_line) {
-                        say!("surfaces: {line}");
-                    }
-                    if f.frames_inverted > 0 {
-                        eprintln!(
-                            "morph: warning: particles turned inside out (J <= 0) in {} frames; see the frames' min_j in manifest.json",
-                            f.frames_inverted
-                        );
-                    }
-                }
-            }
-            if !args.quiet {
-                for w in &summary.warnings {
-                    eprintln!("morph: warning: {w}");
-                }
-            }
-            ExitCode::SUCCESS
-        }
-        Err(MorphError::Interrupted { signal, kept }) => {
-            let code = (128 + signal).min(255) as u8;
-            let staging = morph::io::outdir::partial_dir(&args.output);
-            let message = if kept {
-                format!(
-                    "interrupted by {}: completed segments are kept in '{}'; run the same command with --resume to continue",
-                    signal_name(signal),
-                    staging.display()
-                )
-            } else {
-                format!(
-                    "interrupted by {} before any segment completed; nothing was kept",
-                    signal_name(signal)
-                )
-            };
-            eprintln!("morph: {message}");
-            if args.json {
-                say!(
-                    "{}",
-                    serde_json::json!({ "event": "interrupted", "signal": signal_name(signal), "message": message, "exit_code": code })
-                );
-            }
-            ExitCode::from(code)
-        }
-        Err(e) => {
-            let code = match e {
-                MorphError::Settings(_)
-                | MorphError::Mesh(morph::geometry::MeshError::BadOption(_)) => 2,
-                _ => 1,
-            };
-            fail_run(args, code, &e.to_string())
-        }
-    }
-}
+mod report;
+mod run;
 
-/// The summary's particles line: what the thin parts' rule chose and why.
-fn sizing_line(z: &morph::sizing::Sizing) -> String {
-    let name = std::path::Path::new(&z.thinnest)
-        .file_name()
-        .map_or(z.thinnest.clone(), |n| n.to_string_lossy().into_owned());
-    let mut line = format!(
-        "particles: {} per cell, the thinnest parts ({name}'s) {:.1} particles across (about {:.0} particles)",
-        z.per_cell, z.across, z.particles
-    );
-    if z.wanted_per_cell > z.per_cell {
-        line += &format!(
-            "; {} per cell would give them {:.1} across with about {:.0} particles, over the budget of {} (--particles-per-cell {} or --particles {:.0} asks for them)",
-            z.wanted_per_cell,
-            z.across / z.per_cell as f64 * z.wanted_per_cell as f64,
-            z.wanted_particles,
-            morph::sizing::DETAIL_BUDGET,
-            z.wanted_per_cell,
-            z.wanted_particles
-        );
-    }
-    line
-}
-
-/// The summary's likeness line: what a render of the last frame's rebuilt surface shows
-/// against the target.
-fn likeness_line(l: &morph::geometry::likeness::Likeness) -> String {
-    let [x, y, z] = l.silhouette_iou;
-    let (worst, direction) = l.worst_tips();
-    format!(
-        "likeness: silhouette IoU {x:.3} / {y:.3} / {z:.3} (seen along x / y / z), tips {:.1}% of the target's size from the surface at the top and {:.1}% at worst ({direction}; 90th percentile of its {:.0}% farthest vertices each way)",
-        100.0 * l.top_tips(),
-        100.0 * worst,
-        100.0 * morph::geometry::likeness::TIP_SHARE
-    )
-}
-
-/// The summary's surfaces line: each surface against its reference (normal deviation, share
-/// beyond 20 degrees), the carried surface's folds and the rebuilt one's creases against frame
-/// 1's; `None` where no surface was measured.
-fn surfaces_line(s: &morph::output::SurfaceSummary) -> Option<String> {
-    let against = |what: &str, f: &Option<morph::geometry::fidelity::Fidelity>| {
-        f.map(|f| {
-            format!(
-                "{what} {:.1} deg ({:.1}% beyond 20)",
-                f.mean_normal_deg,
-                100.0 * f.off_share
-            )
-        })
-    };
-    // The largest share over the frames, beside the body at rest's.
-    let worst = |what: &str, most: Option<f64>, rest: &str, at_rest: Option<f64>| {
-        most.map(|m| {
-            let r = at_rest.unwrap_or(0.0);
-            format!(
-                "{what} at most {:.2}% ({rest} {:.2}%)",
-                100.0 * m,
-                100.0 * r
-            )
-        })
-    };
-    let parts: Vec<String> = [
-        against("rebuilt frame 1 from the source", &s.rebuilt_first),
-        against("rebuilt last frame from the target", &s.rebuilt_last),
-        against("carried last frame from the target", &s.carried_last),
-        worst(
-            "carried folds",
-            s.max_carried_fold_share,
-            "the source",
-            s.source_fold_share,
-        ),
-        worst(
-            "rebuilt creases",
-            s.max_rebuilt_crease_share,
-            "frame 1",
-            s.rebuilt_first_crease_share,
-        ),
-    ]
-    .into_iter()
-    .flatten()
-    .collect();
-    (!parts.is_empty()).then(|| parts.join(", "))
-}
-
-/// A failed run: the one-line error (and with `--json` its event, with `--progress openjd` the
-/// farm's failure line).
-fn fail_run(args: &MorphArgs, code: u8, message: &str) -> ExitCode {
-    if args.progress == ProgressShown::Openjd {
-        say!("openjd_fail: {message}");
-    }
-    fail(args.json, code, message)
-}
+pub use run::run;

@@ -363,18 +363,16 @@ impl Rk4 {
         Ok(())
     }
 
+    /// The reverse of [`Rk4::rhs`]: the forward evaluation replayed, then its stages
+    /// backwards (G2P with dF/dt, the grid, P2G with the stress).
     fn rhs_reverse_impl<const N: usize>(&self, s: &State, at: &At, grad_out: &State) -> RhsGrad
     where
         Stencil<N>: Cached,
     {
-        let values = at.values;
         let mut fw = self
             .forward_grid::<N>(s, at)
             .expect("reverse pass replays a forward evaluation that succeeded");
         let n = s.len();
-        let par = n >= PARALLEL_MIN;
-        let strides = self.grid.strides();
-        let inv_d = self.inv_d();
         let mut grad = State::ode_zeros(n);
         // The forward evaluation's stencils (put back with the buffers at the end).
         let mut cache = std::mem::take(&mut fw.buf.stencils);
@@ -382,131 +380,174 @@ impl Rk4 {
         // dL/d(clamp velocity) per particle, summed per control afterwards (in particle order,
         // so the result does not depend on the thread count).
         let mut grad_u = vec![Vector3::zeros(); n];
+        self.g2p_rate_reverse::<N>(s, grad_out, &mut fw, stencils, &mut grad, &mut grad_u);
+        let effect_params = self.grid_rate_reverse(at, &mut fw.buf);
+        let grad_body =
+            self.p2g_rate_reverse::<N>(s, at.values, &mut fw, stencils, &mut grad, &mut grad_u);
+        fw.buf.stencils = cache;
+        self.pool.put(fw.buf);
+        let controls = self.control_value_grads(&grad_u, &grad_body);
+        RhsGrad {
+            state: grad,
+            controls,
+            effect_params,
+        }
+    }
 
-        // G2P and dF/dt reverse (scatter into the grid adjoints).
-        {
-            let Buffers {
-                grid_v,
-                grid_a,
-                grad_v,
-                grad_a,
-                grid_v_axes: grid_axes,
-                grad_v_axes: grad_axes,
-                grad_a_axes,
-                ..
-            } = &mut fw.buf;
-            let gx = SharedMut::new(&mut grad.x);
-            let gf = SharedMut::new(&mut grad.f);
-            let gu = SharedMut::new(&mut grad_u);
-            let gathered = &fw.gathered;
-            let bins = &fw.bins;
-            // Tile channels 0-2: dL/dv's axes; 3-5: dL/da's.
-            let nodes = grid_v.len();
-            let AxisField { axes: gv, tiles } = grad_axes;
-            let ga = &mut grad_a_axes.axes;
-            for axis in gv.iter_mut().chain(ga.iter_mut()) {
-                axis.resize(nodes, 0.0);
-            }
-            let [gv0, gv1, gv2] = gv;
-            let [ga0, ga1, ga2] = ga;
-            bins.scatter(
-                par,
-                tiles,
-                &mut [gv0, gv1, gv2, ga0, ga1, ga2],
-                |tile, p| {
-                    let g_out = &gathered[p];
-                    let g_df = grad_out.f[p];
-                    let mut g = Gathered {
-                        velocity: grad_out.x[p],
-                        acceleration: grad_out.v[p],
-                        grad_v: g_df * s.f[p].transpose(),
-                    };
-                    if self.is_clamped(p) {
-                        // SAFETY: each particle is visited exactly once.
-                        unsafe { *gu.get(p) += g.velocity };
-                        g.velocity = Vector3::zeros();
-                        g.acceleration = Vector3::zeros();
-                    }
-                    let st = &stencils[p];
-                    let d = transfer::gather_affine_reverse(
-                        self.simd,
-                        st,
-                        &strides,
-                        grid_axes,
-                        inv_d,
-                        &g.velocity,
-                        &g.grad_v,
-                        &g_out.velocity,
-                        tile,
-                    ) + transfer::interpolate_reverse(
-                        st,
-                        &strides,
-                        grid_a,
-                        &g.acceleration,
-                        tile,
-                        3,
-                    );
+    /// G2P and dF/dt reverse: a scatter into the grid adjoints (`fw.buf.grad_v`, `grad_a`),
+    /// into `grad.x`, `grad.f` and the clamped particles' `grad_u`.
+    fn g2p_rate_reverse<const N: usize>(
+        &self,
+        s: &State,
+        grad_out: &State,
+        fw: &mut Forward,
+        stencils: &[Stencil<N>],
+        grad: &mut State,
+        grad_u: &mut [Vector3<f64>],
+    ) where
+        Stencil<N>: Cached,
+    {
+        let par = s.len() >= PARALLEL_MIN;
+        let strides = self.grid.strides();
+        let inv_d = self.inv_d();
+        let Buffers {
+            grid_v,
+            grid_a,
+            grad_v,
+            grad_a,
+            grid_v_axes: grid_axes,
+            grad_v_axes: grad_axes,
+            grad_a_axes,
+            ..
+        } = &mut fw.buf;
+        let gx = SharedMut::new(&mut grad.x);
+        let gf = SharedMut::new(&mut grad.f);
+        let gu = SharedMut::new(grad_u);
+        let gathered = &fw.gathered;
+        let bins = &fw.bins;
+        // Tile channels 0-2: dL/dv's axes; 3-5: dL/da's.
+        let nodes = grid_v.len();
+        let AxisField { axes: gv, tiles } = grad_axes;
+        let ga = &mut grad_a_axes.axes;
+        for axis in gv.iter_mut().chain(ga.iter_mut()) {
+            axis.resize(nodes, 0.0);
+        }
+        let [gv0, gv1, gv2] = gv;
+        let [ga0, ga1, ga2] = ga;
+        bins.scatter(
+            par,
+            tiles,
+            &mut [gv0, gv1, gv2, ga0, ga1, ga2],
+            |tile, p| {
+                let g_out = &gathered[p];
+                let g_df = grad_out.f[p];
+                let mut g = Gathered {
+                    velocity: grad_out.x[p],
+                    acceleration: grad_out.v[p],
+                    grad_v: g_df * s.f[p].transpose(),
+                };
+                if self.is_clamped(p) {
                     // SAFETY: each particle is visited exactly once.
-                    unsafe {
-                        *gx.get(p) += d;
-                        *gf.get(p) += g_out.grad_v.transpose() * g_df;
-                    }
-                },
-            );
-            grad_axes.write_vectors(grad_v);
-            grad_a_axes.write_vectors(grad_a);
-        }
-
-        // Grid reverse: the effects backwards (each given its inputs, replayed from the
-        // quotient), then v = p / m, a = f / m. Parameter gradients are summed over nodes in
-        // the order of the active list, so they do not depend on the thread count.
-        let mut effect_params = self.zero_effect_params();
-        {
-            let Buffers {
-                nodes,
-                grid_mass,
-                grad_v,
-                grad_a,
-                grad_nodes,
-                active,
-                ..
-            } = &mut fw.buf;
-            let ctx = self.grid_context(grid_mass, at);
-            let effects = GridEffects::new(&self.effects, GridForm::Rate);
-            let width = effects.width();
-            let mut node_params = vec![0.0; active.len() * width];
-            let gn = SharedMut::new(grad_nodes);
-            let reverse_node = |i: usize, params: &mut [f64]| {
-                let [v, a] = transfer::quotient(&nodes[i]);
-                let mut grad = NodeMotion {
-                    v: grad_v[i],
-                    a: grad_a[i],
-                };
-                if nodes[i].mass > 0.0 {
-                    effects.reverse(&ctx, i, &NodeMotion { v, a }, &mut grad, params);
+                    unsafe { *gu.get(p) += g.velocity };
+                    g.velocity = Vector3::zeros();
+                    g.acceleration = Vector3::zeros();
                 }
-                // SAFETY: active node indices are distinct.
+                let st = &stencils[p];
+                let d = transfer::gather_affine_reverse(
+                    self.simd,
+                    st,
+                    &strides,
+                    grid_axes,
+                    inv_d,
+                    &g.velocity,
+                    &g.grad_v,
+                    &g_out.velocity,
+                    tile,
+                ) + transfer::interpolate_reverse(
+                    st,
+                    &strides,
+                    grid_a,
+                    &g.acceleration,
+                    tile,
+                    3,
+                );
+                // SAFETY: each particle is visited exactly once.
                 unsafe {
-                    *gn.get(i) =
-                        transfer::quotient_reverse(nodes[i].mass, &[v, a], &[grad.v, grad.a])
-                };
-            };
-            if width > 0 {
-                active
-                    .par_iter()
-                    .zip(node_params.par_chunks_mut(width))
-                    .with_min_len(1024)
-                    .for_each(|(&i, params)| reverse_node(i as usize, params));
-                effects.add_rows(&node_params, &mut effect_params);
-            } else {
-                active
-                    .par_iter()
-                    .with_min_len(1024)
-                    .for_each(|&i| reverse_node(i as usize, &mut []));
-            }
-        }
+                    *gx.get(p) += d;
+                    *gf.get(p) += g_out.grad_v.transpose() * g_df;
+                }
+            },
+        );
+        grad_axes.write_vectors(grad_v);
+        grad_a_axes.write_vectors(grad_a);
+    }
 
-        // P2G reverse (gather) and the stress reverse.
+    /// Grid reverse: the effects backwards (each given its inputs, replayed from the
+    /// quotient), then v = p / m, a = f / m, into `buf.grad_nodes`. Parameter gradients are
+    /// summed over nodes in the order of the active list, so they do not depend on the
+    /// thread count.
+    fn grid_rate_reverse(&self, at: &At, buf: &mut Buffers) -> Vec<Vec<f64>> {
+        let mut effect_params = self.zero_effect_params();
+        let Buffers {
+            nodes,
+            grid_mass,
+            grad_v,
+            grad_a,
+            grad_nodes,
+            active,
+            ..
+        } = buf;
+        let ctx = self.grid_context(grid_mass, at);
+        let effects = GridEffects::new(&self.effects, GridForm::Rate);
+        let width = effects.width();
+        let mut node_params = vec![0.0; active.len() * width];
+        let gn = SharedMut::new(grad_nodes);
+        let reverse_node = |i: usize, params: &mut [f64]| {
+            let [v, a] = transfer::quotient(&nodes[i]);
+            let mut grad = NodeMotion {
+                v: grad_v[i],
+                a: grad_a[i],
+            };
+            if nodes[i].mass > 0.0 {
+                effects.reverse(&ctx, i, &NodeMotion { v, a }, &mut grad, params);
+            }
+            // SAFETY: active node indices are distinct.
+            unsafe {
+                *gn.get(i) = transfer::quotient_reverse(nodes[i].mass, &[v, a], &[grad.v, grad.a])
+            };
+        };
+        if width > 0 {
+            active
+                .par_iter()
+                .zip(node_params.par_chunks_mut(width))
+                .with_min_len(1024)
+                .for_each(|(&i, params)| reverse_node(i as usize, params));
+            effects.add_rows(&node_params, &mut effect_params);
+        } else {
+            active
+                .par_iter()
+                .with_min_len(1024)
+                .for_each(|&i| reverse_node(i as usize, &mut []));
+        }
+        effect_params
+    }
+
+    /// P2G reverse (a gather) and the stress reverse, into `grad` and the clamped particles'
+    /// `grad_u`; returns dL/d(body acceleration) per particle.
+    fn p2g_rate_reverse<const N: usize>(
+        &self,
+        s: &State,
+        values: &[Vector3<f64>],
+        fw: &mut Forward,
+        stencils: &[Stencil<N>],
+        grad: &mut State,
+        grad_u: &mut [Vector3<f64>],
+    ) -> Vec<Vector3<f64>>
+    where
+        Stencil<N>: Cached,
+    {
+        let n = s.len();
+        let strides = self.grid.strides();
         let mut grad_body = vec![Vector3::zeros(); n];
         fw.buf.grad_node_axes.set_from(&fw.buf.grad_nodes);
         let grad_nodes = &fw.buf.grad_node_axes;
@@ -557,15 +598,7 @@ impl Rk4 {
                     |i, _, g_f| gf[i] += g_f,
                 );
             });
-        fw.buf.stencils = cache;
-        self.pool.put(fw.buf);
-
-        let controls = self.control_value_grads(&grad_u, &grad_body);
-        RhsGrad {
-            state: grad,
-            controls,
-            effect_params,
-        }
+        grad_body
     }
 
     /// Checks a state before integrating it.

@@ -55,8 +55,8 @@ impl Engine {
 macro_rules! __with_integrator {
     ($engine:expr, $i:ident => $body:expr) => {
         match $engine {
-            $crate::engine::Engine::Euler($i) => $body,
-            $crate::engine::Engine::Rk4($i) => $body,
+            $crate::Engine::Euler($i) => $body,
+            $crate::Engine::Rk4($i) => $body,
         }
     };
 }

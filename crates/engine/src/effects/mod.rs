@@ -21,7 +21,7 @@ mod drag;
 mod gravity;
 mod walls;
 
-pub use collider::{Collider, ColliderShape};
+pub use collider::{Collider, ColliderShape, Solid};
 pub use drag::Drag;
 pub use gravity::Gravity;
 pub use walls::{WallMode, Walls};

@@ -1,12 +1,13 @@
 //! Scene description (serde JSON): grid, time step, kernel, material, particles' density and
 //! the list of effects that are on. Only listed effects run.
 
-use crate::effects::{Collider, ColliderShape, Drag, Effect, Gravity, WallMode, Walls};
+use crate::effects::{Collider, ColliderShape, Drag, Effect, Gravity, Solid, WallMode, Walls};
 use crate::material::{ConstitutiveModel, MaterialModel};
 use crate::mpm::model::Model;
 use crate::mpm::{Euler, GridSpec, KernelKind, SimError};
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
+use std::path::Path;
 use std::sync::Arc;
 
 /// One effect and its parameters.
@@ -60,14 +61,19 @@ impl EffectConfig {
         }
     }
 
-    /// The effect on `grid` (colliders find their boundary nodes on it).
-    pub fn build(&self, grid: &GridSpec) -> Result<Box<dyn Effect>, SimError> {
+    /// The effect on `grid` (colliders find their boundary nodes on it; `solids` loads the
+    /// meshes mesh colliders name).
+    pub fn build(
+        &self,
+        grid: &GridSpec,
+        solids: &dyn SolidLoader,
+    ) -> Result<Box<dyn Effect>, SimError> {
         let bad = |why: String| Err(SimError::InvalidScene(why));
         Ok(match *self {
             EffectConfig::Collider {
                 ref shape,
                 friction,
-            } => Box::new(collider(shape, friction, grid)?),
+            } => Box::new(collider(shape, friction, grid, solids)?),
 
             EffectConfig::Drag {
                 coefficient,
@@ -108,8 +114,38 @@ impl EffectConfig {
     }
 }
 
+/// What loads the solid of a mesh collider (the engine reads no files: the layer above
+/// implements it, `morph::geometry::MeshSolids`).
+pub trait SolidLoader {
+    /// The inside of the closed mesh at `path`, mapped by `x -> scale x + translation`; the
+    /// error is the whole message (it names the file).
+    fn load(
+        &self,
+        path: &Path,
+        scale: f64,
+        translation: Vector3<f64>,
+    ) -> Result<Box<dyn Solid>, String>;
+}
+
+/// The loader of scenes without mesh colliders: it refuses any.
+pub struct NoSolids;
+
+impl SolidLoader for NoSolids {
+    fn load(&self, path: &Path, _: f64, _: Vector3<f64>) -> Result<Box<dyn Solid>, String> {
+        Err(format!(
+            "collider {}: this scene was built without a mesh loader",
+            path.display()
+        ))
+    }
+}
+
 /// A collider's boundary on `grid`.
-fn collider(shape: &ColliderConfig, friction: f64, grid: &GridSpec) -> Result<Collider, SimError> {
+fn collider(
+    shape: &ColliderConfig,
+    friction: f64,
+    grid: &GridSpec,
+    solids: &dyn SolidLoader,
+) -> Result<Collider, SimError> {
     let bad = |why: String| Err(SimError::InvalidScene(why));
     if !(friction.is_finite() && friction >= 0.0) {
         return bad(format!(
@@ -139,18 +175,12 @@ fn collider(shape: &ColliderConfig, friction: f64, grid: &GridSpec) -> Result<Co
             scale,
             translation,
         } => {
-            let mesh = crate::geometry::load_mesh(path)
-                .map_err(|e| SimError::InvalidScene(format!("collider: {e}")))?;
-            if !mesh.mesh.topology().is_closed() {
-                return bad(format!(
-                    "collider mesh {} is not closed: its inside is not defined",
-                    path.display()
-                ));
-            }
-            let placed = mesh.mesh.transformed(*scale, &Vector3::from(*translation));
+            let solid = solids
+                .load(path, *scale, Vector3::from(*translation))
+                .map_err(SimError::InvalidScene)?;
             Collider::on_grid(
                 format!("collider {}", path.display()),
-                ColliderShape::Mesh(&placed),
+                ColliderShape::Solid(solid.as_ref()),
                 friction,
                 grid,
             )
@@ -218,8 +248,18 @@ impl SceneConfig {
     }
 
     /// Builds the model for particles of the given rest volumes (mass = density x volume), in
-    /// one place for both integrators.
+    /// one place for both integrators; a scene with a mesh collider needs
+    /// [`SceneConfig::model_with`].
     pub fn model(&self, volumes: Vec<f64>) -> Result<Model, SimError> {
+        self.model_with(volumes, &NoSolids)
+    }
+
+    /// [`SceneConfig::model`] with `solids` loading the meshes of mesh colliders.
+    pub fn model_with(
+        &self,
+        volumes: Vec<f64>,
+        solids: &dyn SolidLoader,
+    ) -> Result<Model, SimError> {
         let m = &self.material;
         for (name, val) in [("mu", m.mu), ("lambda", m.lambda), ("density", m.density)] {
             if !val.is_finite() || val < 0.0 || (name == "density" && val == 0.0) {
@@ -231,7 +271,7 @@ impl SceneConfig {
         let effects = self
             .effects
             .iter()
-            .map(|e| e.build(&self.grid))
+            .map(|e| e.build(&self.grid, solids))
             .collect::<Result<Vec<_>, _>>()?;
         let mass = volumes.iter().map(|v| v * m.density).collect();
         Model::new(

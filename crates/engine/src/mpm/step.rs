@@ -538,7 +538,9 @@ impl Euler {
     }
 
     /// Reverse of one step: turns `adj` from dL/d(post) into dL/d(pre) and returns dL/dFc.
-    /// Also returns dL/d(control values) when `values` (the forward pass's) are given.
+    /// Also returns dL/d(control values) when `values` (the forward pass's) are given. The
+    /// stages run backwards: the grid velocity G2P read (replayed from the tape), G2P with
+    /// the particle update, the grid update, P2G with the stress.
     #[allow(clippy::too_many_arguments)]
     fn reverse_impl<const N: usize>(
         &self,
@@ -554,25 +556,43 @@ impl Euler {
         Stencil<N>: Cached,
     {
         let mut laps = Laps::start(self.clock.as_deref());
+        let clamp_nodes = self.reverse_setup::<N>(tape, fc, values, rws);
+        laps.lap(Stage::RevSetup);
+        let grad_u = self.g2p_reverse::<N>(tape, post, values, adj, rws);
+        laps.lap(Stage::RevG2p);
+        let grad_clamp = self.grid_reverse(tape, &clamp_nodes, effect_params, rws);
+        laps.lap(Stage::RevGrid);
+        let (grad_fc, grad_mom) = self.p2g_stress_reverse::<N>(tape, fc, values, adj, rws);
+        laps.lap(Stage::RevP2gStress);
+        let grad_values = match values {
+            None => Vec::new(),
+            Some(_) => self.control_values_reverse(grad_u, &grad_mom, &grad_clamp),
+        };
+        (grad_fc, grad_values)
+    }
+
+    /// What the reverse stages read: each particle's elastic `Fe` (the control applied to
+    /// the tape's F), and the grid velocity G2P read, replayed from the tape through the grid
+    /// effects and the clamps. Returns the clamped nodes and their controls.
+    fn reverse_setup<const N: usize>(
+        &self,
+        tape: &StepTape,
+        fc: Option<&[Matrix3<f64>]>,
+        values: Option<&[Vector3<f64>]>,
+        rws: &mut ReverseWorkspace,
+    ) -> Vec<(usize, usize)>
+    where
+        Stencil<N>: Cached,
+    {
         let pre = &tape.pre;
-        let n = pre.len();
-        let nodes = self.grid.node_count();
-        let dt = self.dt;
-        let inv_d = self.inv_d();
-        let strides = self.grid.strides();
-        let origin = self.grid.origin_vec();
-        let dx = self.grid.dx;
         let form = self.control_form;
-        rws.fe.resize(n, Matrix3::zeros());
+        rws.fe.resize(pre.len(), Matrix3::zeros());
         rws.fe.par_iter_mut().enumerate().for_each(|(p, fe)| {
             *fe = match fc {
                 Some(fc) => form.apply_scaled(&pre.f[p], &fc[p], scale_of(&tape.scale, p)),
                 None => pre.f[p],
             }
         });
-        let fe = &rws.fe;
-
-        // The grid velocity G2P read: replayed from the tape through the grid effects.
         let ctx = self.grid_context(&tape.grid_mass, tape.step);
         let effects = GridEffects::new(&self.effects, GridForm::Step);
         rws.grid_v.clone_from(&tape.grid_v);
@@ -588,9 +608,28 @@ impl Euler {
             None => Vec::new(),
         };
         rws.grid_axes.set_from(&rws.grid_v);
-        let grid_v = &rws.grid_axes;
-        laps.lap(Stage::RevSetup);
+        clamp_nodes
+    }
 
+    /// G2P reverse with the particle update's (P2), into `adj.x`, `rws.grad_fe` and the grid
+    /// velocity's adjoint; returns dL/d(prescribed velocity) of each clamped particle.
+    fn g2p_reverse<const N: usize>(
+        &self,
+        tape: &StepTape,
+        post: &State,
+        values: Option<&[Vector3<f64>]>,
+        adj: &mut StateGrad,
+        rws: &mut ReverseWorkspace,
+    ) -> Vec<Vector3<f64>>
+    where
+        Stencil<N>: Cached,
+    {
+        let pre = &tape.pre;
+        let n = pre.len();
+        let nodes = self.grid.node_count();
+        let (dt, inv_d) = (self.dt, self.inv_d());
+        let (strides, origin, dx) = (self.grid.strides(), self.grid.origin_vec(), self.grid.dx);
+        let (fe, grid_v) = (&rws.fe, &rws.grid_axes);
         // P2 reverse and G2P reverse, fused per particle (a scatter into the grid velocity
         // adjoint, block by block into tiles). A clamped particle's velocity is its
         // prescribed one: its adjoint goes to the control (`grad_u`), not to the gather.
@@ -631,30 +670,65 @@ impl Euler {
                 );
             });
         }
-        laps.lap(Stage::RevG2p);
+        grad_u
+    }
 
+    /// The grid update's reverse: the clamped nodes' adjoints go to their controls, then the
+    /// effects backwards, then `v = p / m`, into `rws.grad_nodes`. Returns dL/d(clamp values).
+    fn grid_reverse(
+        &self,
+        tape: &StepTape,
+        clamp_nodes: &[(usize, usize)],
+        effect_params: &mut [Vec<f64>],
+        rws: &mut ReverseWorkspace,
+    ) -> Vec<Vector3<f64>> {
+        let ctx = self.grid_context(&tape.grid_mass, tape.step);
+        let effects = GridEffects::new(&self.effects, GridForm::Step);
         rws.grad_axes.write_vectors(&mut rws.grad_grid_v);
         // The clamped nodes' velocities are the controls' values.
         let grad_grid_v = &mut rws.grad_grid_v;
         let mut grad_clamp = vec![Vector3::zeros(); self.controls.effects.len()];
-        for &(i, e) in &clamp_nodes {
+        for &(i, e) in clamp_nodes {
             grad_clamp[e] += grad_grid_v[i];
             grad_grid_v[i] = Vector3::zeros();
         }
-
-        // G reverse: effects backwards, then v = p / m.
         reverse_grid_effects(&effects, &ctx, &tape.grid_v, grad_grid_v, effect_params);
-        rws.grad_nodes.resize(nodes, Node::ZERO);
+        rws.grad_nodes.resize(self.grid.node_count(), Node::ZERO);
         grid_velocity_reverse(
             &tape.grid_mass,
             &tape.grid_v,
             grad_grid_v,
             &mut rws.grad_nodes,
         );
-        laps.lap(Stage::RevGrid);
+        grad_clamp
+    }
 
-        // P2G reverse (gather) and P1 reverse, in batches of CHUNK particles (the material
-        // takes their stress differentials together).
+    /// P2G reverse (a gather) and the stress's (P1), in batches of CHUNK particles (the
+    /// material takes their stress differentials together), into `adj`. Returns dL/dFc and
+    /// dL/d(scattered momentum) per particle (for the controls, when `values` are given).
+    fn p2g_stress_reverse<const N: usize>(
+        &self,
+        tape: &StepTape,
+        fc: Option<&[Matrix3<f64>]>,
+        values: Option<&[Vector3<f64>]>,
+        adj: &mut StateGrad,
+        rws: &mut ReverseWorkspace,
+    ) -> (Vec<Matrix3<f64>>, Vec<Vector3<f64>>)
+    where
+        Stencil<N>: Cached,
+    {
+        let pre = &tape.pre;
+        let n = pre.len();
+        let strides = self.grid.strides();
+        let form = self.control_form;
+        let fe = &rws.fe;
+        let clamped = |p: usize| values.is_some() && self.is_clamped(p);
+        let StateGrad {
+            x: ax,
+            v: av,
+            c: ac,
+            f: af,
+        } = adj;
         let retention = self.momentum_retention(tape.step);
         let body = values.map(|v| self.body_accelerations(v));
         let mut grad_fc = vec![Matrix3::zeros(); n];
@@ -737,26 +811,31 @@ impl Euler {
                     },
                 );
             });
-        laps.lap(Stage::RevP2gStress);
-        let grad_values = match values {
-            None => Vec::new(),
-            Some(_) => {
-                let mut grad_body = vec![Vector3::zeros(); n];
-                for p in 0..n {
-                    let m = self.mass[p];
-                    if self.is_clamped(p) {
-                        grad_u[p] += m * grad_mom[p];
-                    } else {
-                        grad_body[p] = (dt * m) * grad_mom[p];
-                    }
-                }
-                let mut g = self.control_value_grads(&grad_u, &grad_body);
-                for (g, c) in g.iter_mut().zip(&grad_clamp) {
-                    *g += c;
-                }
-                g
+        (grad_fc, grad_mom)
+    }
+
+    /// dL/d(control values) from the clamped particles' prescribed velocities (`grad_u`),
+    /// the scattered momenta (`grad_mom`: body forces, clamps) and the clamped nodes.
+    fn control_values_reverse(
+        &self,
+        mut grad_u: Vec<Vector3<f64>>,
+        grad_mom: &[Vector3<f64>],
+        grad_clamp: &[Vector3<f64>],
+    ) -> Vec<Vector3<f64>> {
+        let n = grad_mom.len();
+        let mut grad_body = vec![Vector3::zeros(); n];
+        for p in 0..n {
+            let m = self.mass[p];
+            if self.is_clamped(p) {
+                grad_u[p] += m * grad_mom[p];
+            } else {
+                grad_body[p] = (self.dt * m) * grad_mom[p];
             }
-        };
-        (grad_fc, grad_values)
+        }
+        let mut g = self.control_value_grads(&grad_u, &grad_body);
+        for (g, c) in g.iter_mut().zip(grad_clamp) {
+            *g += c;
+        }
+        g
     }
 }

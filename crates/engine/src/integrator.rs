@@ -1,7 +1,7 @@
 //! Integrators behind one trait: symplectic-Euler MLS-MPM ([`crate::mpm::Euler`]) and RK4
 //! on the ODE form ([`crate::ode::Rk4`]), both over the same [`Model`]. A caller that
 //! optimizes deformation-gradient controls (the morph) is written once against
-//! [`Integrator`]; [`crate::engine::Engine`] holds whichever one the settings chose.
+//! [`Integrator`]; [`crate::Engine`] holds whichever one the settings chose.
 
 use crate::mpm::ControlParams;
 use crate::mpm::model::Model;

@@ -31,8 +31,6 @@
 //! It is smooth, so the reverse pass is its exact derivative.
 
 use super::{Effect, GridContext, GridForm, NodeMotion};
-use crate::geometry::TriMesh;
-use crate::geometry::winding::WindingNumber;
 use crate::mpm::GridSpec;
 use nalgebra::Vector3;
 use rayon::prelude::*;
@@ -59,8 +57,18 @@ pub enum ColliderShape<'a> {
         point: Vector3<f64>,
         normal: Vector3<f64>,
     },
-    /// The inside of a closed mesh (by its winding number).
-    Mesh(&'a TriMesh),
+    /// Any solid the layer above describes (a closed mesh, by its winding number).
+    Solid(&'a dyn Solid),
+}
+
+/// A solid a collider is built from, in simulation coordinates: the engine asks which grid
+/// nodes lie inside and where the nearest surface point is (a closed mesh implements it in
+/// `morph::geometry`; the engine knows nothing of meshes).
+pub trait Solid: Sync {
+    /// Whether `q` lies inside the solid.
+    fn contains(&self, q: &Vector3<f64>) -> bool;
+    /// The point of the solid's surface nearest to `q`.
+    fn nearest_surface_point(&self, q: &Vector3<f64>) -> Vector3<f64>;
 }
 
 impl Collider {
@@ -88,25 +96,16 @@ impl Collider {
                     .map(|i| (i, normal))
                     .collect()
             }
-            ColliderShape::Mesh(mesh) => {
-                let winding = WindingNumber::new(mesh);
-                let tris: Vec<[Vector3<f64>; 3]> =
-                    mesh.triangles.iter().map(|t| mesh.corners(t)).collect();
+            ColliderShape::Solid(solid) => {
                 let inside: Vec<usize> = (0..count)
                     .into_par_iter()
-                    .filter(|&i| winding.at(&position(i)) > 0.5)
+                    .filter(|&i| solid.contains(&position(i)))
                     .collect();
                 inside
                     .into_par_iter()
                     .map(|i| {
                         let q = position(i);
-                        let nearest = tris
-                            .iter()
-                            .map(|t| closest_point_on_triangle(&q, t))
-                            .min_by(|a, b| {
-                                (a - q).norm_squared().total_cmp(&(b - q).norm_squared())
-                            })
-                            .unwrap_or(q);
+                        let nearest = solid.nearest_surface_point(&q);
                         let out = nearest - q;
                         // A node on the surface itself: the normal of the triangle there.
                         let normal = if out.norm() > 1e-12 * grid.dx {
@@ -302,40 +301,6 @@ fn contact_force(vn: f64, an: f64, dt: f64) -> f64 {
     (-an).max(0.0) + (-vn).max(0.0) / dt
 }
 
-/// The point of triangle `t` nearest to `p` (by the triangle's Voronoi regions).
-pub fn closest_point_on_triangle(p: &Vector3<f64>, t: &[Vector3<f64>; 3]) -> Vector3<f64> {
-    let [a, b, c] = t;
-    let (ab, ac, ap) = (b - a, c - a, p - a);
-    let (d1, d2) = (ab.dot(&ap), ac.dot(&ap));
-    if d1 <= 0.0 && d2 <= 0.0 {
-        return *a;
-    }
-    let bp = p - b;
-    let (d3, d4) = (ab.dot(&bp), ac.dot(&bp));
-    if d3 >= 0.0 && d4 <= d3 {
-        return *b;
-    }
-    let vc = d1 * d4 - d3 * d2;
-    if vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0 {
-        return a + ab * (d1 / (d1 - d3));
-    }
-    let cp = p - c;
-    let (d5, d6) = (ab.dot(&cp), ac.dot(&cp));
-    if d6 >= 0.0 && d5 <= d6 {
-        return *c;
-    }
-    let vb = d5 * d2 - d1 * d6;
-    if vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0 {
-        return a + ac * (d2 / (d2 - d6));
-    }
-    let va = d3 * d6 - d5 * d4;
-    if va <= 0.0 && (d4 - d3) >= 0.0 && (d5 - d6) >= 0.0 {
-        return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
-    }
-    let denom = 1.0 / (va + vb + vc);
-    a + ab * (vb * denom) + ac * (vc * denom)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -426,24 +391,6 @@ mod tests {
                     g_a[k]
                 );
             }
-        }
-    }
-
-    #[test]
-    fn closest_point_covers_every_region() {
-        let t = [Vector3::zeros(), Vector3::x(), Vector3::y()];
-        let cases = [
-            (Vector3::new(0.2, 0.2, 1.0), Vector3::new(0.2, 0.2, 0.0)),
-            (Vector3::new(-1.0, -1.0, 0.0), Vector3::zeros()),
-            (Vector3::new(2.0, -0.5, 0.0), Vector3::x()),
-            (Vector3::new(0.5, -1.0, 0.3), Vector3::new(0.5, 0.0, 0.0)),
-            (Vector3::new(1.0, 1.0, 0.0), Vector3::new(0.5, 0.5, 0.0)),
-        ];
-        for (p, want) in cases {
-            assert!(
-                (closest_point_on_triangle(&p, &t) - want).norm() < 1e-12,
-                "{p:?}"
-            );
         }
     }
 }

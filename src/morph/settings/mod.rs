@@ -2,13 +2,15 @@
 
 use super::basis::ControlResolution;
 use super::segment::{Optimizer, OptimizerSettings};
+use crate::engine::integrator::IntegratorKind;
+use crate::engine::mpm::{ControlForm, KernelKind};
+use crate::engine::scene::MaterialConfig;
 use crate::geometry::TargetFit;
-use crate::integrator::IntegratorKind;
 pub use crate::io::usd::UsdFormat;
 use crate::loss::MassLossKind;
-use crate::mpm::{ControlForm, KernelKind};
-use crate::scene::MaterialConfig;
 use serde::{Deserialize, Serialize};
+
+mod validate;
 
 /// Allowed ranges of the count settings; [`MorphSettings::validate`] and the CLI's `--help`
 /// both read them.
@@ -373,7 +375,7 @@ pub struct MeshCollider {
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct WallSettings {
     /// Slip (the body slides along a wall) or sticky (it stops there).
-    pub mode: crate::effects::WallMode,
+    pub mode: crate::engine::effects::WallMode,
     /// Depth in grid cells, at least [`MIN_WALL_THICKNESS`].
     pub thickness: usize,
 }
@@ -385,7 +387,7 @@ pub const MIN_WALL_THICKNESS: usize = 3;
 impl Default for WallSettings {
     fn default() -> Self {
         WallSettings {
-            mode: crate::effects::WallMode::Slip,
+            mode: crate::engine::effects::WallMode::Slip,
             thickness: MIN_WALL_THICKNESS,
         }
     }
@@ -587,212 +589,6 @@ impl MorphSettings {
         })
         .map(|(name, v, d)| format!("--{name} {v:e} (default {d})"))
         .collect()
-    }
-
-    /// Checks every setting; the message names the option. Counts are checked before
-    /// anything is sized by them.
-    pub fn validate(&self) -> Result<(), String> {
-        let range = |name: &str, v: usize, r: std::ops::RangeInclusive<usize>| {
-            if r.contains(&v) {
-                Ok(())
-            } else {
-                Err(format!(
-                    "--{name} must be between {} and {}, got {v}",
-                    r.start(),
-                    r.end()
-                ))
-            }
-        };
-        range("resolution", self.resolution, limits::RESOLUTION)?;
-        if let Some(n) = self.particles {
-            range("particles", n, limits::PARTICLES)?;
-        }
-        range(
-            "particles-per-cell",
-            self.particles_per_cell,
-            limits::PARTICLES_PER_CELL,
-        )?;
-        if !(self.thin_across.is_finite()
-            && (0.0..=limits::MAX_THIN_ACROSS).contains(&self.thin_across))
-        {
-            return Err(format!(
-                "thin_across must be between 0 (off) and {}, got {}",
-                limits::MAX_THIN_ACROSS,
-                self.thin_across
-            ));
-        }
-        range("segments", self.segments, limits::SEGMENTS)?;
-        range("steps", self.steps_per_segment, limits::STEPS)?;
-        range(
-            "control-stride",
-            self.control_stride,
-            1..=self.steps_per_segment,
-        )?;
-        range("passes", self.passes, limits::PASSES)?;
-        range("iterations", self.optimizer.iterations, limits::ITERATIONS)?;
-        range("levels", self.levels, limits::LEVELS)?;
-        range("lookahead", self.lookahead, limits::LOOKAHEAD)?;
-        if let Some(n) = self.refine_iterations {
-            range("refine-iterations", n, limits::ITERATIONS)?;
-        }
-        range("frame-every", self.frame_every, limits::FRAME_EVERY)?;
-        range("start-frame", self.start_frame, limits::START_FRAME)?;
-        let positive = |name: &str, v: f64| {
-            if v.is_finite() && v > 0.0 {
-                Ok(())
-            } else {
-                Err(format!("--{name} must be a positive number, got {v}"))
-            }
-        };
-        let non_negative = |name: &str, v: f64| {
-            if v.is_finite() && v >= 0.0 {
-                Ok(())
-            } else {
-                Err(format!("--{name} must be >= 0, got {v}"))
-            }
-        };
-        positive("learning-rate", self.optimizer.learning_rate)?;
-        positive("density", self.material.density)?;
-        positive("mu", self.material.mu)?;
-        non_negative("lambda", self.material.lambda)?;
-        non_negative("arrival-weight", self.arrival_weight)?;
-        non_negative("volume-weight", self.volume_weight)?;
-        non_negative("path-weight", self.path_weight)?;
-        non_negative("waypoint-weight", self.waypoint_weight)?;
-        non_negative("control-smoothing", self.control_smoothing)?;
-        non_negative("fine-weight", self.fine_weight)?;
-        non_negative("reach-weight", self.reach_weight)?;
-        non_negative("drag", self.drag)?;
-        non_negative("settle-drag", self.settle_drag)?;
-        if !(self.carry_controls.is_finite() && (0.0..=1.0).contains(&self.carry_controls)) {
-            return Err(format!(
-                "--carry-controls must be in 0..=1, got {}",
-                self.carry_controls
-            ));
-        }
-        if !(self.progress_timing.is_finite() && (0.0..=1.0).contains(&self.progress_timing)) {
-            return Err(format!(
-                "--progress-timing must be in 0..=1, got {}",
-                self.progress_timing
-            ));
-        }
-        if !(self.jitter.is_finite() && (0.0..=1.0).contains(&self.jitter)) {
-            return Err(format!(
-                "--jitter must be between 0 and 1, got {}",
-                self.jitter
-            ));
-        }
-        if let Some(dt) = self.dt {
-            positive("dt", dt)?;
-            if self.fps.is_some() {
-                return Err("--dt and --fps cannot be combined: --fps chooses the step".into());
-            }
-        }
-        if let Some(fps) = self.fps
-            && !(fps.is_finite() && fps > 0.0 && fps <= limits::MAX_FPS)
-        {
-            return Err(format!(
-                "--fps must be above 0 and at most {}, got {fps}",
-                limits::MAX_FPS
-            ));
-        }
-        // The shot's length, counted before any list is sized by it.
-        let (step, frame_every) = self.timing();
-        if let Some(n) = self.frames {
-            range("frames", n, limits::FRAMES)?;
-            let segments = ((n - 1) as u128 * frame_every as u128)
-                .div_ceil(self.steps_per_segment.max(1) as u128);
-            if segments > *limits::SEGMENTS.end() as u128 {
-                return Err(format!(
-                    "--frames {n} makes {segments} segments of {} steps, more than {}; raise --steps or lower the frame spacing",
-                    self.steps_per_segment,
-                    limits::SEGMENTS.end()
-                ));
-            }
-        }
-        let interval = self.dt.unwrap_or(step) * frame_every as f64;
-        if 1.0 / interval > limits::MAX_FPS * (1.0 + 1e-9) {
-            return Err(format!(
-                "frames {interval:.3e} s apart play at {:.3e} frames per second, more than {}: raise --dt or --frame-every",
-                1.0 / interval,
-                limits::MAX_FPS
-            ));
-        }
-        let frames = self.shot().frame_count();
-        if frames < 2 {
-            let total: usize = self.shot().segment_steps.iter().sum();
-            return Err(format!(
-                "the shot lasts {} steps ({:.3} s) but frames are {frame_every} steps ({interval:.3} s) apart: only the rest shape would be written; lower the frame spacing (--fps, --frame-every) or lengthen the shot (--frames, --seconds, --segments)",
-                total,
-                total as f64 * self.dt.unwrap_or(step)
-            ));
-        }
-        for (k, &a) in self.at.iter().enumerate() {
-            let first = if k == 0 { 1 } else { self.at[k - 1] + 1 };
-            if !(first..=frames).contains(&a) {
-                return Err(format!(
-                    "--at: keyframe {} at frame {a} must be {}at most the last frame, {frames}",
-                    k + 1,
-                    if k == 0 {
-                        "at least 1 and ".to_string()
-                    } else {
-                        format!(
-                            "after the previous keyframe's frame {} and ",
-                            self.at[k - 1]
-                        )
-                    }
-                ));
-            }
-        }
-        // The shape change begins before the first keyframe (the default arrival when none
-        // is given), so the easing curve has frames to run over.
-        let first_key = self
-            .at
-            .first()
-            .copied()
-            .unwrap_or_else(|| default_arrival(frames));
-        if self.begin < 1 || (self.begin > 1 && self.begin >= first_key) {
-            return Err(format!(
-                "--begin {} must be at least 1 and before the first keyframe, frame {first_key}",
-                self.begin
-            ));
-        }
-        if let Some(g) = self.gravity
-            && !g.iter().all(|v| v.is_finite())
-        {
-            return Err(format!("gravity must be finite, got {g:?}"));
-        }
-        if !self.initial_velocity.iter().all(|v| v.is_finite()) {
-            return Err(format!(
-                "initial_velocity must be finite, got {:?}",
-                self.initial_velocity
-            ));
-        }
-        let frictions = self
-            .ground
-            .iter()
-            .map(|g| ("ground", g.friction))
-            .chain(self.colliders.iter().map(|c| ("collider", c.friction)));
-        for (what, mu) in frictions {
-            if !(mu.is_finite() && mu >= 0.0) {
-                return Err(format!("{what} friction must be >= 0, got {mu}"));
-            }
-        }
-        if let Some(g) = &self.ground
-            && !g.height.is_finite()
-        {
-            return Err(format!("ground height must be finite, got {}", g.height));
-        }
-        if self.walls.thickness < MIN_WALL_THICKNESS {
-            return Err(format!(
-                "walls thickness must be at least {MIN_WALL_THICKNESS} cells (the kernel's reach), got {}",
-                self.walls.thickness
-            ));
-        }
-        if self.target_fit == crate::geometry::TargetFit::OnGround && self.ground.is_none() {
-            return Err("--target-fit on-ground needs a ground plane (a scene's [ground])".into());
-        }
-        Ok(())
     }
 
     /// The frames a shot of `seconds` holds at this frame rate, the rest shape first

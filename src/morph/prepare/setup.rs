@@ -1,0 +1,429 @@
+//! The pieces of [`Prepared::from_sized`], in the order it takes them: the particles within a
+//! budget, the shot's timing, the effects, the substeps, the losses, the keyframes' masses,
+//! the body's own path before the first keyframe, the coarser level.
+
+use super::{MorphError, MorphSettings, Prepared, settings};
+use crate::engine::Engine;
+use crate::engine::integrator::Integrator;
+use crate::engine::mpm::{GridSpec, SimError, State};
+use crate::engine::scene::{EffectConfig, SceneConfig};
+use crate::geometry::{Jitter, LoadedMesh, MorphGeometry};
+use crate::loss::{FINE_KERNEL, FineMassLoss, MassLoss};
+use crate::morph::reach::ReachLoss;
+use nalgebra::Vector3;
+use std::path::Path;
+
+/// The source filled at the settings' resolution, or with `--particles` at the resolution
+/// whose count comes nearest the budget (which the returned settings hold).
+pub(super) fn geometry_in_budget(
+    settings: &MorphSettings,
+    source: (&LoadedMesh, &Path),
+    targets: &[(&LoadedMesh, &Path)],
+) -> Result<(MorphSettings, MorphGeometry), MorphError> {
+    let jitter = (settings.jitter > 0.0).then_some(Jitter {
+        amount: settings.jitter,
+        seed: settings.seed,
+    });
+    let geometry_at = |resolution: usize| {
+        let placement = settings.placement_options(resolution);
+        MorphGeometry::with_keyframes(
+            source,
+            targets,
+            &placement,
+            settings.particles_per_cell,
+            jitter,
+        )
+    };
+    let mut settings = settings.clone();
+    let Some(budget) = settings.particles else {
+        let geometry = geometry_at(settings.resolution)?;
+        return Ok((settings, geometry));
+    };
+    // Start from the resolution the shapes' volumes call for, then step one resolution at a
+    // time toward the budget while the count gets closer: the count grows with the
+    // resolution, so a larger budget never gets fewer particles.
+    let limits = settings::limits::RESOLUTION;
+    let mut r = Prepared::resolution_for_budget(&settings, source, targets)?;
+    let mut best = geometry_at(r)?;
+    let count = |g: &MorphGeometry| g.source.positions.len();
+    let up = count(&best) < budget;
+    for _ in 0..MAX_BUDGET_STEPS {
+        let next = if up { r + 1 } else { r.saturating_sub(1) };
+        if !limits.contains(&next) {
+            break;
+        }
+        let g = geometry_at(next)?;
+        if count(&g).abs_diff(budget) >= count(&best).abs_diff(budget) {
+            break;
+        }
+        let crossed = (count(&g) >= budget) == up;
+        (r, best) = (next, g);
+        if crossed {
+            break;
+        }
+    }
+    settings.resolution = r;
+    Ok((settings, best))
+}
+
+/// The settings with the shot's timing (`--fps`, `--frames`): the segments, the frame
+/// spacing and, when none were given, the targets' arrival frames; checked again with them.
+pub(super) fn timed(
+    mut settings: MorphSettings,
+    targets: usize,
+) -> Result<(MorphSettings, settings::Shot), MorphError> {
+    let shot = settings.shot();
+    settings.segments = shot.segment_steps.len();
+    settings.frame_every = shot.frame_every;
+    if settings.at.is_empty() {
+        // The last target near the end, earlier ones evenly before it.
+        let last = settings::default_arrival(shot.frame_count());
+        settings.at = (1..=targets)
+            .map(|k| 1 + (last - 1) * k / targets)
+            .collect();
+    }
+    settings.validate().map_err(MorphError::Settings)?;
+    Ok((settings, shot))
+}
+
+/// Substeps per morph step. Without a set dt, a morph step (1/120 s, or what --fps makes) is
+/// split into the fewest equal substeps that keep each within half the elastic stability
+/// bound: a stiffer material or a finer grid costs more substeps, never a shorter shot. A set
+/// dt above the bound is refused, with the bound; so is physics no control can move.
+pub(super) fn substeps(
+    settings: &MorphSettings,
+    scene: &SceneConfig,
+    shot: &settings::Shot,
+) -> Result<usize, MorphError> {
+    let (limit, wave_speed) = scene.stable_dt();
+    let segment_seconds = settings.dt.unwrap_or(shot.step) * settings.steps_per_segment as f64;
+    if limit > segment_seconds {
+        return Err(MorphError::Settings(format!(
+            "the material is too soft for its density: its elastic waves ({wave_speed:.3e} grid units per second) cross {:.2e} grid cells in a segment of {segment_seconds:.3} s, less than one, so no control can move the body; raise --youngs-modulus or lower --density",
+            segment_seconds / limit
+        )));
+    }
+    let frame_seconds = settings.dt.unwrap_or(shot.step) * shot.frame_every as f64;
+    for (name, drag) in [
+        ("drag", settings.drag),
+        ("drag and settle drag", settings.drag + settings.settle_drag),
+    ] {
+        if drag * frame_seconds > MAX_DRAG_DAMPING {
+            return Err(MorphError::Settings(format!(
+                "{name} {drag:.3e} leaves e^-{:.3e} of the body's speed from one frame to the next ({frame_seconds:.4} s apart), so nothing can move; use at most {:.3e}",
+                drag * frame_seconds,
+                MAX_DRAG_DAMPING / frame_seconds
+            )));
+        }
+    }
+    // The drag's explicit form keeps a share `1 - c dt` of the momentum each step: at most
+    // half of it may go in one step.
+    let most_drag = settings.drag + settings.settle_drag;
+    let limit = if most_drag > 0.0 {
+        limit.min(1.0 / most_drag)
+    } else {
+        limit
+    };
+    match settings.dt {
+        Some(dt) if dt > limit => Err(MorphError::Settings(format!(
+            "--dt {dt} is above the stable bound {limit:.4e} s of this material on this grid (elastic wave speed {wave_speed:.4} over a cell of {:.4}); use --dt {:.4e} or less, or leave it out to substep automatically",
+            scene.grid.dx,
+            0.5 * limit
+        ))),
+        Some(_) => Ok(1),
+        None => substeps_for(shot.step, 0.5 * limit).map_err(MorphError::Settings),
+    }
+}
+
+/// The mass loss toward the final target, the fine grid's when its weight is positive, and
+/// the reach cost when its weight is.
+pub(super) fn losses(
+    settings: &MorphSettings,
+    geometry: &MorphGeometry,
+) -> Result<(MassLoss, Option<FineMassLoss>, Option<ReachLoss>), MorphError> {
+    let target = geometry.target_masses(settings.kernel, settings.material.density)?;
+    let loss = MassLoss::new(settings.loss, target);
+    let fine_loss = if settings.fine_weight > 0.0 {
+        let grid = FineMassLoss::refine(&geometry.placement.grid, FINE_REFINE);
+        let target = geometry.target_masses_on(&grid, FINE_KERNEL, settings.material.density)?;
+        Some(FineMassLoss {
+            grid,
+            loss: MassLoss::new(settings.loss, target),
+            weight: settings.fine_weight,
+        })
+    } else {
+        None
+    };
+    let reach = (settings.reach_weight > 0.0).then(|| {
+        let spacing = geometry.placement.grid.dx / settings.particles_per_cell as f64;
+        ReachLoss::new(&geometry.target_sim, spacing, settings.reach_weight)
+    });
+    Ok((loss, fine_loss, reach))
+}
+
+/// The nodal masses of each keyframe target before the last, on the simulation grid and on
+/// the fine loss's grid when there is one.
+pub(super) fn keyframe_masses(
+    settings: &MorphSettings,
+    geometry: &MorphGeometry,
+    grid: &GridSpec,
+    fine_loss: Option<&FineMassLoss>,
+) -> Result<Vec<super::KeyframeMasses>, SimError> {
+    let density = settings.material.density;
+    (0..geometry.keyframes.len())
+        .map(|k| {
+            let on_sim = geometry.keyframe_masses_on(k, grid, settings.kernel, density)?;
+            let on_fine = match fine_loss {
+                Some(f) => Some(geometry.keyframe_masses_on(k, &f.grid, FINE_KERNEL, density)?),
+                None => None,
+            };
+            Ok((on_sim, on_fine))
+        })
+        .collect()
+}
+
+/// The morph steps at which the body's own path before the first keyframe (at step `first`)
+/// is kept: the segments' ends (and every frame when the path term needs it there), and the
+/// step the shape change begins at.
+pub(super) fn passive_ends(
+    settings: &MorphSettings,
+    shot: &settings::Shot,
+    first: usize,
+    begin: usize,
+) -> Vec<usize> {
+    let mut ends = Vec::new();
+    let mut end = 0;
+    for &n in &shot.segment_steps {
+        if settings.path_weight > 0.0 {
+            let every = settings.frame_every;
+            ends.extend((end + 1..end + n).filter(|s| s.is_multiple_of(every)));
+        }
+        end += n;
+        if end >= first {
+            break;
+        }
+        ends.push(end);
+    }
+    // The body's place where the shape change begins: the first section starts there.
+    if begin > 0 && !ends.contains(&begin) {
+        ends.push(begin);
+        ends.sort_unstable();
+    }
+    ends.retain(|&s| s < first);
+    ends
+}
+
+/// Where the body goes on its own (a run without controls from `initial`): its positions at
+/// each of the morph steps `ends`.
+pub(super) fn passive_path(
+    engine: &Engine,
+    initial: &State,
+    ends: &[usize],
+    substeps: usize,
+) -> Result<Vec<super::PassivePoint>, SimError> {
+    let mut passive = Vec::new();
+    let Some(&last) = ends.last() else {
+        return Ok(passive);
+    };
+    let mut state = initial.clone();
+    let mut on_step = |k: usize, st: &State| {
+        if (k + 1).is_multiple_of(substeps) && ends.contains(&((k + 1) / substeps)) {
+            passive.push(((k + 1) / substeps, st.x.clone()));
+        }
+    };
+    crate::engine::with_integrator!(engine, sim => {
+        sim.forward_observed(&mut state, &[], 0, last * substeps, None, Some(&mut on_step))
+    })?;
+    Ok(passive)
+}
+
+/// The same morph on a grid half as fine, when `settings.levels > 1`.
+pub(super) fn coarse_level(
+    settings: &MorphSettings,
+    source: (&LoadedMesh, &Path),
+    targets: &[(&LoadedMesh, &Path)],
+) -> Result<Option<Box<Prepared>>, MorphError> {
+    if settings.levels <= 1 {
+        return Ok(None);
+    }
+    let mut below = settings.clone();
+    below.resolution = settings.resolution.div_ceil(2);
+    below.particles = None;
+    below.thin_across = 0.0;
+    below.levels -= 1;
+    below.refine_iterations = None;
+    below.surfaces = settings::Surfaces::None;
+    // The coarsest level, checked here so the message names the levels asked for.
+    let coarsest = (1..settings.levels).fold(settings.resolution, |r, _| r.div_ceil(2));
+    let min = *settings::limits::RESOLUTION.start();
+    if coarsest < min {
+        return Err(MorphError::Settings(format!(
+            "--levels {} solves the morph on a grid of {coarsest} cells first, below the least resolution {min}: use fewer levels or a finer grid",
+            settings.levels
+        )));
+    }
+    Ok(Some(Box::new(Prepared::from_meshes(
+        &below, source, targets,
+    )?)))
+}
+
+/// The finer loss grid splits each simulation cell this many times per axis: one particle
+/// per fine cell at the default two per cell.
+pub const FINE_REFINE: usize = 2;
+
+/// The most drag may damp the body between two frames, as an exponent: `e^-10` leaves
+/// 0.005% of its speed, nothing a viewer could see move.
+pub const MAX_DRAG_DAMPING: f64 = 10.0;
+
+/// Resolutions `--particles` steps through from its estimate, at most.
+const MAX_BUDGET_STEPS: usize = 8;
+
+/// The morph's step when no dt is set: the reference's 1/120 s (simulated in substeps
+/// where the material or the grid needs a shorter one).
+pub const MORPH_STEP: f64 = 1.0 / 120.0;
+
+/// Substeps past which a morph is refused (the material is too stiff for its grid).
+pub const MAX_SUBSTEPS: usize = 10_000;
+
+/// The effects a morph's settings call for, in the order they act: drag on the particles
+/// (and the settle drag after the final arrival);
+/// then on the grid gravity, the ground and the colliders, and last the walls. Nothing else
+/// runs. World quantities (gravity, the ground's height, collider meshes) are mapped into
+/// simulation units by `placement`.
+pub(super) fn scene_effects(
+    settings: &MorphSettings,
+    placement: &crate::geometry::Placement,
+    shot: &settings::Shot,
+) -> Vec<EffectConfig> {
+    use crate::engine::scene::ColliderConfig;
+    let to_sim = placement.world_to_sim;
+    let mut effects = Vec::new();
+    if settings.drag > 0.0 {
+        effects.push(EffectConfig::drag(settings.drag));
+    }
+    if settings.settle_drag > 0.0 {
+        // From the final target's arrival frame on (frame 1 at time 0).
+        let frame_seconds = settings.dt.unwrap_or(shot.step) * shot.frame_every as f64;
+        let arrival = settings.at.last().copied().unwrap_or(1);
+        effects.push(EffectConfig::Drag {
+            coefficient: settings.settle_drag,
+            start: (arrival - 1) as f64 * frame_seconds,
+            ramp: settings::SETTLE_RAMP_FRAMES * frame_seconds,
+        });
+    }
+    if let Some(g) = settings.gravity {
+        effects.push(EffectConfig::Gravity {
+            acceleration: (to_sim.scale * Vector3::from(g)).into(),
+        });
+    }
+    if let Some(ground) = &settings.ground {
+        effects.push(EffectConfig::Collider {
+            shape: ColliderConfig::Plane {
+                point: to_sim.apply(&Vector3::new(0.0, ground.height, 0.0)).into(),
+                normal: [0.0, 1.0, 0.0],
+            },
+            friction: ground.friction,
+        });
+    }
+    for c in &settings.colliders {
+        effects.push(EffectConfig::Collider {
+            shape: ColliderConfig::Mesh {
+                path: c.mesh.clone(),
+                scale: to_sim.scale,
+                translation: to_sim.translation,
+            },
+            friction: c.friction,
+        });
+    }
+    // Always: a safety net, so no kernel stencil can leave the grid.
+    effects.push(EffectConfig::Walls {
+        mode: settings.walls.mode,
+        thickness: settings.walls.thickness,
+    });
+    effects
+}
+
+/// Particle-and-node steps a second one thread does in an optimizer's evaluation, forward
+/// and reverse (measured: 1.58 M on 2 threads over the README's job, 144 evaluations of 60
+/// steps over 11,752 particles and 22,308 nodes in 187 s).
+pub const STEPS_PER_THREAD_SECOND: f64 = 0.75e6;
+
+/// Runs estimated above this many seconds get a warning with the estimate before any work.
+pub const LONG_RUN_SECONDS: f64 = 3600.0;
+
+/// A warning with the run's estimated time when it is above [`LONG_RUN_SECONDS`]: every
+/// evaluation of every segment's window, a forward and a reverse pass over its steps, each
+/// step over the particles and the grid's nodes.
+pub(super) fn long_run_warning(
+    settings: &MorphSettings,
+    shot: &settings::Shot,
+    substeps: usize,
+    (particles, nodes): (usize, usize),
+) -> Option<String> {
+    let steps: usize = shot.segment_steps.iter().sum();
+    let window = settings.lookahead + 1;
+    let evaluations = settings.passes * settings.optimizer.iterations.max(1) * window;
+    let work = (steps * substeps) as f64 * evaluations as f64 * (particles + nodes) as f64;
+    let threads = rayon::current_num_threads() as f64;
+    let seconds = work / (STEPS_PER_THREAD_SECOND * threads);
+    (seconds > LONG_RUN_SECONDS).then(|| {
+        format!(
+            "this run is long: about {:.1} hours on {threads} threads ({} frames, {} segments x {} passes x {} iterations of {particles} particles); fewer frames (--frames, --fps) or particles make it shorter, and --resume continues it after an interruption",
+            seconds / 3600.0,
+            shot.frame_count(),
+            shot.segment_steps.len(),
+            settings.passes,
+            settings.optimizer.iterations
+        )
+    })
+}
+
+/// A warning for each collider (and the ground) that holds source particles at frame 1: the
+/// first step pushes them out at once, a jolt no control asked for.
+pub(super) fn overlap_warnings(
+    settings: &MorphSettings,
+    geometry: &crate::geometry::MorphGeometry,
+) -> Result<Vec<String>, MorphError> {
+    let to_sim = &geometry.placement.world_to_sim;
+    let particles = &geometry.source.positions;
+    let share = |inside: usize| 100.0 * inside as f64 / particles.len().max(1) as f64;
+    let mut warnings = Vec::new();
+    if let Some(ground) = &settings.ground {
+        let height = to_sim.apply(&Vector3::new(0.0, ground.height, 0.0)).y;
+        let below = particles.iter().filter(|p| p.y < height).count();
+        if below > 0 {
+            warnings.push(format!(
+                "the ground at height {} cuts the body at frame 1: {below} particles ({:.1}%) start below it and are pushed out by the first step; lower the ground or move the source",
+                ground.height,
+                share(below)
+            ));
+        }
+    }
+    for c in &settings.colliders {
+        let mesh = crate::geometry::load_mesh(&c.mesh)?;
+        let winding = crate::geometry::winding::WindingNumber::new(&to_sim.apply_mesh(&mesh.mesh));
+        let inside = {
+            use rayon::prelude::*;
+            particles.par_iter().filter(|p| winding.at(p) > 0.5).count()
+        };
+        if inside > 0 {
+            warnings.push(format!(
+                "collider {} overlaps the body at frame 1: {inside} particles ({:.1}%) start inside it and are pushed out by the first step; move the collider or the source",
+                c.mesh.display(),
+                share(inside)
+            ));
+        }
+    }
+    Ok(warnings)
+}
+
+/// The fewest equal substeps of `step` that are each at most `bound` seconds.
+pub fn substeps_for(step: f64, bound: f64) -> Result<usize, String> {
+    let n = (step / bound).ceil();
+    if !(n.is_finite() && n <= MAX_SUBSTEPS as f64) {
+        return Err(format!(
+            "the material needs a time step of {bound:.3e} s on this grid, {n:.0} substeps per 1/120 s step (at most {MAX_SUBSTEPS}); lower its stiffness or the resolution"
+        ));
+    }
+    Ok(n.max(1.0) as usize)
+}
