@@ -379,7 +379,6 @@ pub fn write(path: &Path, seq: &UsdSequence, format: UsdFormat) -> std::io::Resu
 /// The stage of `seq`: the frames on disk read back into one layer.
 fn build(seq: &UsdSequence) -> std::io::Result<Layer> {
     let n = seq.points.len();
-    let at = |p: &PathBuf| seq.dir.join(p);
     let mut layer = Layer::new(seq, n);
     let root = layer.prim(&sdf::Path::abs_root(), ROOT, "Xform");
     layer
@@ -387,7 +386,26 @@ fn build(seq: &UsdSequence) -> std::io::Result<Layer> {
         .spec_mut(&root)
         .expect("just made")
         .add(FieldKey::Kind, Value::Token("component".into()));
+    add_particles(&mut layer, &root, seq)?;
+    if let Some(files) = &seq.carried {
+        add_carried(&mut layer, &root, seq, files)?;
+    }
+    // The rebuilt surface: its topology changes from frame to frame.
+    if let Some(files) = &seq.rebuilt {
+        add_rebuilt(&mut layer, &root, seq, files)?;
+    }
+    // The volume: a Volume prim whose `density` field reads each frame's OpenVDB file
+    // (paths relative to this file, as the frames are).
+    if let Some(files) = &seq.volumes {
+        add_volume(&mut layer, &root, files);
+    }
+    Ok(layer)
+}
 
+/// The particles: ids, widths, rest positions, and per frame points, velocities, extent and
+/// J.
+fn add_particles(layer: &mut Layer, root: &sdf::Path, seq: &UsdSequence) -> std::io::Result<()> {
+    let (n, at) = (seq.points.len(), |p: &PathBuf| seq.dir.join(p));
     // Particles: each frame's values made as it is read (in f32, as USD holds them), so no
     // more than one f64 frame per thread is held at once.
     let first = match seq.points.first() {
@@ -399,7 +417,7 @@ fn build(seq: &UsdSequence) -> std::io::Result<Layer> {
         let j = Value::FloatVec(f.j.iter().map(|&j| j as f32).collect());
         Ok([vec3fs(&f.x), vec3fs(&f.v), extent(&f.x), j])
     })?;
-    let particles = layer.prim(&root, "particles", "Points");
+    let particles = layer.prim(root, "particles", "Points");
     let count = first.as_ref().map_or(0, |f| f.x.len());
     layer.attribute(
         &particles,
@@ -426,102 +444,117 @@ fn build(seq: &UsdSequence) -> std::io::Result<Layer> {
     let j = layer.samples(j);
     layer.vertex_primvar(&particles, "primvars:J", "float[]", j);
 
-    // The carried surface: the source's topology and UVs, points and velocities per frame.
-    if let Some(files) = &seq.carried {
-        // The topology and UVs once, from the first frame; each frame's positions.
-        let first = &read_obj(&at(&files[0]))?;
-        let frames = per_frame(n, |k| read_obj(&at(&files[k])).map(|f| f.positions))?;
-        let carried = layer.prim(&root, "carried", "Mesh");
-        layer.uniform_token(&carried, "subdivisionScheme", "none");
-        layer.uniform_token(&carried, "orientation", "rightHanded");
-        layer.attribute(&carried, "faceVertexCounts", "int[]", ints(&first.counts));
-        layer.attribute(&carried, "faceVertexIndices", "int[]", ints(&first.indices));
-        layer.vertex_primvar(
-            &carried,
-            "primvars:rest",
-            "point3f[]",
-            vec3fs(&first.positions),
-        );
-        if !first.uvs.is_empty() && first.uv_indices.iter().all(Option::is_some) {
-            let st = first
-                .uvs
-                .iter()
-                .map(|t| gf::Vec2f::from([t[0] as f32, t[1] as f32]))
-                .collect();
-            layer
-                .attribute(&carried, "primvars:st", "texCoord2f[]", Value::Vec2fVec(st))
-                .add("interpolation", Value::Token("faceVarying".into()));
-            let indices: Vec<usize> = first
-                .uv_indices
-                .iter()
-                .map(|i| i.expect("checked"))
-                .collect();
-            layer.attribute(&carried, "primvars:st:indices", "int[]", ints(&indices));
-        }
-        let points = layer.samples(frames.iter().map(|f| vec3fs(f)).collect());
-        layer.attribute(&carried, "points", "point3f[]", points);
-        // Velocities by central differences of the frames (one-sided at the ends).
-        let velocities = (0..n)
-            .map(|k| {
-                let (a, b) = (k.saturating_sub(1), (k + 1).min(n - 1));
-                let dt = (b - a).max(1) as f64 / seq.fps;
-                let (pa, pb) = (&frames[a], &frames[b]);
-                Value::Vec3fVec(
-                    pa.iter()
-                        .zip(pb)
-                        .map(|(p, q)| vec3f(&((q - p) / dt)))
-                        .collect(),
-                )
-            })
-            .collect();
-        let velocities = layer.samples(velocities);
-        layer.attribute(&carried, "velocities", "vector3f[]", velocities);
-        let extents = layer.samples(frames.iter().map(|f| extent(f)).collect());
-        layer.attribute(&carried, "extent", "float3[]", extents);
-    }
+    Ok(())
+}
 
-    // The rebuilt surface: its topology changes from frame to frame.
-    if let Some(files) = &seq.rebuilt {
-        // Each frame's values made as it is read, as for the particles.
-        let frames = per_frame(n, |k| {
-            let f = read_obj(&at(&files[k]))?;
-            Ok([
-                ints(&f.counts),
-                ints(&f.indices),
-                vec3fs(&f.positions),
-                extent(&f.positions),
-            ])
-        })?;
-        let rebuilt = layer.prim(&root, "rebuilt", "Mesh");
-        layer.uniform_token(&rebuilt, "subdivisionScheme", "none");
-        let [counts, indices, points, extents] = by_attribute(frames);
-        let counts = layer.samples(counts);
-        layer.attribute(&rebuilt, "faceVertexCounts", "int[]", counts);
-        let indices = layer.samples(indices);
-        layer.attribute(&rebuilt, "faceVertexIndices", "int[]", indices);
-        let points = layer.samples(points);
-        layer.attribute(&rebuilt, "points", "point3f[]", points);
-        let extents = layer.samples(extents);
-        layer.attribute(&rebuilt, "extent", "float3[]", extents);
-    }
-    // The volume: a Volume prim whose `density` field reads each frame's OpenVDB file
-    // (paths relative to this file, as the frames are).
-    if let Some(files) = &seq.volumes {
-        let volume = layer.prim(&root, "volume", "Volume");
-        let density = layer.prim(&volume, "density", "OpenVDBAsset");
-        layer.attribute(
-            &density,
-            "fieldName",
-            "token",
-            Value::Token("density".into()),
-        );
-        let paths = files
+/// The carried surface: the source's topology and UVs, points and velocities per frame.
+fn add_carried(
+    layer: &mut Layer,
+    root: &sdf::Path,
+    seq: &UsdSequence,
+    files: &[PathBuf],
+) -> std::io::Result<()> {
+    let (n, at) = (seq.points.len(), |p: &PathBuf| seq.dir.join(p));
+    // The topology and UVs once, from the first frame; each frame's positions.
+    let first = &read_obj(&at(&files[0]))?;
+    let frames = per_frame(n, |k| read_obj(&at(&files[k])).map(|f| f.positions))?;
+    let carried = layer.prim(root, "carried", "Mesh");
+    layer.uniform_token(&carried, "subdivisionScheme", "none");
+    layer.uniform_token(&carried, "orientation", "rightHanded");
+    layer.attribute(&carried, "faceVertexCounts", "int[]", ints(&first.counts));
+    layer.attribute(&carried, "faceVertexIndices", "int[]", ints(&first.indices));
+    layer.vertex_primvar(
+        &carried,
+        "primvars:rest",
+        "point3f[]",
+        vec3fs(&first.positions),
+    );
+    if !first.uvs.is_empty() && first.uv_indices.iter().all(Option::is_some) {
+        let st = first
+            .uvs
             .iter()
-            .map(|f| Value::AssetPath(sdf::AssetPath::new(format!("./{}", f.display()))))
+            .map(|t| gf::Vec2f::from([t[0] as f32, t[1] as f32]))
             .collect();
-        let paths = layer.samples(paths);
-        layer.attribute(&density, "filePath", "asset", paths);
-        layer.relationship(&volume, "field:density", &density);
+        layer
+            .attribute(&carried, "primvars:st", "texCoord2f[]", Value::Vec2fVec(st))
+            .add("interpolation", Value::Token("faceVarying".into()));
+        let indices: Vec<usize> = first
+            .uv_indices
+            .iter()
+            .map(|i| i.expect("checked"))
+            .collect();
+        layer.attribute(&carried, "primvars:st:indices", "int[]", ints(&indices));
     }
-    Ok(layer)
+    let points = layer.samples(frames.iter().map(|f| vec3fs(f)).collect());
+    layer.attribute(&carried, "points", "point3f[]", points);
+    // Velocities by central differences of the frames (one-sided at the ends).
+    let velocities = (0..n)
+        .map(|k| {
+            let (a, b) = (k.saturating_sub(1), (k + 1).min(n - 1));
+            let dt = (b - a).max(1) as f64 / seq.fps;
+            let (pa, pb) = (&frames[a], &frames[b]);
+            Value::Vec3fVec(
+                pa.iter()
+                    .zip(pb)
+                    .map(|(p, q)| vec3f(&((q - p) / dt)))
+                    .collect(),
+            )
+        })
+        .collect();
+    let velocities = layer.samples(velocities);
+    layer.attribute(&carried, "velocities", "vector3f[]", velocities);
+    let extents = layer.samples(frames.iter().map(|f| extent(f)).collect());
+    layer.attribute(&carried, "extent", "float3[]", extents);
+    Ok(())
+}
+
+/// The rebuilt surface, its topology per frame.
+fn add_rebuilt(
+    layer: &mut Layer,
+    root: &sdf::Path,
+    seq: &UsdSequence,
+    files: &[PathBuf],
+) -> std::io::Result<()> {
+    let (n, at) = (seq.points.len(), |p: &PathBuf| seq.dir.join(p));
+    // Each frame's values made as it is read, as for the particles.
+    let frames = per_frame(n, |k| {
+        let f = read_obj(&at(&files[k]))?;
+        Ok([
+            ints(&f.counts),
+            ints(&f.indices),
+            vec3fs(&f.positions),
+            extent(&f.positions),
+        ])
+    })?;
+    let rebuilt = layer.prim(root, "rebuilt", "Mesh");
+    layer.uniform_token(&rebuilt, "subdivisionScheme", "none");
+    let [counts, indices, points, extents] = by_attribute(frames);
+    let counts = layer.samples(counts);
+    layer.attribute(&rebuilt, "faceVertexCounts", "int[]", counts);
+    let indices = layer.samples(indices);
+    layer.attribute(&rebuilt, "faceVertexIndices", "int[]", indices);
+    let points = layer.samples(points);
+    layer.attribute(&rebuilt, "points", "point3f[]", points);
+    let extents = layer.samples(extents);
+    layer.attribute(&rebuilt, "extent", "float3[]", extents);
+    Ok(())
+}
+
+/// The volume prim and its density field's file per frame.
+fn add_volume(layer: &mut Layer, root: &sdf::Path, files: &[PathBuf]) {
+    let volume = layer.prim(root, "volume", "Volume");
+    let density = layer.prim(&volume, "density", "OpenVDBAsset");
+    layer.attribute(
+        &density,
+        "fieldName",
+        "token",
+        Value::Token("density".into()),
+    );
+    let paths = files
+        .iter()
+        .map(|f| Value::AssetPath(sdf::AssetPath::new(format!("./{}", f.display()))))
+        .collect();
+    let paths = layer.samples(paths);
+    layer.attribute(&density, "filePath", "asset", paths);
+    layer.relationship(&volume, "field:density", &density);
 }

@@ -305,3 +305,27 @@ pub struct LevelRecord {
     pub final_loss: f64,
     pub seconds: f64,
 }
+
+impl SegmentRecord {
+    /// The record of segment `segment` of pass `pass`, optimized to `result` in `seconds`.
+    pub(crate) fn of(
+        pass: usize,
+        segment: usize,
+        result: &super::segment::SegmentResult,
+        seconds: f64,
+    ) -> Self {
+        let (min_j, max_j) = result.j_range;
+        SegmentRecord {
+            pass,
+            segment,
+            initial_loss: result.initial_loss,
+            loss: result.loss,
+            evaluations: result.evaluations,
+            seconds,
+            min_j,
+            max_j,
+            grad_norm_first: result.grad_norms.0,
+            grad_norm_last: result.grad_norms.1,
+        }
+    }
+}

@@ -9,8 +9,9 @@ use super::{
 
 use crate::engine::integrator::Integrator;
 use crate::engine::mpm::State;
+use crate::loss::{FineMassLoss, MassLoss};
 use nalgebra::{Matrix3, Vector3};
-use segment::{Layers, OptimizerSettings, Segment};
+use segment::{Layers, OptimizerSettings, PathPoint, Segment};
 use std::time::Instant;
 
 /// Where a chain stands after a completed segment: everything a bitwise continuation needs.
@@ -294,9 +295,8 @@ impl<I: Integrator> ChainRun<'_, I> {
         progress: &mut RunProgress,
         observer: &mut dyn Observer,
     ) -> Result<(), MorphError> {
-        let (prep, s, pass) = (self.prep, &self.prep.settings, progress.pass);
+        let (prep, pass) = (self.prep, progress.pass);
         let seg_clock = Instant::now();
-        // Segment k alone: what is kept, replayed and written.
         let (loss, fine_loss) = prep.segment_losses(k)?;
         // A segment before the shape change begins runs without controls: evaluated once,
         // not optimized, with no window reaching past it.
@@ -313,35 +313,11 @@ impl<I: Integrator> ChainRun<'_, I> {
             .checked_sub(1)
             .and_then(|j| progress.controls[j].last())
             .cloned();
-        let segment = Segment {
-            sim: self.sim,
-            loss: &loss,
-            fine_loss: fine_loss.as_deref(),
-            reach: prep.segment_reach(k),
-            start: &progress.state,
-            first_step: prep.sim_segment_first(k),
-            steps: prep.sim_segment_steps(k),
-            stride: prep.sim_control_stride(),
-            arrival_weight: prep.segment_arrival_weight(k),
-            volume_weight: prep.volume_weight(),
-            path: &path[..own_path],
-            path_weight: s.path_weight,
-            waypoints: &[],
-            waypoint_weight: s.waypoint_weight,
-            smoothing: prep.segment_smoothing(k),
-            anchor: anchor.as_deref(),
-            resolution: s.control_resolution,
-            tape_budget: prep.tape_budget,
-        };
+        let start = (&progress.state, anchor.as_deref());
+        let segment = self.segment_of(k, (&loss, fine_loss.as_deref()), start, &path[..own_path]);
         // What is optimized: segment k, or its look-ahead window k..=end, which ends at
         // segment end's target and passes through each earlier segment's on its way.
-        let (window_loss, window_fine, waypoints) = if end > k {
-            let (end_loss, fine) = prep.segment_losses(end)?;
-            let waypoints = prep.window_waypoints(k, end, &loss)?;
-            (Some(end_loss), fine, waypoints)
-        } else {
-            (None, None, Vec::new())
-        };
+        let (window_loss, window_fine, waypoints) = prep.window_targets(k, end, &loss)?;
         let window = window_loss.as_deref().map(|loss| Segment {
             loss,
             fine_loss: window_fine.as_deref(),
@@ -354,19 +330,131 @@ impl<I: Integrator> ChainRun<'_, I> {
         });
         let init = self.initial_layers(progress, k, end, before_begin);
         let optimized = window.as_ref().unwrap_or(&segment);
-        let evaluate_only = OptimizerSettings {
-            iterations: 1,
+        let settings = &OptimizerSettings {
+            iterations: if before_begin {
+                1
+            } else {
+                self.optimizer.iterations
+            },
             ..self.optimizer.clone()
         };
-        let settings = match before_begin {
-            true => &evaluate_only,
-            false => &self.optimizer,
+        let result = self.optimize_observed(
+            optimized,
+            init,
+            settings,
+            (pass, k),
+            &mut progress.iterations,
+            observer,
+        )?;
+        let seconds = seg_clock.elapsed().as_secs_f64();
+        let record = self.recorded(SegmentRecord::of(pass, k, &result, seconds), observer)?;
+        progress.segments.push(record);
+        // A window keeps segment k's layers; the rest start the next window's optimization
+        // (and are in the checkpoint, so a resume continues bit for bit).
+        let mut layers = result.layers;
+        let mut rest = layers.split_off(segment.num_layers()).into_iter();
+        for j in k + 1..=end {
+            progress.controls[j] = rest.by_ref().take(prep.segment_layers()[j]).collect();
+        }
+        progress.ahead = end - k;
+        // The kept controls once more: to write the frames (the optimization keeps no tape of
+        // every step: memory stays within its budget), and to find where segment k ends when
+        // a window was optimized.
+        let last = match last_pass || window.is_some() {
+            true => {
+                let last = self.replay_frames(
+                    &segment,
+                    &layers,
+                    last_pass,
+                    &mut progress.frames,
+                    observer,
+                )?;
+                debug_assert!(
+                    window.is_some() || last == result.last,
+                    "a replay reproduces the rollout"
+                );
+                last
+            }
+            false => result.last,
         };
+        progress.controls[k] = layers;
+        progress.state = last;
+        progress.segments_done = k + 1;
+        progress.elapsed_s = self.seconds();
+        observer.segment_done(progress, k)?;
+        // Segment k's last layer anchors segment k+1's first; the one before is done with.
+        if last_pass && !self.keep_controls && k > 0 {
+            progress.controls[k - 1] = Vec::new();
+        }
+        Ok(())
+    }
+
+    /// Segment `k` alone (what is kept, replayed and written): toward `losses`, from `start`
+    /// (the state, and the control layer its first continues) along `path`.
+    fn segment_of<'b>(
+        &'b self,
+        k: usize,
+        (loss, fine_loss): (&'b MassLoss, Option<&'b FineMassLoss>),
+        (start, anchor): (&'b State, Option<&'b [Matrix3<f64>]>),
+        path: &'b [PathPoint],
+    ) -> Segment<'b, I> {
+        let (prep, s) = (self.prep, &self.prep.settings);
+        Segment {
+            sim: self.sim,
+            loss,
+            fine_loss,
+            reach: prep.segment_reach(k),
+            start,
+            first_step: prep.sim_segment_first(k),
+            steps: prep.sim_segment_steps(k),
+            stride: prep.sim_control_stride(),
+            arrival_weight: prep.segment_arrival_weight(k),
+            volume_weight: prep.volume_weight(),
+            path,
+            path_weight: s.path_weight,
+            waypoints: &[],
+            waypoint_weight: s.waypoint_weight,
+            smoothing: prep.segment_smoothing(k),
+            anchor,
+            resolution: s.control_resolution,
+            tape_budget: prep.tape_budget,
+        }
+    }
+
+    /// `record` reported to `observer`; refused when its figures are not finite.
+    fn recorded(
+        &self,
+        record: SegmentRecord,
+        observer: &mut dyn Observer,
+    ) -> Result<SegmentRecord, MorphError> {
+        observer.event(&MorphEvent::Segment {
+            pass: record.pass,
+            segment: record.segment,
+            initial_loss: record.initial_loss,
+            loss: record.loss,
+            evaluations: record.evaluations,
+            seconds: record.seconds,
+        });
+        match non_finite(&self.prep.settings, &record) {
+            Some(why) => Err(MorphError::Optimization(why)),
+            None => Ok(record),
+        }
+    }
+
+    /// Optimizes `optimized` from `init`, each accepted evaluation recorded in `progress` and
+    /// reported to `observer`, which may stop it (then [`MorphError::Interrupted`]).
+    fn optimize_observed(
+        &self,
+        optimized: &Segment<'_, I>,
+        init: Layers,
+        settings: &OptimizerSettings,
+        (pass, segment): (usize, usize),
+        iterations: &mut Vec<IterationRecord>,
+        observer: &mut dyn Observer,
+    ) -> Result<segment::SegmentResult, MorphError> {
         let mut stop = observer.stop_requested();
-        let iterations = &mut progress.iterations;
         let result = optimized.optimize(init, settings, |iteration, loss| {
             let at = self.seconds();
-            let segment = k;
             iterations.push(IterationRecord {
                 pass,
                 segment,
@@ -384,68 +472,33 @@ impl<I: Integrator> ChainRun<'_, I> {
             stop = observer.stop_requested();
             stop == 0
         })?;
-        let Some(result) = result.filter(|_| stop == 0) else {
-            return Err(MorphError::Interrupted {
-                signal: stop,
-                kept: false,
-            });
-        };
-        let record = SegmentRecord::of(pass, k, &result, seg_clock.elapsed().as_secs_f64());
-        observer.event(&MorphEvent::Segment {
-            pass,
-            segment: k,
-            initial_loss: record.initial_loss,
-            loss: record.loss,
-            evaluations: record.evaluations,
-            seconds: record.seconds,
-        });
-        if let Some(why) = non_finite(&prep.settings, &record) {
-            return Err(MorphError::Optimization(why));
-        }
-        progress.segments.push(record);
-        // A window keeps segment k's layers; the rest start the next window's optimization
-        // (and are in the checkpoint, so a resume continues bit for bit).
-        let mut layers = result.layers;
-        let mut rest = layers.split_off(segment.num_layers()).into_iter();
-        for j in k + 1..=end {
-            progress.controls[j] = rest.by_ref().take(prep.segment_layers()[j]).collect();
-        }
-        progress.ahead = end - k;
-        // The kept controls once more: to write the frames (the optimization keeps no tape of
-        // every step: memory stays within its budget), and to find where segment k ends when
-        // a window was optimized.
-        let last = if last_pass || window.is_some() {
-            let mut frames = progress.frames;
-            let mut frame_err = Ok(());
-            let last = segment.replay(&layers, &mut |global, state| {
-                if last_pass
-                    && frame_err.is_ok()
-                    && (global + 1).is_multiple_of(prep.sim_frame_every())
-                {
-                    frame_err = observer.frame(&Frame::new(prep, frames, global + 1, state));
-                    frames += 1;
-                }
-            })?;
-            frame_err?;
-            progress.frames = frames;
-            debug_assert!(
-                window.is_some() || last == result.last,
-                "a replay reproduces the rollout"
-            );
-            last
-        } else {
-            result.last
-        };
-        progress.controls[k] = layers;
-        progress.state = last;
-        progress.segments_done = k + 1;
-        progress.elapsed_s = self.seconds();
-        observer.segment_done(progress, k)?;
-        // Segment k's last layer anchors segment k+1's first; the one before is done with.
-        if last_pass && !self.keep_controls && k > 0 {
-            progress.controls[k - 1] = Vec::new();
-        }
-        Ok(())
+        result.filter(|_| stop == 0).ok_or(MorphError::Interrupted {
+            signal: stop,
+            kept: false,
+        })
+    }
+
+    /// The segment run once more with its kept `layers`: its frames handed to `observer` on
+    /// the last pass (counted in `frames`). Returns the state it ends at.
+    fn replay_frames(
+        &self,
+        segment: &Segment<'_, I>,
+        layers: &[Vec<Matrix3<f64>>],
+        last_pass: bool,
+        frames: &mut usize,
+        observer: &mut dyn Observer,
+    ) -> Result<State, MorphError> {
+        let prep = self.prep;
+        let mut frame_err = Ok(());
+        let last = segment.replay(layers, &mut |global, state| {
+            if last_pass && frame_err.is_ok() && (global + 1).is_multiple_of(prep.sim_frame_every())
+            {
+                frame_err = observer.frame(&Frame::new(prep, *frames, global + 1, state));
+                *frames += 1;
+            }
+        })?;
+        frame_err?;
+        Ok(last)
     }
 
     /// The controls the optimization of segments `k..=end` starts from: what an earlier pass
@@ -482,25 +535,6 @@ impl<I: Integrator> ChainRun<'_, I> {
             init.extend(layers);
         }
         init
-    }
-}
-
-impl SegmentRecord {
-    /// The record of segment `segment` of pass `pass`, optimized to `result` in `seconds`.
-    fn of(pass: usize, segment: usize, result: &segment::SegmentResult, seconds: f64) -> Self {
-        let (min_j, max_j) = result.j_range;
-        SegmentRecord {
-            pass,
-            segment,
-            initial_loss: result.initial_loss,
-            loss: result.loss,
-            evaluations: result.evaluations,
-            seconds,
-            min_j,
-            max_j,
-            grad_norm_first: result.grad_norms.0,
-            grad_norm_last: result.grad_norms.1,
-        }
     }
 }
 

@@ -47,63 +47,8 @@ impl SceneFile {
         let json = path
             .extension()
             .is_some_and(|e| e.eq_ignore_ascii_case("json"));
-        let mut table: toml::Table = if json {
-            let value = serde_json::from_str::<Strict>(text)
-                .map_err(|e| format!("scene file '{shown}': {}", one_line(&e.to_string())))?
-                .0;
-            toml::Table::try_from(value).map_err(|e| {
-                format!(
-                    "scene file '{shown}': {} (the top level must be an object)",
-                    one_line(&e.to_string())
-                )
-            })?
-        } else {
-            text.parse().map_err(|e: toml::de::Error| {
-                format!("scene file '{shown}': {}", one_line(&e.to_string()))
-            })?
-        };
-        if let Some(key) = unknown_key(&table) {
-            let line = line_of(text, &key, json).map_or(String::new(), |l| format!(" line {l}:"));
-            return Err(format!(
-                "scene file '{shown}':{line} unknown key `{key}` (the keys are the settings' names; see docs/scenes.md)"
-            ));
-        }
-        let dir = path.parent().unwrap_or(Path::new("."));
-        let resolve = |p: &str| -> PathBuf {
-            let p = PathBuf::from(p);
-            if p.is_absolute() { p } else { dir.join(p) }
-        };
-        let path_of = |v: toml::Value, key: &str| -> Result<PathBuf, String> {
-            match v {
-                toml::Value::String(s) => Ok(resolve(&s)),
-                other => Err(format!(
-                    "scene file '{shown}': `{key}` must be a file path, got {other}"
-                )),
-            }
-        };
-        let source = table
-            .remove("source")
-            .map(|v| path_of(v, "source"))
-            .transpose()?;
-        let targets = match table.remove("targets") {
-            None => Vec::new(),
-            Some(toml::Value::Array(a)) => a
-                .into_iter()
-                .map(|v| path_of(v, "targets"))
-                .collect::<Result<_, _>>()?,
-            Some(other) => {
-                return Err(format!(
-                    "scene file '{shown}': `targets` must be a list of mesh paths, got {other}"
-                ));
-            }
-        };
-        if let Some(toml::Value::Array(colliders)) = table.get_mut("colliders") {
-            for c in colliders {
-                if let Some(toml::Value::String(m)) = c.get_mut("mesh") {
-                    *m = resolve(m).display().to_string();
-                }
-            }
-        }
+        let mut table = table_of(text, &shown, json)?;
+        let (source, targets) = take_inputs(&mut table, path.parent(), &shown)?;
         if let Some(toml::Value::Table(m)) = table.get_mut("material") {
             young_poisson_to_lame(m).map_err(|e| format!("scene file '{shown}': {e}"))?;
         }
@@ -402,6 +347,79 @@ impl<'de> serde::de::Visitor<'de> for StrictVisitor {
         }
         Ok(object.into())
     }
+}
+
+/// The file's text as a table (TOML, or JSON by its extension), refused with the line of
+/// its first unknown key.
+fn table_of(text: &str, shown: &dyn std::fmt::Display, json: bool) -> Result<toml::Table, String> {
+    let table: toml::Table = if json {
+        let value = serde_json::from_str::<Strict>(text)
+            .map_err(|e| format!("scene file '{shown}': {}", one_line(&e.to_string())))?
+            .0;
+        toml::Table::try_from(value).map_err(|e| {
+            format!(
+                "scene file '{shown}': {} (the top level must be an object)",
+                one_line(&e.to_string())
+            )
+        })?
+    } else {
+        text.parse().map_err(|e: toml::de::Error| {
+            format!("scene file '{shown}': {}", one_line(&e.to_string()))
+        })?
+    };
+    if let Some(key) = unknown_key(&table) {
+        let line = line_of(text, &key, json).map_or(String::new(), |l| format!(" line {l}:"));
+        return Err(format!(
+            "scene file '{shown}':{line} unknown key `{key}` (the keys are the settings' names; see docs/scenes.md)"
+        ));
+    }
+    Ok(table)
+}
+
+/// The source and the targets the table names, removed from it, and the colliders' meshes:
+/// each path relative to `dir` (the file's folder) unless absolute.
+fn take_inputs(
+    table: &mut toml::Table,
+    dir: Option<&Path>,
+    shown: &dyn std::fmt::Display,
+) -> Result<(Option<PathBuf>, Vec<PathBuf>), String> {
+    let dir = dir.unwrap_or(Path::new("."));
+    let resolve = |p: &str| -> PathBuf {
+        let p = PathBuf::from(p);
+        if p.is_absolute() { p } else { dir.join(p) }
+    };
+    let path_of = |v: toml::Value, key: &str| -> Result<PathBuf, String> {
+        match v {
+            toml::Value::String(s) => Ok(resolve(&s)),
+            other => Err(format!(
+                "scene file '{shown}': `{key}` must be a file path, got {other}"
+            )),
+        }
+    };
+    let source = table
+        .remove("source")
+        .map(|v| path_of(v, "source"))
+        .transpose()?;
+    let targets = match table.remove("targets") {
+        None => Vec::new(),
+        Some(toml::Value::Array(a)) => a
+            .into_iter()
+            .map(|v| path_of(v, "targets"))
+            .collect::<Result<_, _>>()?,
+        Some(other) => {
+            return Err(format!(
+                "scene file '{shown}': `targets` must be a list of mesh paths, got {other}"
+            ));
+        }
+    };
+    if let Some(toml::Value::Array(colliders)) = table.get_mut("colliders") {
+        for c in colliders {
+            if let Some(toml::Value::String(m)) = c.get_mut("mesh") {
+                *m = resolve(m).display().to_string();
+            }
+        }
+    }
+    Ok((source, targets))
 }
 
 #[cfg(test)]

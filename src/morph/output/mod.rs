@@ -215,7 +215,52 @@ pub fn morph_to_folder(
         crate::io::write_atomically(&run_path, |w| std::io::Write::write_all(w, &json))
             .map_err(|e| out_err("run identity", &run_path, e))?;
     }
-    let result = (|| {
+    let staged = Staged {
+        prep: &prep,
+        identity: &identity,
+        run_id: &run_id,
+        staging: &staging,
+        resuming,
+    };
+    let result = staged.write(source, targets, memory, clock, request, &mut on_event);
+    match result {
+        Ok(mut summary) => {
+            staging.commit(&plan).map_err(MorphError::Output)?;
+            summary.output = plan.out.clone();
+            Ok(summary)
+        }
+        Err(e) => Err(failed(staging, e)),
+    }
+}
+
+/// A set-up run and its staging folder, ready to write.
+struct Staged<'a> {
+    prep: &'a Prepared,
+    identity: &'a RunIdentity,
+    run_id: &'a str,
+    staging: &'a Staging,
+    resuming: bool,
+}
+
+impl Staged<'_> {
+    /// Writes the resolved scene, then the run (from the checkpoint when resuming) into the
+    /// staging folder.
+    fn write(
+        &self,
+        source: &Path,
+        targets: &[PathBuf],
+        memory: super::memory::MemoryPlan,
+        clock: Instant,
+        request: &OutputRequest,
+        on_event: &mut dyn FnMut(&MorphEvent),
+    ) -> Result<Summary, MorphError> {
+        let Staged {
+            prep,
+            identity,
+            run_id,
+            staging,
+            resuming,
+        } = *self;
         // The resolved scene: `morph --scene OUT/scene.toml` runs this again, bit for bit.
         let scene = super::scene_file::SceneFile::resolved(&prep.settings, source, targets);
         let scene_path = staging.dir.join(super::scene_file::RESOLVED);
@@ -242,20 +287,12 @@ pub fn morph_to_folder(
         let caller = writer::Caller {
             stop: request.stop,
             on_frame: request.on_frame,
-            on_event: &mut on_event,
+            on_event,
         };
         let place = (staging.dir.as_path(), lock);
         run::write_run(
-            &prep, &identity, &run_id, place, resume, memory, setup_s, clock, caller,
+            prep, identity, run_id, place, resume, memory, setup_s, clock, caller,
         )
-    })();
-    match result {
-        Ok(mut summary) => {
-            staging.commit(&plan).map_err(MorphError::Output)?;
-            summary.output = plan.out.clone();
-            Ok(summary)
-        }
-        Err(e) => Err(failed(staging, e)),
     }
 }
 

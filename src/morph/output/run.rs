@@ -44,18 +44,7 @@ pub(super) fn write_run(
     let sinks = sinks::for_folder(prep, dir, source)?;
     let (result, written, sinks) =
         run_writing_frames(prep, (dir, lock), run_id, resume, sinks, caller)?;
-    // A body the optimization never moved is no morph: refused before the sequence's files,
-    // unless it began in its target's shape (a target the source's own shape at another size:
-    // nothing was there to move).
-    let began_there = prep.quality(&prep.initial).iou >= crate::morph::ARRIVED_IOU;
-    if let Some(why) = crate::morph::optimization_failure(
-        settings,
-        &result.segments,
-        &result.iterations,
-        began_there,
-    ) {
-        return Err(MorphError::Optimization(why));
-    }
+    refuse_unmoved(prep, &result)?;
     let frames_summary = FramesSummary::of(&written.stats);
     let (motion, keyframes) = motion_and_keyframes(prep, identity, &written);
     let quality_over_time = quality_over_time(prep, &written);
@@ -116,24 +105,13 @@ pub(super) fn write_run(
         },
         frames: frame_entries(prep, written.stats),
         final_mass: "final_mass.mgrid".into(),
-        warnings: prep
-            .geometry
-            .warnings
-            .iter()
-            .chain(&run_warnings)
-            .cloned()
-            .collect(),
+        warnings: [&prep.geometry.warnings[..], &run_warnings].concat(),
         memory: Some(memory),
         optimization: Some(optimization),
         keyframes,
         quality_over_time,
     };
-    let manifest_path = dir.join(MANIFEST);
-    lock.check(dir).map_err(MorphError::Output)?;
-    let json =
-        serde_json::to_vec_pretty(&manifest).map_err(|e| MorphError::Output(e.to_string()))?;
-    crate::io::write_atomically(&manifest_path, |w| std::io::Write::write_all(w, &json))
-        .map_err(|e| out_err("manifest", &manifest_path, e))?;
+    write_manifest(dir, &lock, &manifest)?;
     // The folder is complete: the checkpoint has served its purpose.
     checkpoint::remove(dir)?;
     Ok(Summary {
@@ -142,6 +120,37 @@ pub(super) fn write_run(
         warnings: run_warnings,
         ..Summary::of(&manifest, dir)
     })
+}
+
+/// A body the optimization never moved is no morph: refused before the sequence's files,
+/// unless it began in its target's shape (a target the source's own shape at another size:
+/// nothing was there to move).
+fn refuse_unmoved(prep: &Prepared, result: &crate::morph::MorphResult) -> Result<(), MorphError> {
+    let began_there = prep.quality(&prep.initial).iou >= crate::morph::ARRIVED_IOU;
+    let failure = crate::morph::optimization_failure(
+        &prep.settings,
+        &result.segments,
+        &result.iterations,
+        began_there,
+    );
+    match failure {
+        Some(why) => Err(MorphError::Optimization(why)),
+        None => Ok(()),
+    }
+}
+
+/// The manifest, written last (once the folder is still this run's).
+fn write_manifest(
+    dir: &Path,
+    lock: &outdir::LockId,
+    manifest: &Manifest,
+) -> Result<(), MorphError> {
+    let manifest_path = dir.join(MANIFEST);
+    lock.check(dir).map_err(MorphError::Output)?;
+    let json =
+        serde_json::to_vec_pretty(manifest).map_err(|e| MorphError::Output(e.to_string()))?;
+    crate::io::write_atomically(&manifest_path, |w| std::io::Write::write_all(w, &json))
+        .map_err(|e| out_err("manifest", &manifest_path, e))
 }
 
 /// Tells each sink the sequence is complete; returns the seconds each took, by name.

@@ -338,6 +338,29 @@ impl Prepared {
         end
     }
 
+    /// What the look-ahead window `k..=end` aims at beyond segment `k`'s own: segment
+    /// `end`'s losses and the waypoints on its way (nothing when the window is `k` alone).
+    #[allow(clippy::type_complexity)]
+    pub fn window_targets(
+        &self,
+        k: usize,
+        end: usize,
+        first: &MassLoss,
+    ) -> Result<
+        (
+            Option<std::borrow::Cow<'_, MassLoss>>,
+            Option<std::borrow::Cow<'_, FineMassLoss>>,
+            Vec<PathPoint>,
+        ),
+        SimError,
+    > {
+        if end == k {
+            return Ok((None, None, Vec::new()));
+        }
+        let (end_loss, fine) = self.segment_losses(end)?;
+        Ok((Some(end_loss), fine, self.window_waypoints(k, end, first)?))
+    }
+
     /// The ends of segments `k..end` inside a look-ahead window, each against that
     /// segment's own target; segment `k`'s is `first` (the chain has it already, see
     /// [`Prepared::segment_losses`]).

@@ -267,40 +267,7 @@ impl Rk4 {
                 self.grid.node_count(),
             );
         }
-        {
-            let Buffers {
-                nodes,
-                grid_mass,
-                grid_v,
-                grid_a,
-                active,
-                ..
-            } = &mut buf;
-            let (gm, gv, ga) = (
-                SharedMut::new(grid_mass),
-                SharedMut::new(grid_v),
-                SharedMut::new(grid_a),
-            );
-            active.par_iter().with_min_len(1024).for_each(|&i| {
-                // SAFETY: active node indices are distinct.
-                unsafe { *gm.get(i as usize) = nodes[i as usize].mass };
-            });
-            let ctx = self.grid_context(grid_mass, at);
-            let effects = GridEffects::new(&self.effects, GridForm::Rate);
-            active.par_iter().with_min_len(1024).for_each(|&i| {
-                let i = i as usize;
-                let [v, a] = transfer::quotient(&nodes[i]);
-                let mut motion = NodeMotion { v, a };
-                if nodes[i].mass > 0.0 {
-                    effects.apply(&ctx, i, &mut motion);
-                }
-                // SAFETY: active node indices are distinct.
-                unsafe {
-                    *gv.get(i) = motion.v;
-                    *ga.get(i) = motion.a;
-                }
-            });
-        }
+        self.grid_rates(at, &mut buf);
         let inv_d = self.inv_d();
         buf.grid_v_axes.set_from(&buf.grid_v);
         let grid_axes = &buf.grid_v_axes;
@@ -325,6 +292,43 @@ impl Rk4 {
             buf,
             gathered,
         })
+    }
+
+    /// The grid stage of an evaluation, on the active nodes: the nodal masses, then each
+    /// node's velocity `p / m` and acceleration `f / m` through the effects.
+    fn grid_rates(&self, at: &At, buf: &mut Buffers) {
+        let Buffers {
+            nodes,
+            grid_mass,
+            grid_v,
+            grid_a,
+            active,
+            ..
+        } = buf;
+        let (gm, gv, ga) = (
+            SharedMut::new(grid_mass),
+            SharedMut::new(grid_v),
+            SharedMut::new(grid_a),
+        );
+        active.par_iter().with_min_len(1024).for_each(|&i| {
+            // SAFETY: active node indices are distinct.
+            unsafe { *gm.get(i as usize) = nodes[i as usize].mass };
+        });
+        let ctx = self.grid_context(grid_mass, at);
+        let effects = GridEffects::new(&self.effects, GridForm::Rate);
+        active.par_iter().with_min_len(1024).for_each(|&i| {
+            let i = i as usize;
+            let [v, a] = transfer::quotient(&nodes[i]);
+            let mut motion = NodeMotion { v, a };
+            if nodes[i].mass > 0.0 {
+                effects.apply(&ctx, i, &mut motion);
+            }
+            // SAFETY: active node indices are distinct.
+            unsafe {
+                *gv.get(i) = motion.v;
+                *ga.get(i) = motion.a;
+            }
+        });
     }
 
     fn rhs_impl<const N: usize>(&self, s: &State, at: &At, out: &mut State) -> Result<(), SimError>
