@@ -205,104 +205,23 @@ impl RopeConfig {
     /// at full speed for the whole horizon.
     pub fn build(&self) -> Result<Rope, SimError> {
         self.check()?;
-        let dx = self.dx();
-        let ppc = self.particles_per_cell;
-        let h = dx / ppc as f64;
-        let (nl, nt) = (self.cells_along * ppc, self.thickness_cells * ppc);
-        let half_t = 0.5 * self.thickness_cells as f64 * dx;
-        // Lattice in the rope's frame (s along it from the clamp), then tilted about z.
-        let angle = self.initial_angle_deg.to_radians();
-        let along = Vector3::new(angle.sin(), -angle.cos(), 0.0);
-        let across = Vector3::new(angle.cos(), angle.sin(), 0.0);
-        let mut x = Vec::with_capacity(nl * nt * nt);
-        let mut clamped = Vec::new();
-        let mut tip = Vec::new();
-        let mut quarters: [Vec<usize>; 4] = Default::default();
-        for i in 0..nl {
-            let s_along = (i as f64 + 0.5) * h;
-            for j in 0..nt {
-                for k in 0..nt {
-                    let p = s_along * along
-                        + ((j as f64 + 0.5) * h - half_t) * across
-                        + Vector3::new(0.0, 0.0, (k as f64 + 0.5) * h - half_t);
-                    if s_along < self.clamp_cells as f64 * dx {
-                        clamped.push(x.len());
-                    }
-                    if s_along > 0.75 * self.length {
-                        tip.push(x.len());
-                    }
-                    let q = ((4.0 * s_along / self.length) as usize).min(3);
-                    quarters[q].push(x.len());
-                    x.push(p);
-                }
-            }
-        }
-        let vol = h * h * h;
-        let n = x.len();
-        let horizon = self.steps as f64 * self.dt;
+        let lattice = self.lattice();
+        let h = self.dx() / self.particles_per_cell as f64;
+        let n = lattice.x.len();
         let (use_clamp, use_tip) = match self.actuation {
             Actuation::Clamp => (true, false),
             Actuation::TipForce => (false, true),
             Actuation::Both => (true, true),
             Actuation::Segments => (false, false),
         };
-        // How far the clamp can get from its start.
-        let drift = match (use_clamp, self.clamp_mode) {
-            (false, _) => 0.0,
-            (true, ClampMode::Position) => self.max_clamp_offset,
-            (true, ClampMode::Velocity) => self.max_clamp_speed * horizon,
-        };
-        // The rope (30% stretch allowed) swings through a full circle around the clamp.
-        let margin = 4.0 * dx;
-        let reach = 1.3 * self.length + drift + margin;
-        let top = drift + margin + half_t;
-        let cells_x = (2.0 * reach / dx).ceil() as usize;
-        let cells_y = ((reach + top) / dx).ceil() as usize;
-        let cells_z = (2.0 * (half_t + margin) / dx).ceil() as usize;
-        let grid = GridSpec {
-            origin: [-reach, -reach, -0.5 * cells_z as f64 * dx],
-            dx,
-            cells: [cells_x, cells_y, cells_z.max(4)],
-        };
-        let mut effects = Vec::new();
-        // The clamp is always there; without clamp actuation it holds still (bound 0).
-        let (kind, b) = match self.clamp_mode {
-            ClampMode::Position => (ControlKind::PrescribedPosition, self.max_clamp_offset),
-            ClampMode::Velocity => (ControlKind::PrescribedVelocity, self.max_clamp_speed),
-        };
-        let b = if use_clamp { b } else { 0.0 };
-        effects.push(ControlEffect {
-            kind,
-            name: "clamp".into(),
-            particles: clamped,
-            bound: Vector3::new(b, b, 0.0),
-        });
-        if use_tip {
-            effects.push(ControlEffect {
-                kind: ControlKind::BodyForce,
-                name: "tip-force".into(),
-                particles: tip,
-                bound: Vector3::new(self.max_tip_acceleration, self.max_tip_acceleration, 0.0),
-            });
-        }
-        if self.actuation == Actuation::Segments {
-            for (q, set) in quarters.into_iter().enumerate() {
-                let b = self.max_tip_acceleration;
-                effects.push(ControlEffect {
-                    kind: ControlKind::BodyForce,
-                    name: format!("segment-{q}"),
-                    particles: set,
-                    bound: Vector3::new(b, b, 0.0),
-                });
-            }
-        }
+        let grid = self.grid(use_clamp);
         let plan = ControlPlan {
             schedule: ControlSchedule {
                 interpolation: self.interpolation,
                 steps_per_interval: self.control_interval,
                 intervals: self.steps / self.control_interval,
             },
-            effects,
+            effects: self.control_effects(use_clamp, use_tip, lattice.sets),
         };
         let (mu, lambda) = lame_from_young_poisson(self.youngs_modulus, self.poisson_ratio);
         // The rope is a scene like any other: built through the one scene description.
@@ -320,12 +239,132 @@ impl RopeConfig {
                 acceleration: [0.0, -self.gravity, 0.0],
             }],
         };
-        let model = scene.model(vec![vol; n])?.with_controls(plan)?;
+        let model = scene.model(vec![h * h * h; n])?.with_controls(plan)?;
         let engine = Engine::new(model, self.integrator)?;
         Ok(Rope {
             engine,
-            initial: State::at_rest(x),
+            initial: State::at_rest(lattice.x),
             config: self.clone(),
         })
     }
+
+    /// Half the rope's thickness.
+    fn half_thickness(&self) -> f64 {
+        0.5 * self.thickness_cells as f64 * self.dx()
+    }
+
+    /// The particles on a regular sub-cell lattice in the rope's frame (s along it from the
+    /// clamp), then tilted about z; and the sets the controls act on.
+    fn lattice(&self) -> RopeLattice {
+        let dx = self.dx();
+        let ppc = self.particles_per_cell;
+        let h = dx / ppc as f64;
+        let (nl, nt) = (self.cells_along * ppc, self.thickness_cells * ppc);
+        let half_t = self.half_thickness();
+        let angle = self.initial_angle_deg.to_radians();
+        let along = Vector3::new(angle.sin(), -angle.cos(), 0.0);
+        let across = Vector3::new(angle.cos(), angle.sin(), 0.0);
+        let mut x = Vec::with_capacity(nl * nt * nt);
+        let mut sets = ControlSets::default();
+        for i in 0..nl {
+            let s_along = (i as f64 + 0.5) * h;
+            for j in 0..nt {
+                for k in 0..nt {
+                    let p = s_along * along
+                        + ((j as f64 + 0.5) * h - half_t) * across
+                        + Vector3::new(0.0, 0.0, (k as f64 + 0.5) * h - half_t);
+                    if s_along < self.clamp_cells as f64 * dx {
+                        sets.clamped.push(x.len());
+                    }
+                    if s_along > 0.75 * self.length {
+                        sets.tip.push(x.len());
+                    }
+                    let q = ((4.0 * s_along / self.length) as usize).min(3);
+                    sets.quarters[q].push(x.len());
+                    x.push(p);
+                }
+            }
+        }
+        RopeLattice { x, sets }
+    }
+
+    /// The grid: the rope (30% stretch allowed) swings through a full circle around the clamp,
+    /// wherever the clamp can get from its start.
+    fn grid(&self, use_clamp: bool) -> GridSpec {
+        let dx = self.dx();
+        let half_t = self.half_thickness();
+        let horizon = self.steps as f64 * self.dt;
+        let drift = match (use_clamp, self.clamp_mode) {
+            (false, _) => 0.0,
+            (true, ClampMode::Position) => self.max_clamp_offset,
+            (true, ClampMode::Velocity) => self.max_clamp_speed * horizon,
+        };
+        let margin = 4.0 * dx;
+        let reach = 1.3 * self.length + drift + margin;
+        let top = drift + margin + half_t;
+        let cells_x = (2.0 * reach / dx).ceil() as usize;
+        let cells_y = ((reach + top) / dx).ceil() as usize;
+        let cells_z = (2.0 * (half_t + margin) / dx).ceil() as usize;
+        GridSpec {
+            origin: [-reach, -reach, -0.5 * cells_z as f64 * dx],
+            dx,
+            cells: [cells_x, cells_y, cells_z.max(4)],
+        }
+    }
+
+    /// The controls the actuation calls for: the clamp always (holding still, bound 0,
+    /// without clamp actuation), a force on the tip, or one on each quarter of the rope.
+    fn control_effects(
+        &self,
+        use_clamp: bool,
+        use_tip: bool,
+        sets: ControlSets,
+    ) -> Vec<ControlEffect> {
+        let mut effects = Vec::new();
+        let (kind, b) = match self.clamp_mode {
+            ClampMode::Position => (ControlKind::PrescribedPosition, self.max_clamp_offset),
+            ClampMode::Velocity => (ControlKind::PrescribedVelocity, self.max_clamp_speed),
+        };
+        let b = if use_clamp { b } else { 0.0 };
+        effects.push(ControlEffect {
+            kind,
+            name: "clamp".into(),
+            particles: sets.clamped,
+            bound: Vector3::new(b, b, 0.0),
+        });
+        if use_tip {
+            effects.push(ControlEffect {
+                kind: ControlKind::BodyForce,
+                name: "tip-force".into(),
+                particles: sets.tip,
+                bound: Vector3::new(self.max_tip_acceleration, self.max_tip_acceleration, 0.0),
+            });
+        }
+        if self.actuation == Actuation::Segments {
+            for (q, set) in sets.quarters.into_iter().enumerate() {
+                let b = self.max_tip_acceleration;
+                effects.push(ControlEffect {
+                    kind: ControlKind::BodyForce,
+                    name: format!("segment-{q}"),
+                    particles: set,
+                    bound: Vector3::new(b, b, 0.0),
+                });
+            }
+        }
+        effects
+    }
+}
+
+/// The rope's particles and the sets its controls act on.
+struct RopeLattice {
+    x: Vec<Vector3<f64>>,
+    sets: ControlSets,
+}
+
+/// The particles of the clamp, of the tip (the last quarter) and of each quarter.
+#[derive(Default)]
+struct ControlSets {
+    clamped: Vec<usize>,
+    tip: Vec<usize>,
+    quarters: [Vec<usize>; 4],
 }

@@ -380,15 +380,10 @@ impl<I: Integrator> Segment<'_, I> {
         Ok(Rollout { loss, run, after })
     }
 
-    /// dL/dFc for the layers from `from` on, through a rollout of the whole segment.
-    fn gradient(
-        &self,
-        rollout: &Rollout<I::Tape>,
-        layers: &[Vec<Matrix3<f64>>],
-        from: usize,
-    ) -> Result<Layers, SimError> {
+    /// dL/d(the segment's last state `last`): its mass losses (the simulation grid's, the
+    /// fine grid's), the reach cost, and the arrival term on its velocities.
+    fn final_seed(&self, last: &State) -> Result<State, SimError> {
         let model = self.sim.model();
-        let last = &rollout.run.last;
         let mass = model.mass_grid(&last.x)?;
         let (_, grad_m) = self.loss.value_and_grad(&mass);
         let mut seed = State::zeros(last.len());
@@ -410,6 +405,18 @@ impl<I: Integrator> Segment<'_, I> {
         for (p, g) in seed.v.iter_mut().enumerate() {
             *g = self.arrival_weight * model.mass[p] * last.v[p];
         }
+        Ok(seed)
+    }
+
+    /// dL/dFc for the layers from `from` on, through a rollout of the whole segment.
+    fn gradient(
+        &self,
+        rollout: &Rollout<I::Tape>,
+        layers: &[Vec<Matrix3<f64>>],
+        from: usize,
+    ) -> Result<Layers, SimError> {
+        let model = self.sim.model();
+        let seed = self.final_seed(&rollout.run.last)?;
         let schedule = self.schedule(layers, from);
         let at = self.first_step + from * self.stride;
         let volume_weight = self.volume_weight / self.steps as f64;

@@ -30,32 +30,10 @@ impl<I: Integrator> Segment<'_, I> {
         const BETA2: f64 = 0.999;
         const EPS: f64 = 1e-12;
         let iterations = s.iterations.max(1);
-        // The free values: one control per grid node (interpolated to the particles, added
-        // to the initial controls) or one per particle.
-        let model = self.sim.model();
-        let basis = (self.resolution == ControlResolution::Grid)
-            .then(|| ControlBasis::new(&self.start.x, &model.grid.origin_vec(), model.grid.dx));
-        let base = layers.clone();
-        let mut params = match &basis {
-            Some(b) => vec![0.0; layers.len() * b.nodes() * 9],
-            None => flatten(&layers),
-        };
-        let to_layers = |params: &[f64], layers: &mut Layers| match &basis {
-            Some(b) => {
-                for (l, chunk) in params.chunks_exact(b.nodes() * 9).enumerate() {
-                    let theta: Vec<Matrix3<f64>> = chunk
-                        .chunks_exact(9)
-                        .map(Matrix3::from_column_slice)
-                        .collect();
-                    layers[l] = b.to_particles(&theta, &base[l]);
-                }
-            }
-            None => unflatten(params, layers),
-        };
-        let to_params = |grad: Layers| match &basis {
-            Some(b) => flatten(&grad.iter().map(|g| b.to_nodes(g)).collect::<Vec<_>>()),
-            None => flatten(&grad),
-        };
+        let free = FreeControls::new(self, &layers);
+        let mut params = free.params(&layers);
+        let to_layers = |params: &[f64], layers: &mut Layers| free.to_layers(params, layers);
+        let to_params = |grad: Layers| free.to_params(grad);
         let mut adam = Adam::new(params.len(), BETA1, BETA2, EPS);
         let mut current = self.rollout(self.start, &layers, 0, &[])?;
         let initial_loss = current.loss;
@@ -242,5 +220,57 @@ impl GradNorms {
             self.first.unwrap_or(f64::NAN),
             self.last.unwrap_or(f64::NAN),
         )
+    }
+}
+
+/// The values Adam moves: one control per grid node (interpolated to the particles, added to
+/// the initial controls) or one per particle.
+struct FreeControls {
+    basis: Option<ControlBasis>,
+    /// The initial controls, which the grid's are added to.
+    base: Layers,
+}
+
+impl FreeControls {
+    fn new<I: Integrator>(segment: &Segment<'_, I>, layers: &Layers) -> FreeControls {
+        let model = segment.sim.model();
+        let basis = (segment.resolution == ControlResolution::Grid)
+            .then(|| ControlBasis::new(&segment.start.x, &model.grid.origin_vec(), model.grid.dx));
+        FreeControls {
+            basis,
+            base: layers.clone(),
+        }
+    }
+
+    /// The free values of `layers` (zero on the grid: the initial controls are the base).
+    fn params(&self, layers: &Layers) -> Vec<f64> {
+        match &self.basis {
+            Some(b) => vec![0.0; layers.len() * b.nodes() * 9],
+            None => flatten(layers),
+        }
+    }
+
+    /// The controls the free values `params` give.
+    fn to_layers(&self, params: &[f64], layers: &mut Layers) {
+        match &self.basis {
+            Some(b) => {
+                for (l, chunk) in params.chunks_exact(b.nodes() * 9).enumerate() {
+                    let theta: Vec<Matrix3<f64>> = chunk
+                        .chunks_exact(9)
+                        .map(Matrix3::from_column_slice)
+                        .collect();
+                    layers[l] = b.to_particles(&theta, &self.base[l]);
+                }
+            }
+            None => unflatten(params, layers),
+        }
+    }
+
+    /// The gradient of the free values from the controls' `grad`.
+    fn to_params(&self, grad: Layers) -> Vec<f64> {
+        match &self.basis {
+            Some(b) => flatten(&grad.iter().map(|g| b.to_nodes(g)).collect::<Vec<_>>()),
+            None => flatten(&grad),
+        }
     }
 }

@@ -144,27 +144,12 @@ pub fn for_folder(
         dir: folder(dir, "frames")?,
     })];
     if let Some(loaded) = loaded.as_ref().filter(|_| settings.surfaces.carried()) {
-        let surface = CarriedSurface::bind(
-            source,
-            &loaded.mesh,
-            prep.geometry.placement.world_to_sim,
-            &prep.initial.x,
-            spacing,
-        )
-        .map_err(|e| {
-            MorphError::Mesh(crate::geometry::MeshError::Unreadable {
-                path: source.into(),
-                reason: e.to_string(),
-            })
-        })?;
-        sinks.push(Box::new(CarriedObj {
-            dir: folder(dir, "carried")?,
-            surface,
-            rest: prep.initial.x.clone(),
-            spacing,
-            to_world,
-            references: references.clone(),
-        }));
+        sinks.push(carried_sink(
+            prep,
+            dir,
+            (source, &loaded.mesh),
+            references.clone(),
+        )?);
     }
     if settings.surfaces.rebuilt() {
         sinks.push(Box::new(RebuiltObj {
@@ -218,6 +203,37 @@ pub fn for_folder(
         radius: 0.5 * spacing * to_world.scale,
     }));
     Ok(sinks)
+}
+
+/// The carried surface's sink: the source mesh (`source` its file) bound to the particles.
+fn carried_sink(
+    prep: &Prepared,
+    dir: &Path,
+    (source, mesh): (&Path, &crate::geometry::TriMesh),
+    references: Option<Arc<(Reference, Reference)>>,
+) -> Result<Box<dyn FrameSink + Send>, MorphError> {
+    let spacing = prep.model().grid.dx / prep.settings.particles_per_cell as f64;
+    let surface = CarriedSurface::bind(
+        source,
+        mesh,
+        prep.geometry.placement.world_to_sim,
+        &prep.initial.x,
+        spacing,
+    )
+    .map_err(|e| {
+        MorphError::Mesh(crate::geometry::MeshError::Unreadable {
+            path: source.into(),
+            reason: e.to_string(),
+        })
+    })?;
+    Ok(Box::new(CarriedObj {
+        dir: folder(dir, "carried")?,
+        surface,
+        rest: prep.initial.x.clone(),
+        spacing,
+        to_world: prep.geometry.placement.sim_to_world(),
+        references,
+    }))
 }
 
 #[cfg(test)]
