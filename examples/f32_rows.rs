@@ -1,5 +1,5 @@
 //! What f32 would buy the transfers (issue 33, "f32 where it pays"): the G2P gather of a
-//! cubic stencil, written as the engine writes it on AVX rows (`src/lanes/row.rs`), once in
+//! cubic stencil, written as the engine writes it on AVX rows (`crates/engine/src/lanes/row.rs`), once in
 //! f64 (a row of 4 nodes is one 4-lane register) and once in f32 (two rows in one 8-lane
 //! register), on the same random particles and grid. Both without fused multiply-adds, as
 //! the engine. Prints nanoseconds a particle and the ratio, best of several rounds, one thread.
