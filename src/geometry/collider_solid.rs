@@ -117,4 +117,32 @@ mod tests {
             );
         }
     }
+
+    /// A collider mesh that is missing, or not closed, is refused with the file's name.
+    #[test]
+    fn missing_or_open_collider_meshes_are_refused() {
+        let dir = std::env::temp_dir().join(format!("morph-collider-solid-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let missing = dir.join("missing.obj");
+        let err = MeshSolids
+            .load(&missing, 1.0, Vector3::zeros())
+            .err()
+            .unwrap();
+        assert!(
+            err.starts_with("collider: ") && err.contains("missing.obj"),
+            "{err}"
+        );
+        let open = dir.join("open.obj");
+        // A cube without its top: ten triangles, one hole.
+        let cube = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nv 1 0 1\nv 1 1 1\nv 0 1 1\n\
+                    f 1 3 2\nf 1 4 3\nf 1 2 6\nf 1 6 5\nf 2 3 7\nf 2 7 6\n\
+                    f 3 4 8\nf 3 8 7\nf 4 1 5\nf 4 5 8\n";
+        std::fs::write(&open, cube).unwrap();
+        let err = MeshSolids.load(&open, 1.0, Vector3::zeros()).err().unwrap();
+        assert!(
+            err.contains("open.obj") && err.contains("not closed"),
+            "{err}"
+        );
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }

@@ -309,3 +309,31 @@ pub fn ball_particles(
     let vol = vec![h * h * h; pts.len()];
     (pts, vol)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A mesh collider needs a loader: without one the scene is refused, naming the file.
+    #[test]
+    fn a_mesh_collider_without_a_loader_is_refused_naming_its_file() {
+        let mut scene = SceneConfig::reference();
+        scene.effects.push(EffectConfig::Collider {
+            shape: ColliderConfig::Mesh {
+                path: "rock.obj".into(),
+                scale: 1.0,
+                translation: [0.0; 3],
+            },
+            friction: 0.5,
+        });
+        match scene.model(vec![1e-3; 8]) {
+            Err(SimError::InvalidScene(why)) => {
+                assert!(
+                    why.contains("rock.obj") && why.contains("mesh loader"),
+                    "{why}"
+                )
+            }
+            other => panic!("expected a refusal, got {:?}", other.map(|_| ())),
+        }
+    }
+}

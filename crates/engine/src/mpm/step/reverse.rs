@@ -24,11 +24,12 @@ impl Euler {
         Stencil<N>: Cached,
     {
         let mut laps = Laps::start(self.clock.as_deref());
-        let clamp_nodes = self.reverse_setup::<N>(tape, fc, values, rws);
+        let effects = GridEffects::new(&self.effects, GridForm::Step);
+        let clamp_nodes = self.reverse_setup::<N>(tape, fc, values, &effects, rws);
         laps.lap(Stage::RevSetup);
         let grad_u = self.g2p_reverse::<N>(tape, post, values, adj, rws);
         laps.lap(Stage::RevG2p);
-        let grad_clamp = self.grid_reverse(tape, &clamp_nodes, effect_params, rws);
+        let grad_clamp = self.grid_reverse(tape, &clamp_nodes, &effects, effect_params, rws);
         laps.lap(Stage::RevGrid);
         let (grad_fc, grad_mom) = self.p2g_stress_reverse::<N>(tape, fc, values, adj, rws);
         laps.lap(Stage::RevP2gStress);
@@ -47,6 +48,7 @@ impl Euler {
         tape: &StepTape,
         fc: Option<&[Matrix3<f64>]>,
         values: Option<&[Vector3<f64>]>,
+        effects: &GridEffects,
         rws: &mut ReverseWorkspace,
     ) -> Vec<(usize, usize)>
     where
@@ -62,9 +64,8 @@ impl Euler {
             }
         });
         let ctx = self.grid_context(&tape.grid_mass, tape.step);
-        let effects = GridEffects::new(&self.effects, GridForm::Step);
         rws.grid_v.clone_from(&tape.grid_v);
-        apply_grid_effects(&effects, &ctx, &mut rws.grid_v);
+        apply_grid_effects(effects, &ctx, &mut rws.grid_v);
         let clamp_nodes = match values {
             Some(vals) => {
                 let nodes = self.clamp_nodes::<N>(&pre.x);
@@ -147,11 +148,11 @@ impl Euler {
         &self,
         tape: &StepTape,
         clamp_nodes: &[(usize, usize)],
+        effects: &GridEffects,
         effect_params: &mut [Vec<f64>],
         rws: &mut ReverseWorkspace,
     ) -> Vec<Vector3<f64>> {
         let ctx = self.grid_context(&tape.grid_mass, tape.step);
-        let effects = GridEffects::new(&self.effects, GridForm::Step);
         rws.grad_axes.write_vectors(&mut rws.grad_grid_v);
         // The clamped nodes' velocities are the controls' values.
         let grad_grid_v = &mut rws.grad_grid_v;
@@ -160,7 +161,7 @@ impl Euler {
             grad_clamp[e] += grad_grid_v[i];
             grad_grid_v[i] = Vector3::zeros();
         }
-        reverse_grid_effects(&effects, &ctx, &tape.grid_v, grad_grid_v, effect_params);
+        reverse_grid_effects(effects, &ctx, &tape.grid_v, grad_grid_v, effect_params);
         rws.grad_nodes.resize(self.grid.node_count(), Node::ZERO);
         grid_velocity_reverse(
             &tape.grid_mass,
