@@ -272,7 +272,7 @@ impl Staged<'_> {
         let resume = match resuming {
             true => checkpoint::load(
                 &staging.dir,
-                &run_id,
+                run_id,
                 prep.initial.len(),
                 &prep.segment_layers(),
             )?,
