@@ -1,96 +1,116 @@
-//! Stage G on the dense grid (the Euler step): velocities from momentum, `v_i = p_i / m_i`
-//! where `m_i > 0` ([`super::transfer::quotient`]), then the grid effects at every node with
-//! mass (gravity, colliders, walls: the `effects` module), each stage with its reverse.
+//! Stage G, the grid update between the transfers, for both integrators: each node's `K`
+//! fields over its mass ([`super::transfer::quotient`]: the Euler step's velocity `p / m`;
+//! the ODE form's velocity and acceleration `p / m`, `f / m`), then the grid effects at
+//! every node with mass (gravity, colliders, walls, drag: the `effects` module), in list
+//! order. The reverse runs the effects backwards and then the quotient's. Every pass visits
+//! the region of the bins alone (see [`super::grid`]).
 
 use super::effect::{GridContext, GridEffects, NodeMotion};
+use super::grid::{Bins, SharedMut};
+use super::stages::Parallel;
 use super::transfer::{Node, quotient, quotient_reverse};
 use nalgebra::Vector3;
-use rayon::prelude::*;
 
-/// Nodes a thread takes at a time in the effects' passes.
-const NODES_PER_TASK: usize = 1024;
-
-/// Forward: `v_i = p_i / m_i` (zero on empty nodes).
-pub fn grid_velocity(nodes: &[Node<1>], v: &mut [Vector3<f64>]) {
-    v.par_iter_mut()
-        .zip(nodes.par_iter())
-        .for_each(|(v, n)| *v = quotient(n)[0]);
+/// A node's fields as the effects see them: the velocity, and the acceleration when there
+/// are two (the Euler step's is zero).
+#[inline]
+fn motion_of<const K: usize>(fields: &[Vector3<f64>; K]) -> NodeMotion {
+    NodeMotion {
+        v: fields[0],
+        a: if K > 1 { fields[1] } else { Vector3::zeros() },
+    }
 }
 
-/// Reverse: from dL/dv_i to node adjoints `[dL/dm_i, dL/dp_i]`.
-pub fn grid_velocity_reverse(
-    mass: &[f64],
-    v: &[Vector3<f64>],
-    grad_v: &[Vector3<f64>],
-    grad_nodes: &mut [Node<1>],
+/// The inverse of [`motion_of`].
+#[inline]
+fn fields_of<const K: usize>(motion: &NodeMotion) -> [Vector3<f64>; K] {
+    std::array::from_fn(|k| if k == 0 { motion.v } else { motion.a })
+}
+
+/// Forward, first part: the nodal masses into `mass`, and each field's quotient
+/// `q_ik / m_i` (zero on empty nodes) into `fields[k]`.
+pub fn grid_quotients<const K: usize>(
+    bins: &Bins,
+    par: Parallel,
+    nodes: &[Node<K>],
+    mass: &mut Vec<f64>,
+    fields: [&mut Vec<Vector3<f64>>; K],
 ) {
-    grad_nodes
-        .par_iter_mut()
-        .enumerate()
-        .for_each(|(i, g)| *g = quotient_reverse(mass[i], &[v[i]], &[grad_v[i]]));
-}
-
-/// Forward: the grid effects at every node with mass, in list order, on the velocity `v`
-/// (an empty node's velocity is zero, which no effect moves).
-pub fn apply_grid_effects(effects: &GridEffects, ctx: &GridContext, v: &mut [Vector3<f64>]) {
-    v.par_iter_mut()
-        .enumerate()
-        .with_min_len(NODES_PER_TASK)
-        .for_each(|(i, v)| {
-            if ctx.mass[i] > 0.0 {
-                let mut motion = NodeMotion {
-                    v: *v,
-                    a: Vector3::zeros(),
-                };
-                effects.apply(ctx, i, &mut motion);
-                *v = motion.v;
+    mass.resize(nodes.len(), 0.0);
+    let m = SharedMut::new(mass);
+    let out = fields.map(|f| {
+        f.resize(nodes.len(), Vector3::zeros());
+        SharedMut::new(f)
+    });
+    bins.for_each_region_node(par.on, |i| {
+        let q = quotient(&nodes[i]);
+        // SAFETY: region nodes are visited once each.
+        unsafe {
+            *m.get(i) = nodes[i].mass;
+            for (out, q) in out.iter().zip(q) {
+                *out.get(i) = q;
             }
-        });
+        }
+    });
 }
 
-/// Reverse of [`apply_grid_effects`] from the velocity it received (`v_in`): `grad_v` goes
-/// from dL/d(its output) to dL/d(its input), and the effects' parameter gradients are added
-/// to `params` (one per effect of the list), summed in node order whatever the thread count.
-/// An empty node's adjoint is left as it is: the quotient's reverse drops it.
-pub fn reverse_grid_effects(
+/// Forward, second part: the grid effects at every node with mass, in list order, on the
+/// fields `[v]` or `[v, a]` in place (an empty node's are zero, which no effect moves).
+pub fn apply_grid_effects<const K: usize>(
+    bins: &Bins,
+    par: Parallel,
     effects: &GridEffects,
     ctx: &GridContext,
-    v_in: &[Vector3<f64>],
-    grad_v: &mut [Vector3<f64>],
-    params: &mut [Vec<f64>],
+    fields: [&mut [Vector3<f64>]; K],
 ) {
     if effects.is_empty() {
         return;
     }
-    let width = effects.width();
-    let mut rows = vec![0.0; width * grad_v.len()];
-    let reverse_node = |i: usize, g: &mut Vector3<f64>, row: &mut [f64]| {
+    let fields = fields.map(SharedMut::new);
+    bins.for_each_region_node(par.on, |i| {
         if ctx.mass[i] > 0.0 {
-            let input = NodeMotion {
-                v: v_in[i],
-                a: Vector3::zeros(),
-            };
-            let mut grad = NodeMotion {
-                v: *g,
-                a: Vector3::zeros(),
-            };
-            effects.reverse(ctx, i, &input, &mut grad, row);
-            *g = grad.v;
+            // SAFETY: region nodes are visited once each.
+            let mut motion = motion_of::<K>(&std::array::from_fn(|k| unsafe { *fields[k].get(i) }));
+            effects.apply(ctx, i, &mut motion);
+            for (f, value) in fields.iter().zip(fields_of::<K>(&motion)) {
+                // SAFETY: as above.
+                unsafe { *f.get(i) = value };
+            }
         }
-    };
-    if width > 0 {
-        grad_v
-            .par_iter_mut()
-            .zip(rows.par_chunks_mut(width))
-            .enumerate()
-            .with_min_len(NODES_PER_TASK)
-            .for_each(|(i, (g, row))| reverse_node(i, g, row));
-        effects.add_rows(&rows, params);
-    } else {
-        grad_v
-            .par_iter_mut()
-            .enumerate()
-            .with_min_len(NODES_PER_TASK)
-            .for_each(|(i, g)| reverse_node(i, g, &mut []));
-    }
+    });
+}
+
+/// Reverse of the grid update: `input(i)` is node `i`'s quotients as the effects received
+/// them, `grad(i)` dL/d(the fields after the effects). Writes dL/d(node) (mass and fields)
+/// into `grad_nodes` and returns the effects' parameter gradients, one vector per effect of
+/// the model, summed in node order whatever the thread count.
+#[allow(clippy::too_many_arguments)]
+pub fn grid_update_reverse<const K: usize>(
+    bins: &Bins,
+    par: Parallel,
+    effects: &GridEffects,
+    ctx: &GridContext,
+    input: impl Fn(usize) -> [Vector3<f64>; K] + Sync,
+    grad: impl Fn(usize) -> [Vector3<f64>; K] + Sync,
+    grad_nodes: &mut Vec<Node<K>>,
+    params: &mut [Vec<f64>],
+) {
+    let mass = ctx.mass;
+    grad_nodes.resize(mass.len(), Node::ZERO);
+    let g_nodes = SharedMut::new(grad_nodes);
+    let width = effects.width();
+    let mut rows = vec![0.0; width * mass.len()];
+    let row_of = SharedMut::new(&mut rows);
+    bins.for_each_region_node(par.on, |i| {
+        let fields = input(i);
+        let mut g = motion_of(&grad(i));
+        if mass[i] > 0.0 && !effects.is_empty() {
+            // SAFETY: region nodes are visited once each; a node's row is its own.
+            let row = unsafe { row_of.run(i * width, width) };
+            effects.reverse(ctx, i, &motion_of(&fields), &mut g, row);
+        }
+        // SAFETY: as above.
+        unsafe { *g_nodes.get(i) = quotient_reverse(mass[i], &fields, &fields_of::<K>(&g)) };
+    });
+    effects.add_rows(&rows, params);
 }

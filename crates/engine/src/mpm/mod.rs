@@ -15,6 +15,7 @@ pub mod grid_update;
 pub mod kernel;
 pub mod model;
 pub mod profile;
+pub mod scratch;
 pub mod stages;
 pub mod state;
 pub mod step;

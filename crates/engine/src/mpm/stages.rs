@@ -4,9 +4,10 @@
 //! what a particle scatters and in the grid update between the transfers (a discrete step
 //! against rates). Each forward stage stands beside its reverse.
 //!
-//! `min_len` is the fewest particles a parallel task takes: 1 where a step runs alone, more
-//! where many small runs go in parallel (the rope's controllers) and a fork-join would cost
-//! more than the work. Every stage gives the same bits whatever the thread count.
+//! Both integrators follow one parallel policy, [`Parallel`]: a pass over a body of at
+//! least [`PARALLEL_MIN`] particles splits as finely as rayon likes; a smaller one runs as
+//! one task (many small runs go in parallel instead: the rope's controllers, where a
+//! fork-join would cost more than the work). Every stage gives the same bits either way.
 
 use super::grid::Bins;
 use super::kernel::{Cached, Stencil, StencilCache};
@@ -20,6 +21,34 @@ use rayon::prelude::*;
 /// Particles a batch holds: the material's vector lanes take a batch's stresses together.
 pub const CHUNK: usize = 64;
 
+/// Below this many particles a pass runs as one task (see the module's note).
+pub const PARALLEL_MIN: usize = 2048;
+
+/// Whether the passes over one body run on many threads (see the module's note).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Parallel {
+    pub on: bool,
+}
+
+impl Parallel {
+    /// The policy for a body of `particles` particles.
+    pub fn for_particles(particles: usize) -> Parallel {
+        Parallel {
+            on: particles >= PARALLEL_MIN,
+        }
+    }
+
+    /// The fewest items a parallel task takes: 1, or all of them when off.
+    pub fn min_len(self) -> usize {
+        if self.on { 1 } else { usize::MAX }
+    }
+
+    /// [`Parallel::min_len`] in batches of [`CHUNK`] particles.
+    pub fn min_batches(self) -> usize {
+        if self.on { 1 } else { usize::MAX }
+    }
+}
+
 /// Every particle's stencil at positions `x`, built four at a time on vector lanes (the bits
 /// of [`Stencil::new`]) into `cache`, for the transfers of one pass to share.
 pub fn stencils<'c, const N: usize>(
@@ -27,7 +56,7 @@ pub fn stencils<'c, const N: usize>(
     x: &[Vector3<f64>],
     origin: &Vector3<f64>,
     dx: f64,
-    min_len: usize,
+    par: Parallel,
     cache: &'c mut StencilCache,
 ) -> &'c [Stencil<N>]
 where
@@ -36,7 +65,7 @@ where
     let out = cache.sized::<N>(x.len());
     out.par_chunks_mut(CHUNK)
         .zip(x.par_chunks(CHUNK))
-        .with_min_len(min_len.div_ceil(CHUNK))
+        .with_min_len(par.min_batches())
         .for_each(|(s, x)| Stencil::fill(simd, x, origin, dx, s));
     out
 }
@@ -54,7 +83,7 @@ pub fn stress<'m>(
     fe: &[Matrix3<f64>],
     c: Option<&[Matrix3<f64>]>,
     inputs: impl Fn(usize) -> StressInputs<'m> + Sync,
-    min_len: usize,
+    par: Parallel,
     affine: &mut [Matrix3<f64>],
     kept: &mut [f64],
 ) {
@@ -64,7 +93,7 @@ pub fn stress<'m>(
         fe.par_chunks(CHUNK),
         kept,
         keep,
-        min_len,
+        par,
         |k, a, fe, kept| stress_batch(material, simd, k, fe, c, &inputs, a, kept),
     );
 }
@@ -79,7 +108,7 @@ pub fn stress_of<'m>(
     fe: &mut [Matrix3<f64>],
     c: Option<&[Matrix3<f64>]>,
     inputs: impl Fn(usize) -> StressInputs<'m> + Sync,
-    min_len: usize,
+    par: Parallel,
     affine: &mut [Matrix3<f64>],
     kept: &mut [f64],
 ) {
@@ -89,7 +118,7 @@ pub fn stress_of<'m>(
         fe.par_chunks_mut(CHUNK),
         kept,
         keep,
-        min_len,
+        par,
         |k, a, fe: &mut [Matrix3<f64>], kept| {
             for (i, fe) in fe.iter_mut().enumerate() {
                 *fe = elastic(k * CHUNK + i);
@@ -107,13 +136,13 @@ fn in_batches<T: Send>(
     fe: impl IndexedParallelIterator<Item = T>,
     kept: &mut [f64],
     keep: usize,
-    min_len: usize,
+    par: Parallel,
     batch: impl Fn(usize, &mut [Matrix3<f64>], T, &mut [f64]) + Sync + Send,
 ) {
     let batches = affine
         .par_chunks_mut(CHUNK)
         .zip(fe)
-        .with_min_len(min_len.div_ceil(CHUNK));
+        .with_min_len(par.min_batches());
     if keep > 0 {
         batches
             .zip(kept.par_chunks_mut(CHUNK * keep))
@@ -202,21 +231,21 @@ pub fn stress_reverse<'m>(
 /// P2G: each particle's mass and its `K` affine fields (`fields(p)`) scattered to the grid
 /// nodes through its stencil, block by block into tiles and then summed (in parallel, or on
 /// this thread in the very same order: identical sums in every node either way; see
-/// [`Bins::scatter`]), into `nodes`.
+/// [`Bins::scatter`]), into `nodes` (on the region of `bins`).
 #[allow(clippy::too_many_arguments)]
 pub fn p2g<const N: usize, const K: usize>(
     simd: SimdLevel,
     bins: &Bins,
     stencils: &[Stencil<N>],
     mass: &[f64],
-    parallel: bool,
+    par: Parallel,
     fields: impl Fn(usize) -> [Affine; K] + Sync,
     axes: &mut AxisNodes<K>,
     nodes: &mut Vec<Node<K>>,
     node_count: usize,
 ) {
-    axes.scatter(bins, parallel, node_count, |tile, p| {
+    axes.scatter(bins, par.on, node_count, |tile, p| {
         transfer::scatter(simd, &stencils[p], mass[p], &fields(p), tile);
     });
-    axes.write_nodes(nodes);
+    axes.write_nodes(nodes, bins, par.on);
 }

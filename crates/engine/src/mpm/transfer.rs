@@ -13,7 +13,7 @@
 //! - **Mass only** (for losses on the nodal mass grid).
 
 use super::error::SimError;
-use super::grid::{Bins, GridSpec, Tile};
+use super::grid::{Bins, GridSpec, SharedMut, Tile};
 use super::kernel::{KernelKind, Stencil};
 use crate::lanes::{RowKernel, Rows, SimdLevel, dispatch_rows};
 use nalgebra::{Matrix3, Vector3};
@@ -50,37 +50,30 @@ pub struct AxisField {
 }
 
 impl AxisField {
-    pub fn from_vectors(v: &[Vector3<f64>]) -> Self {
-        let mut f = AxisField::default();
-        f.set_from(v);
-        f
+    /// Takes the values of `v` on the region of `bins` (keeping this field's buffers; see
+    /// [`Bins`]' note on the region).
+    pub fn set_from(&mut self, v: &[Vector3<f64>], bins: &Bins, parallel: bool) {
+        let axes = self.axes.each_mut().map(|a| {
+            a.resize(v.len(), 0.0);
+            SharedMut::new(a)
+        });
+        bins.for_each_region_node(parallel, |i| {
+            for (k, axis) in axes.iter().enumerate() {
+                // SAFETY: region nodes are visited once each.
+                unsafe { *axis.get(i) = v[i][k] };
+            }
+        });
     }
 
-    /// Takes the values of `v` (keeping this field's buffers).
-    pub fn set_from(&mut self, v: &[Vector3<f64>]) {
-        for (k, axis) in self.axes.iter_mut().enumerate() {
-            axis.clear();
-            axis.par_extend(v.par_iter().map(|x| x[k]));
-        }
-    }
-
-    /// `n` zero vectors (keeping this field's buffers).
-    pub fn set_zero(&mut self, n: usize) {
-        for axis in &mut self.axes {
-            axis.clear();
-            axis.resize(n, 0.0);
-        }
-    }
-
-    /// Writes the field into `out`, one vector a node.
-    pub fn write_vectors(&self, out: &mut Vec<Vector3<f64>>) {
+    /// Writes the field's region of `bins` into `out`, one vector a node.
+    pub fn write_vectors(&self, out: &mut Vec<Vector3<f64>>, bins: &Bins, parallel: bool) {
         let [x, y, z] = &self.axes;
-        out.clear();
-        out.par_extend(
-            (x.par_iter(), y.par_iter(), z.par_iter())
-                .into_par_iter()
-                .map(|(&x, &y, &z)| Vector3::new(x, y, z)),
-        );
+        out.resize(x.len(), Vector3::zeros());
+        let dst = SharedMut::new(out);
+        bins.for_each_region_node(parallel, |i| {
+            // SAFETY: region nodes are visited once each.
+            unsafe { *dst.get(i) = Vector3::new(x[i], y[i], z[i]) };
+        });
     }
 
     /// `n` nodes from a scatter over `bins` (tile channels 0, 1, 2: the axes; see
@@ -121,37 +114,45 @@ impl<const K: usize> Default for AxisNodes<K> {
 }
 
 impl<const K: usize> AxisNodes<K> {
-    /// Takes the values of `nodes` (keeping the buffers).
-    pub fn set_from(&mut self, nodes: &[Node<K>]) {
-        self.mass.clear();
-        self.mass.par_extend(nodes.par_iter().map(|n| n.mass));
-        for (k, field) in self.fields.iter_mut().enumerate() {
-            for (j, axis) in field.axes.iter_mut().enumerate() {
-                axis.clear();
-                axis.par_extend(nodes.par_iter().map(|n| n.fields[k][j]));
-            }
-        }
-    }
-
-    /// `n` nodes of zeros (keeping the buffers).
-    pub fn set_zero(&mut self, n: usize) {
-        self.mass.clear();
+    /// Takes the values of `nodes` on the region of `bins` (keeping the buffers).
+    pub fn set_from(&mut self, nodes: &[Node<K>], bins: &Bins, parallel: bool) {
+        let n = nodes.len();
         self.mass.resize(n, 0.0);
-        for field in &mut self.fields {
-            field.set_zero(n);
-        }
+        let mass = SharedMut::new(&mut self.mass);
+        let fields = self.fields.each_mut().map(|f| {
+            f.axes.each_mut().map(|a| {
+                a.resize(n, 0.0);
+                SharedMut::new(a)
+            })
+        });
+        bins.for_each_region_node(parallel, |i| {
+            // SAFETY: region nodes are visited once each.
+            unsafe {
+                *mass.get(i) = nodes[i].mass;
+                for (k, axes) in fields.iter().enumerate() {
+                    for (j, axis) in axes.iter().enumerate() {
+                        *axis.get(i) = nodes[i].fields[k][j];
+                    }
+                }
+            }
+        });
     }
 
-    /// Writes the nodes into `out`, one [`Node`] each.
-    pub fn write_nodes(&self, out: &mut Vec<Node<K>>) {
-        out.clear();
-        out.par_extend((0..self.mass.len()).into_par_iter().map(|i| Node {
-            mass: self.mass[i],
-            fields: std::array::from_fn(|k| {
-                let [x, y, z] = &self.fields[k].axes;
-                Vector3::new(x[i], y[i], z[i])
-            }),
-        }));
+    /// Writes the nodes of the region of `bins` into `out`, one [`Node`] each.
+    pub fn write_nodes(&self, out: &mut Vec<Node<K>>, bins: &Bins, parallel: bool) {
+        out.resize(self.mass.len(), Node::ZERO);
+        let dst = SharedMut::new(out);
+        bins.for_each_region_node(parallel, |i| {
+            let node = Node {
+                mass: self.mass[i],
+                fields: std::array::from_fn(|k| {
+                    let [x, y, z] = &self.fields[k].axes;
+                    Vector3::new(x[i], y[i], z[i])
+                }),
+            };
+            // SAFETY: region nodes are visited once each.
+            unsafe { *dst.get(i) = node };
+        });
     }
 
     /// `n` nodes from a scatter over `bins`: `f(tile, particle)` for each particle, into

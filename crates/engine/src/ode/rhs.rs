@@ -13,13 +13,15 @@
 
 use crate::mpm::SimError;
 use crate::mpm::State;
-use crate::mpm::effect::{GridContext, GridEffects, GridForm, NodeMotion};
+use crate::mpm::effect::{GridContext, GridEffects, GridForm};
 use crate::mpm::grid::{Bins, SharedMut};
-use crate::mpm::kernel::{Cached, KernelKind, Stencil, StencilCache};
+use crate::mpm::grid_update::{apply_grid_effects, grid_quotients, grid_update_reverse};
+use crate::mpm::kernel::{Cached, KernelKind, Stencil};
 use crate::mpm::model::Model;
-use crate::mpm::stages::{self, CHUNK};
+use crate::mpm::scratch::{GridScratch, Pool};
+use crate::mpm::stages::{self, CHUNK, Parallel};
 use crate::mpm::stress::StressInputs;
-use crate::mpm::transfer::{self, Affine, AxisField, AxisNodes, Node};
+use crate::mpm::transfer::{self, Affine, AxisField};
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
@@ -28,7 +30,7 @@ use rayon::prelude::*;
 #[derive(Debug)]
 pub struct Rk4 {
     pub model: Model,
-    pool: BufferPool,
+    pool: Pool<Scratch>,
 }
 
 impl std::ops::Deref for Rk4 {
@@ -74,7 +76,7 @@ impl Rk4 {
     pub fn new(model: Model) -> Result<Rk4, SimError> {
         Ok(Rk4 {
             model,
-            pool: BufferPool::default(),
+            pool: Pool::default(),
         })
     }
 
@@ -220,9 +222,9 @@ impl Rk4 {
         }
     }
 
-    /// Forward pieces shared by the evaluation and its reverse. Only the grid nodes inside
-    /// some particle's stencil (the active nodes) are touched, in dense buffers borrowed from
-    /// the pool, so the cost follows the particles and not the domain's size.
+    /// Forward pieces shared by the evaluation and its reverse. Only the region's grid nodes
+    /// (see [`crate::mpm::grid`]) are touched, in dense buffers borrowed from the pool, so the
+    /// cost follows the particles and not the domain's size.
     fn forward_grid<const N: usize>(&self, s: &State, at: &At) -> Result<Forward, SimError>
     where
         Stencil<N>: Cached,
@@ -231,14 +233,13 @@ impl Rk4 {
         let n = s.len();
         let (strides, origin, dx) = (self.grid.strides(), self.grid.origin_vec(), self.grid.dx);
         let bins = Bins::build(&self.grid, &s.x, N, step)?;
-        let mut buf = self.pool.take(self.grid.node_count());
-        let par = n >= PARALLEL_MIN;
+        let mut buf = self.pool.take();
+        let par = Parallel::for_particles(n);
         // Every particle's stencil, built once for this evaluation's transfers (and, kept
         // with the buffers, for its reverse).
         let mut cache = std::mem::take(&mut buf.stencils);
-        stages::stencils::<N>(self.simd, &s.x, &origin, dx, PARALLEL_MIN, &mut cache);
+        stages::stencils::<N>(self.simd, &s.x, &origin, dx, par, &mut cache);
         let stencils = &*cache.sized::<N>(n);
-        buf.mark_active(stencils, &strides);
         let body = self.body_accelerations(values);
         let mut stress_force = vec![Matrix3::zeros(); n];
         stages::stress(
@@ -247,12 +248,12 @@ impl Rk4 {
             &s.f,
             None,
             |p| self.stress_inputs(p),
-            PARALLEL_MIN,
+            par,
             &mut stress_force,
             &mut [],
         );
         {
-            let Buffers {
+            let GridScratch {
                 nodes, node_axes, ..
             } = &mut buf;
             stages::p2g(
@@ -267,19 +268,19 @@ impl Rk4 {
                 self.grid.node_count(),
             );
         }
-        self.grid_rates(at, &mut buf);
+        self.grid_rates(at, &bins, par, &mut buf);
         let inv_d = self.inv_d();
-        buf.grid_v_axes.set_from(&buf.grid_v);
-        let grid_axes = &buf.grid_v_axes;
+        buf.velocity_axes.set_from(&buf.fields[0], &bins, par.on);
+        let (grid_axes, grid_a) = (&buf.velocity_axes, &buf.fields[1]);
         let gathered: Vec<Gathered> = stencils
             .par_iter()
-            .with_min_len(PARALLEL_MIN)
+            .with_min_len(par.min_len())
             .map(|st| {
                 let (velocity, grad_v) =
                     transfer::gather_affine(self.simd, st, &strides, grid_axes, inv_d);
                 Gathered {
                     velocity,
-                    acceleration: transfer::interpolate(st, &strides, &buf.grid_a),
+                    acceleration: transfer::interpolate(st, &strides, grid_a),
                     grad_v,
                 }
             })
@@ -294,41 +295,25 @@ impl Rk4 {
         })
     }
 
-    /// The grid stage of an evaluation, on the active nodes: the nodal masses, then each
-    /// node's velocity `p / m` and acceleration `f / m` through the effects.
-    fn grid_rates(&self, at: &At, buf: &mut Buffers) {
-        let Buffers {
+    /// The grid stage of an evaluation, on the region: the nodal masses, then each node's
+    /// velocity `p / m` and acceleration `f / m` through the effects.
+    fn grid_rates(&self, at: &At, bins: &Bins, par: Parallel, buf: &mut Scratch) {
+        let GridScratch {
             nodes,
-            grid_mass,
-            grid_v,
-            grid_a,
-            active,
+            mass: grid_mass,
+            fields: [grid_v, grid_a],
             ..
         } = buf;
-        let (gm, gv, ga) = (
-            SharedMut::new(grid_mass),
-            SharedMut::new(grid_v),
-            SharedMut::new(grid_a),
-        );
-        active.par_iter().with_min_len(1024).for_each(|&i| {
-            // SAFETY: active node indices are distinct.
-            unsafe { *gm.get(i as usize) = nodes[i as usize].mass };
-        });
+        grid_quotients(bins, par, nodes, grid_mass, [grid_v, grid_a]);
         let ctx = self.grid_context(grid_mass, at);
         let effects = GridEffects::new(&self.effects, GridForm::Rate);
-        active.par_iter().with_min_len(1024).for_each(|&i| {
-            let i = i as usize;
-            let [v, a] = transfer::quotient(&nodes[i]);
-            let mut motion = NodeMotion { v, a };
-            if nodes[i].mass > 0.0 {
-                effects.apply(&ctx, i, &mut motion);
-            }
-            // SAFETY: active node indices are distinct.
-            unsafe {
-                *gv.get(i) = motion.v;
-                *ga.get(i) = motion.a;
-            }
-        });
+        apply_grid_effects(
+            bins,
+            par,
+            &effects,
+            &ctx,
+            [&mut grid_v[..], &mut grid_a[..]],
+        );
     }
 
     fn rhs_impl<const N: usize>(&self, s: &State, at: &At, out: &mut State) -> Result<(), SimError>
@@ -338,6 +323,7 @@ impl Rk4 {
         let values = at.values;
         let fw = self.forward_grid::<N>(s, at)?;
         let n = s.len();
+        let par = Parallel::for_particles(n);
         out.x.resize(n, Vector3::zeros());
         out.v.resize(n, Vector3::zeros());
         out.f.resize(n, Matrix3::zeros());
@@ -347,7 +333,7 @@ impl Rk4 {
             out.f.par_iter_mut(),
         )
             .into_par_iter()
-            .with_min_len(PARALLEL_MIN)
+            .with_min_len(par.min_len())
             .enumerate()
             .for_each(|(p, (dx, dv, df))| {
                 let g = &fw.gathered[p];
@@ -385,7 +371,7 @@ impl Rk4 {
         // so the result does not depend on the thread count).
         let mut grad_u = vec![Vector3::zeros(); n];
         self.g2p_rate_reverse::<N>(s, grad_out, &mut fw, stencils, &mut grad, &mut grad_u);
-        let effect_params = self.grid_rate_reverse(at, &mut fw.buf);
+        let effect_params = self.grid_rate_reverse(at, &fw.bins, &mut fw.buf);
         let grad_body =
             self.p2g_rate_reverse::<N>(s, at.values, &mut fw, stencils, &mut grad, &mut grad_u);
         fw.buf.stencils = cache;
@@ -398,7 +384,7 @@ impl Rk4 {
         }
     }
 
-    /// G2P and dF/dt reverse: a scatter into the grid adjoints (`fw.buf.grad_v`, `grad_a`),
+    /// G2P and dF/dt reverse: a scatter into the grid adjoints (`fw.buf.grad_fields`),
     /// into `grad.x`, `grad.f` and the clamped particles' `grad_u`.
     fn g2p_rate_reverse<const N: usize>(
         &self,
@@ -411,17 +397,14 @@ impl Rk4 {
     ) where
         Stencil<N>: Cached,
     {
-        let par = s.len() >= PARALLEL_MIN;
+        let par = Parallel::for_particles(s.len());
         let strides = self.grid.strides();
         let inv_d = self.inv_d();
-        let Buffers {
-            grid_v,
-            grid_a,
-            grad_v,
-            grad_a,
-            grid_v_axes: grid_axes,
-            grad_v_axes: grad_axes,
-            grad_a_axes,
+        let GridScratch {
+            fields: [grid_v, grid_a],
+            grad_fields: [grad_v, grad_a],
+            velocity_axes: grid_axes,
+            grad_axes: [grad_axes, grad_a_axes],
             ..
         } = &mut fw.buf;
         let gx = SharedMut::new(&mut grad.x);
@@ -439,7 +422,7 @@ impl Rk4 {
         let [gv0, gv1, gv2] = gv;
         let [ga0, ga1, ga2] = ga;
         bins.scatter(
-            par,
+            par.on,
             tiles,
             &mut [gv0, gv1, gv2, ga0, ga1, ga2],
             |tile, p| {
@@ -482,57 +465,34 @@ impl Rk4 {
                 }
             },
         );
-        grad_axes.write_vectors(grad_v);
-        grad_a_axes.write_vectors(grad_a);
+        grad_axes.write_vectors(grad_v, bins, par.on);
+        grad_a_axes.write_vectors(grad_a, bins, par.on);
     }
 
     /// Grid reverse: the effects backwards (each given its inputs, replayed from the
-    /// quotient), then v = p / m, a = f / m, into `buf.grad_nodes`. Parameter gradients are
-    /// summed over nodes in the order of the active list, so they do not depend on the
-    /// thread count.
-    fn grid_rate_reverse(&self, at: &At, buf: &mut Buffers) -> Vec<Vec<f64>> {
+    /// quotient), then v = p / m, a = f / m, into `buf.grad_nodes`, on the region (see
+    /// [`grid_update_reverse`]).
+    fn grid_rate_reverse(&self, at: &At, bins: &Bins, buf: &mut Scratch) -> Vec<Vec<f64>> {
         let mut effect_params = self.zero_effect_params();
-        let Buffers {
+        let GridScratch {
             nodes,
-            grid_mass,
-            grad_v,
-            grad_a,
+            mass: grid_mass,
+            grad_fields: [grad_v, grad_a],
             grad_nodes,
-            active,
             ..
         } = buf;
         let ctx = self.grid_context(grid_mass, at);
         let effects = GridEffects::new(&self.effects, GridForm::Rate);
-        let width = effects.width();
-        let mut node_params = vec![0.0; active.len() * width];
-        let gn = SharedMut::new(grad_nodes);
-        let reverse_node = |i: usize, params: &mut [f64]| {
-            let [v, a] = transfer::quotient(&nodes[i]);
-            let mut grad = NodeMotion {
-                v: grad_v[i],
-                a: grad_a[i],
-            };
-            if nodes[i].mass > 0.0 {
-                effects.reverse(&ctx, i, &NodeMotion { v, a }, &mut grad, params);
-            }
-            // SAFETY: active node indices are distinct.
-            unsafe {
-                *gn.get(i) = transfer::quotient_reverse(nodes[i].mass, &[v, a], &[grad.v, grad.a])
-            };
-        };
-        if width > 0 {
-            active
-                .par_iter()
-                .zip(node_params.par_chunks_mut(width))
-                .with_min_len(1024)
-                .for_each(|(&i, params)| reverse_node(i as usize, params));
-            effects.add_rows(&node_params, &mut effect_params);
-        } else {
-            active
-                .par_iter()
-                .with_min_len(1024)
-                .for_each(|&i| reverse_node(i as usize, &mut []));
-        }
+        grid_update_reverse(
+            bins,
+            Parallel::for_particles(bins.order.len()),
+            &effects,
+            &ctx,
+            |i| transfer::quotient(&nodes[i]),
+            |i| [grad_v[i], grad_a[i]],
+            grad_nodes,
+            &mut effect_params,
+        );
         effect_params
     }
 
@@ -553,7 +513,10 @@ impl Rk4 {
         let n = s.len();
         let strides = self.grid.strides();
         let mut grad_body = vec![Vector3::zeros(); n];
-        fw.buf.grad_node_axes.set_from(&fw.buf.grad_nodes);
+        let par = Parallel::for_particles(n);
+        fw.buf
+            .grad_node_axes
+            .set_from(&fw.buf.grad_nodes, &fw.bins, par.on);
         let grad_nodes = &fw.buf.grad_node_axes;
         (
             grad.x.par_chunks_mut(CHUNK),
@@ -563,7 +526,7 @@ impl Rk4 {
             grad_body.par_chunks_mut(CHUNK),
         )
             .into_par_iter()
-            .with_min_len(PARALLEL_MIN / CHUNK)
+            .with_min_len(par.min_batches())
             .enumerate()
             .for_each(|(k, (gx, gv, gf, gu, gb))| {
                 let p0 = k * CHUNK;
@@ -617,113 +580,8 @@ impl Rk4 {
     }
 }
 
-/// Below this many particles the stages run on the calling thread: the work is too small to
-/// pay for a fork-join (and the controllers parallelize over rollouts instead). Results are
-/// bitwise the same either way.
-const PARALLEL_MIN: usize = 2048;
-
-/// Dense grid buffers of one evaluation; only active nodes hold meaningful values.
-#[derive(Default)]
-struct Buffers {
-    nodes: Vec<Node<2>>,
-    grid_mass: Vec<f64>,
-    grid_v: Vec<Vector3<f64>>,
-    grid_a: Vec<Vector3<f64>>,
-    grad_v: Vec<Vector3<f64>>,
-    grad_a: Vec<Vector3<f64>>,
-    grad_nodes: Vec<Node<2>>,
-    /// The same grids stored by axis, for the transfers on stencil rows (kept with the
-    /// buffers, so an evaluation does not allocate them again).
-    node_axes: AxisNodes<2>,
-    grid_v_axes: AxisField,
-    grad_v_axes: AxisField,
-    grad_a_axes: AxisField,
-    grad_node_axes: AxisNodes<2>,
-    /// Every particle's stencil, built once an evaluation.
-    stencils: StencilCache,
-    /// `mark[i] == generation` when node i is active in the current evaluation.
-    mark: Vec<u32>,
-    generation: u32,
-    active: Vec<u32>,
-}
-
-impl Buffers {
-    fn sized(nodes: usize) -> Buffers {
-        Buffers {
-            nodes: vec![Node::ZERO; nodes],
-            grid_mass: vec![0.0; nodes],
-            grid_v: vec![Vector3::zeros(); nodes],
-            grid_a: vec![Vector3::zeros(); nodes],
-            grad_v: vec![Vector3::zeros(); nodes],
-            grad_a: vec![Vector3::zeros(); nodes],
-            grad_nodes: vec![Node::ZERO; nodes],
-            node_axes: AxisNodes::default(),
-            grid_v_axes: AxisField::default(),
-            grad_v_axes: AxisField::default(),
-            grad_a_axes: AxisField::default(),
-            grad_node_axes: AxisNodes::default(),
-            stencils: StencilCache::default(),
-            mark: vec![0; nodes],
-            generation: 0,
-            active: Vec::new(),
-        }
-    }
-
-    /// Lists the nodes inside any particle's stencil (positions already checked by Bins).
-    fn mark_active<const N: usize>(&mut self, stencils: &[Stencil<N>], strides: &[usize; 3]) {
-        self.generation = self.generation.wrapping_add(1);
-        if self.generation == 0 {
-            self.mark.iter_mut().for_each(|m| *m = 0);
-            self.generation = 1;
-        }
-        self.active.clear();
-        for st in stencils {
-            let i0 = st.base_index(strides);
-            for a in 0..N {
-                for b in 0..N {
-                    let row = i0 + a * strides[0] + b * strides[1];
-                    for c in 0..N {
-                        let i = row + c;
-                        if self.mark[i] != self.generation {
-                            self.mark[i] = self.generation;
-                            self.active.push(i as u32);
-                        }
-                    }
-                }
-            }
-        }
-    }
-}
-
-/// Reusable grid buffers, shared by concurrent evaluations (rollouts run in parallel, and a
-/// work-stealing thread may start a second evaluation while one is in flight, so a
-/// thread-local buffer would not do).
-#[derive(Default)]
-pub(crate) struct BufferPool {
-    free: std::sync::Mutex<Vec<Buffers>>,
-}
-
-impl std::fmt::Debug for BufferPool {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.write_str("BufferPool")
-    }
-}
-
-impl BufferPool {
-    fn take(&self, nodes: usize) -> Buffers {
-        let found = self.free.lock().map(|mut v| v.pop()).unwrap_or(None);
-        match found {
-            Some(b) if b.nodes.len() == nodes => b,
-            _ => Buffers::sized(nodes),
-        }
-    }
-
-    fn put(&self, b: Buffers) {
-        if let Ok(mut v) = self.free.lock() {
-            v.push(b);
-        }
-    }
-}
+/// The grid buffers of one evaluation: momentum and force a node.
+type Scratch = GridScratch<2>;
 
 /// Intermediate results of one forward evaluation.
 /// What the gather returns for one particle.
@@ -739,6 +597,6 @@ struct Forward {
     bins: Bins,
     body: Vec<Vector3<f64>>,
     stress_force: Vec<Matrix3<f64>>,
-    buf: Buffers,
+    buf: Scratch,
     gathered: Vec<Gathered>,
 }

@@ -5,16 +5,15 @@ use super::control::ControlForm;
 use super::effect::{GridContext, GridEffects, GridForm};
 use super::error::SimError;
 use super::grid::{Bins, SharedMut};
-use super::grid_update::{
-    apply_grid_effects, grid_velocity, grid_velocity_reverse, reverse_grid_effects,
-};
-use super::kernel::{Cached, KernelKind, Stencil, StencilCache};
+use super::grid_update::{apply_grid_effects, grid_quotients, grid_update_reverse};
+use super::kernel::{Cached, KernelKind, Stencil};
 use super::model::Model;
 use super::profile::{Laps, Stage, StageClock};
-use super::stages::{self, CHUNK};
+use super::scratch::GridScratch;
+use super::stages::{self, CHUNK, Parallel};
 use super::state::{State, StateGrad, par_copy};
 use super::stress::StressInputs;
-use super::transfer::{self, Affine, AxisField, AxisNodes, Node};
+use super::transfer::{self, Affine};
 use crate::mpm::ControlParams;
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
@@ -49,33 +48,18 @@ impl From<Model> for Euler {
     }
 }
 
-/// Scratch buffers reused across steps.
+/// Scratch buffers reused across steps, forward and reverse: the grid's (one momentum
+/// field a node) and the particles'.
 #[derive(Default)]
 pub struct Workspace {
     bins: Bins,
-    nodes: Vec<Node<1>>,
-    grid_v: Vec<Vector3<f64>>,
+    grid: GridScratch<1>,
+    /// Each particle's elastic gradient `Fe` (the control applied), and its adjoint.
     fe: Vec<Matrix3<f64>>,
+    grad_fe: Vec<Matrix3<f64>>,
     affine: Vec<Matrix3<f64>>,
     kept: Vec<f64>,
     scale: Vec<f64>,
-    stencils: StencilCache,
-    node_axes: AxisNodes<1>,
-    grid_axes: AxisField,
-}
-
-/// Scratch buffers of the reverse pass, reused across its steps.
-#[derive(Default)]
-struct ReverseWorkspace {
-    fe: Vec<Matrix3<f64>>,
-    grad_fe: Vec<Matrix3<f64>>,
-    grid_v: Vec<Vector3<f64>>,
-    grad_grid_v: Vec<Vector3<f64>>,
-    grad_nodes: Vec<Node<1>>,
-    stencils: StencilCache,
-    grid_axes: AxisField,
-    grad_axes: AxisField,
-    grad_node_axes: AxisNodes<1>,
 }
 
 /// One step of the reverse pass for the model's kernel ([`Euler::reverse_impl`]).
@@ -87,7 +71,7 @@ type ReverseStep = fn(
     Option<&[Vector3<f64>]>,
     &mut StateGrad,
     &mut [Vec<f64>],
-    &mut ReverseWorkspace,
+    &mut Workspace,
 ) -> (Vec<Matrix3<f64>>, Vec<Vector3<f64>>);
 
 /// Particle `p`'s kept control volume factor (1 where none is kept: the additive form).
@@ -304,33 +288,36 @@ impl Euler {
         self.check_control(fc, step)?;
         let (origin, dx) = (self.grid.origin_vec(), self.grid.dx);
         let mut laps = Laps::start(self.clock.as_deref());
+        let par = Parallel::for_particles(state.len());
         ws.bins = Bins::build(&self.grid, &state.x, N, step)?;
         laps.lap(Stage::Bins);
-        self.stress_stage(state, fc, tape.is_some(), ws);
+        self.stress_stage(state, fc, tape.is_some(), par, ws);
         laps.lap(Stage::Stress);
         // P2G (a tiled scatter).
         let retention = self.momentum_retention(step);
         let body = values.map(|v| self.body_accelerations(v));
-        let stencils = stages::stencils::<N>(self.simd, &state.x, &origin, dx, 1, &mut ws.stencils);
+        let stencils =
+            stages::stencils::<N>(self.simd, &state.x, &origin, dx, par, &mut ws.grid.stencils);
         let affine = &ws.affine;
         stages::p2g(
             self.simd,
             &ws.bins,
             stencils,
             &self.mass,
-            true,
+            par,
             |p| {
                 [Affine {
                     value: self.particle_momentum(state, values, body.as_deref(), retention, p),
                     slope: affine[p],
                 }]
             },
-            &mut ws.node_axes,
-            &mut ws.nodes,
+            &mut ws.grid.node_axes,
+            &mut ws.grid.nodes,
             self.grid.node_count(),
         );
         laps.lap(Stage::P2g);
-        let (grid_mass, grid_v_pre) = self.grid_stage::<N>(state, values, step, tape.is_some(), ws);
+        let (grid_mass, grid_v_pre) =
+            self.grid_stage::<N>(state, values, step, tape.is_some(), par, ws);
         laps.lap(Stage::Grid);
         if let Some(tape) = tape {
             tape.push(StepTape {
@@ -345,7 +332,7 @@ impl Euler {
             });
             laps.lap(Stage::Tape);
         }
-        self.g2p_stage::<N>(state, values, ws);
+        self.g2p_stage::<N>(state, values, par, ws);
         laps.lap(Stage::G2p);
         self.check_finite_and_cfl(state.first_non_finite(), &state.v, step)
     }
@@ -358,6 +345,7 @@ impl Euler {
         state: &State,
         fc: Option<&[Matrix3<f64>]>,
         taped: bool,
+        par: Parallel,
         ws: &mut Workspace,
     ) {
         let n = state.len();
@@ -374,7 +362,11 @@ impl Euler {
         // The plastic form's volume factors (kept on the tape: its reverse needs them twice).
         ws.scale.clear();
         if let (Some(fc), ControlForm::Plastic) = (fc, form) {
-            ws.scale.par_extend(fc.par_iter().map(|fc| form.scale(fc)));
+            ws.scale.par_extend(
+                fc.par_iter()
+                    .with_min_len(par.min_len())
+                    .map(|fc| form.scale(fc)),
+            );
         }
         let scale = &ws.scale;
         stages::stress_of(
@@ -387,50 +379,46 @@ impl Euler {
             &mut ws.fe,
             Some(&state.c),
             |p| self.stress_inputs(p),
-            1,
+            par,
             &mut ws.affine,
             &mut ws.kept,
         );
     }
 
-    /// G: the grid velocity, then the effects and the clamps, into `ws.grid_v`. Returns the
-    /// nodal masses (when taped or an effect needs them) and, taped, the velocity before the
-    /// effects.
+    /// G: the grid velocity, then the effects and the clamps, into `ws.grid.fields[0]`. Taped, returns
+    /// the nodal masses and the velocity before the effects.
     fn grid_stage<const N: usize>(
         &self,
         state: &State,
         values: Option<&[Vector3<f64>]>,
         step: usize,
         taped: bool,
+        par: Parallel,
         ws: &mut Workspace,
     ) -> (Vec<f64>, Vec<Vector3<f64>>)
     where
         Stencil<N>: Cached,
     {
         // G: grid velocity, then effects.
-        ws.grid_v.resize(self.grid.node_count(), Vector3::zeros());
-        grid_velocity(&ws.nodes, &mut ws.grid_v);
+        grid_quotients(
+            &ws.bins,
+            par,
+            &ws.grid.nodes,
+            &mut ws.grid.mass,
+            [&mut ws.grid.fields[0]],
+        );
         let effects = GridEffects::new(&self.effects, GridForm::Step);
-        // Nodal masses alone: the tape and the grid effects need them.
-        let grid_mass: Vec<f64> = if taped || !effects.is_empty() {
-            ws.nodes.par_iter().map(|n| n.mass).collect()
-        } else {
-            Vec::new()
+        let (grid_mass, grid_v_pre) = match taped {
+            true => (par_copy(&ws.grid.mass), par_copy(&ws.grid.fields[0])),
+            false => (Vec::new(), Vec::new()),
         };
-        let grid_v_pre = if taped {
-            par_copy(&ws.grid_v)
-        } else {
-            Vec::new()
-        };
-        if !effects.is_empty() {
-            let ctx = self.grid_context(&grid_mass, step);
-            apply_grid_effects(&effects, &ctx, &mut ws.grid_v);
-        }
+        let ctx = self.grid_context(&ws.grid.mass, step);
+        apply_grid_effects(&ws.bins, par, &effects, &ctx, [&mut ws.grid.fields[0][..]]);
         // Kinematic controls hold the nodes their particles touch at the prescribed velocity
         // (a grid boundary condition: the body near a clamp feels it through its stress).
         if let Some(vals) = values {
             for (i, e) in self.clamp_nodes::<N>(&state.x) {
-                ws.grid_v[i] = vals[e];
+                ws.grid.fields[0][i] = vals[e];
             }
         }
         (grid_mass, grid_v_pre)
@@ -442,21 +430,25 @@ impl Euler {
         &self,
         state: &mut State,
         values: Option<&[Vector3<f64>]>,
+        par: Parallel,
         ws: &mut Workspace,
     ) where
         Stencil<N>: Cached,
     {
         let (dt, inv_d, strides) = (self.dt, self.inv_d(), self.grid.strides());
         // G2P and P2 (per-particle gather, in place).
-        ws.grid_axes.set_from(&ws.grid_v);
-        let grid_v = &ws.grid_axes;
+        ws.grid
+            .velocity_axes
+            .set_from(&ws.grid.fields[0], &ws.bins, par.on);
+        let grid_v = &ws.grid.velocity_axes;
         let fe = &ws.fe;
-        let stencils = ws.stencils.sized::<N>(state.len());
+        let stencils = ws.grid.stencils.sized::<N>(state.len());
         let State { x, v, c, f } = state;
         x.par_iter_mut()
             .zip(v.par_iter_mut())
             .zip(c.par_iter_mut().zip(f.par_iter_mut()))
             .enumerate()
+            .with_min_len(par.min_len())
             .for_each(|(p, ((x, v), (c, f)))| {
                 let s = &stencils[p];
                 let (mut vel, mut cn) =
@@ -503,7 +495,7 @@ impl Euler {
             Some(_) => self.controls.zero_params(),
             None => Vec::new(),
         };
-        let mut rws = ReverseWorkspace::default();
+        let mut rws = Workspace::default();
         let reverse: ReverseStep = match self.kernel {
             KernelKind::Quadratic => Self::reverse_impl::<3>,
             KernelKind::Cubic => Self::reverse_impl::<4>,

@@ -18,7 +18,7 @@ impl Euler {
         values: Option<&[Vector3<f64>]>,
         adj: &mut StateGrad,
         effect_params: &mut [Vec<f64>],
-        rws: &mut ReverseWorkspace,
+        rws: &mut Workspace,
     ) -> (Vec<Matrix3<f64>>, Vec<Vector3<f64>>)
     where
         Stencil<N>: Cached,
@@ -49,7 +49,7 @@ impl Euler {
         fc: Option<&[Matrix3<f64>]>,
         values: Option<&[Vector3<f64>]>,
         effects: &GridEffects,
-        rws: &mut ReverseWorkspace,
+        rws: &mut Workspace,
     ) -> Vec<(usize, usize)>
     where
         Stencil<N>: Cached,
@@ -57,26 +57,40 @@ impl Euler {
         let pre = &tape.pre;
         let form = self.control_form;
         rws.fe.resize(pre.len(), Matrix3::zeros());
-        rws.fe.par_iter_mut().enumerate().for_each(|(p, fe)| {
-            *fe = match fc {
-                Some(fc) => form.apply_scaled(&pre.f[p], &fc[p], scale_of(&tape.scale, p)),
-                None => pre.f[p],
-            }
-        });
+        let par = Parallel::for_particles(pre.len());
+        rws.fe
+            .par_iter_mut()
+            .enumerate()
+            .with_min_len(par.min_len())
+            .for_each(|(p, fe)| {
+                *fe = match fc {
+                    Some(fc) => form.apply_scaled(&pre.f[p], &fc[p], scale_of(&tape.scale, p)),
+                    None => pre.f[p],
+                }
+            });
+        let par = Parallel::for_particles(pre.len());
         let ctx = self.grid_context(&tape.grid_mass, tape.step);
-        rws.grid_v.clone_from(&tape.grid_v);
-        apply_grid_effects(effects, &ctx, &mut rws.grid_v);
+        rws.grid.fields[0].clone_from(&tape.grid_v);
+        apply_grid_effects(
+            &tape.bins,
+            par,
+            effects,
+            &ctx,
+            [&mut rws.grid.fields[0][..]],
+        );
         let clamp_nodes = match values {
             Some(vals) => {
                 let nodes = self.clamp_nodes::<N>(&pre.x);
                 for &(i, e) in &nodes {
-                    rws.grid_v[i] = vals[e];
+                    rws.grid.fields[0][i] = vals[e];
                 }
                 nodes
             }
             None => Vec::new(),
         };
-        rws.grid_axes.set_from(&rws.grid_v);
+        rws.grid
+            .velocity_axes
+            .set_from(&rws.grid.fields[0], &tape.bins, par.on);
         clamp_nodes
     }
 
@@ -88,17 +102,18 @@ impl Euler {
         post: &State,
         values: Option<&[Vector3<f64>]>,
         adj: &mut StateGrad,
-        rws: &mut ReverseWorkspace,
+        rws: &mut Workspace,
     ) -> Vec<Vector3<f64>>
     where
         Stencil<N>: Cached,
     {
         let pre = &tape.pre;
         let n = pre.len();
+        let par = Parallel::for_particles(n);
         let nodes = self.grid.node_count();
         let (dt, inv_d) = (self.dt, self.inv_d());
         let (strides, origin, dx) = (self.grid.strides(), self.grid.origin_vec(), self.grid.dx);
-        let (fe, grid_v) = (&rws.fe, &rws.grid_axes);
+        let (fe, grid_v) = (&rws.fe, &rws.grid.velocity_axes);
         // P2 reverse and G2P reverse, fused per particle (a scatter into the grid velocity
         // adjoint, block by block into tiles). A clamped particle's velocity is its
         // prescribed one: its adjoint goes to the control (`grad_u`), not to the gather.
@@ -117,8 +132,8 @@ impl Euler {
             let gu = SharedMut::new(&mut grad_u);
             let (av, ac, af) = (&*av, &*ac, &*af);
             let stencils =
-                stages::stencils::<N>(self.simd, &pre.x, &origin, dx, 1, &mut rws.stencils);
-            rws.grad_axes.scatter(&tape.bins, true, nodes, |tile, p| {
+                stages::stencils::<N>(self.simd, &pre.x, &origin, dx, par, &mut rws.grid.stencils);
+            rws.grid.grad_axes[0].scatter(&tape.bins, par.on, nodes, |tile, p| {
                 // SAFETY: each particle is visited exactly once.
                 let (x_adj, fe_adj) = unsafe { (gx.get(p), gfe.get(p)) };
                 let g = advance_reverse(&fe[p], &post.c[p], dt, x_adj, &av[p], &ac[p], &af[p]);
@@ -143,31 +158,35 @@ impl Euler {
     }
 
     /// The grid update's reverse: the clamped nodes' adjoints go to their controls, then the
-    /// effects backwards, then `v = p / m`, into `rws.grad_nodes`. Returns dL/d(clamp values).
+    /// effects backwards, then `v = p / m`, into `rws.grid.grad_nodes`. Returns dL/d(clamp values).
     fn grid_reverse(
         &self,
         tape: &StepTape,
         clamp_nodes: &[(usize, usize)],
         effects: &GridEffects,
         effect_params: &mut [Vec<f64>],
-        rws: &mut ReverseWorkspace,
+        rws: &mut Workspace,
     ) -> Vec<Vector3<f64>> {
+        let (bins, par) = (&tape.bins, Parallel::for_particles(tape.pre.len()));
         let ctx = self.grid_context(&tape.grid_mass, tape.step);
-        rws.grad_axes.write_vectors(&mut rws.grad_grid_v);
+        rws.grid.grad_axes[0].write_vectors(&mut rws.grid.grad_fields[0], bins, par.on);
         // The clamped nodes' velocities are the controls' values.
-        let grad_grid_v = &mut rws.grad_grid_v;
+        let grad_grid_v = &mut rws.grid.grad_fields[0];
         let mut grad_clamp = vec![Vector3::zeros(); self.controls.effects.len()];
         for &(i, e) in clamp_nodes {
             grad_clamp[e] += grad_grid_v[i];
             grad_grid_v[i] = Vector3::zeros();
         }
-        reverse_grid_effects(effects, &ctx, &tape.grid_v, grad_grid_v, effect_params);
-        rws.grad_nodes.resize(self.grid.node_count(), Node::ZERO);
-        grid_velocity_reverse(
-            &tape.grid_mass,
-            &tape.grid_v,
-            grad_grid_v,
-            &mut rws.grad_nodes,
+        let grad_grid_v = &*grad_grid_v;
+        grid_update_reverse(
+            bins,
+            par,
+            effects,
+            &ctx,
+            |i| [tape.grid_v[i]],
+            |i| [grad_grid_v[i]],
+            &mut rws.grid.grad_nodes,
+            effect_params,
         );
         grad_clamp
     }
@@ -181,7 +200,7 @@ impl Euler {
         fc: Option<&[Matrix3<f64>]>,
         values: Option<&[Vector3<f64>]>,
         adj: &mut StateGrad,
-        rws: &mut ReverseWorkspace,
+        rws: &mut Workspace,
     ) -> (Vec<Matrix3<f64>>, Vec<Vector3<f64>>)
     where
         Stencil<N>: Cached,
@@ -203,9 +222,12 @@ impl Euler {
         // dL/d(scattered momentum) per particle, for the controls.
         let mut grad_mom = vec![Vector3::zeros(); if values.is_some() { n } else { 0 }];
         let gm = SharedMut::new(&mut grad_mom);
-        rws.grad_node_axes.set_from(&rws.grad_nodes);
-        let (grad_nodes, grad_fe) = (&rws.grad_node_axes, &rws.grad_fe);
-        let stencils = &rws.stencils.sized::<N>(n)[..];
+        let par = Parallel::for_particles(n);
+        rws.grid
+            .grad_node_axes
+            .set_from(&rws.grid.grad_nodes, &tape.bins, par.on);
+        let (grad_nodes, grad_fe) = (&rws.grid.grad_node_axes, &rws.grad_fe);
+        let stencils = &rws.grid.stencils.sized::<N>(n)[..];
         (
             ax.par_chunks_mut(CHUNK),
             av.par_chunks_mut(CHUNK),
@@ -214,6 +236,7 @@ impl Euler {
             grad_fc.par_chunks_mut(CHUNK),
         )
             .into_par_iter()
+            .with_min_len(par.min_batches())
             .enumerate()
             .for_each(|(k, (gx, gv, gc, gf, gfc))| {
                 let p0 = k * CHUNK;
