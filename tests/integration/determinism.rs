@@ -4,7 +4,7 @@ use crate::common;
 
 use common::*;
 use morph::engine::effects::WallMode;
-use morph::engine::integrator::{Integrator, IntegratorKind};
+use morph::engine::integrator::{Integrator, IntegratorKind, Steps};
 use morph::engine::lanes::SimdLevel;
 use morph::engine::mpm::{Gradients, KernelKind, State};
 use morph::engine::scene::{EffectConfig, SceneConfig};
@@ -189,7 +189,7 @@ fn controlled_rope_bits(integrator: IntegratorKind) {
             model.controls.project(&mut params);
             let mut s = rope.initial.clone();
             let mut tape = Default::default();
-            let energy = Controlled::run(sys, &mut s, &params, 0, 6, Some(&mut tape), &mut |_, _| {})
+            let energy = Controlled::run(sys, &mut s, &params, Steps::new(0, 6), Some(&mut tape), &mut |_, _| {})
                 .unwrap();
             let grad = sys.kinetic_cost_gradient(&tape, &params, 1.0, None);
             let mut out: Vec<u64> = energy.iter().map(|e| e.to_bits()).collect();

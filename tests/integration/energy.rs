@@ -5,7 +5,7 @@
 //! per RK4 step).
 
 use morph::engine::material::{ConstitutiveModel, FixedCorotated};
-use morph::engine::mpm::model::Model;
+use morph::engine::mpm::model::{Model, Steps};
 use morph::engine::mpm::{Euler, GridSpec, KernelKind, State};
 use morph::engine::ode::Rk4;
 use nalgebra::{Matrix3, Vector3};
@@ -105,7 +105,7 @@ fn rk4(b: &Bar, dt: f64) -> (f64, f64) {
     let e0 = kinetic(&s.v, m) + sys.elastic_energy(&s);
     let params = sys.controls.zero_params();
     let t = Instant::now();
-    sys.rollout(&mut s, &params, 0, steps, None, |_, _| {})
+    sys.rollout(&mut s, &params, Steps::new(0, steps), None, |_, _| {})
         .unwrap();
     let secs = t.elapsed().as_secs_f64();
     let e = kinetic(&s.v, m) + sys.elastic_energy(&s);

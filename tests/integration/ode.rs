@@ -9,7 +9,7 @@ use crate::common;
 use common::Lcg;
 use morph::apps::rope::scene::{Actuation, ClampMode, RopeConfig};
 use morph::engine::Engine;
-use morph::engine::integrator::{Controlled, IntegratorKind};
+use morph::engine::integrator::{Controlled, IntegratorKind, Steps};
 use morph::engine::material::MaterialModel;
 use morph::engine::mpm::{ControlParams, Interpolation};
 use morph::engine::mpm::{KernelKind, State};
@@ -106,7 +106,7 @@ impl Cost {
     fn eval<S: Controlled>(&self, sys: &S, init: &State, params: &ControlParams) -> f64 {
         let mut s = init.clone();
         let e = sys
-            .run(&mut s, params, 0, STEPS, None, &mut |_, _| {})
+            .run(&mut s, params, Steps::new(0, STEPS), None, &mut |_, _| {})
             .unwrap();
         e.iter().sum::<f64>() + dot(&self.probe, &s)
     }
@@ -155,8 +155,7 @@ fn check_run<S: Controlled>(sys: &S, init: State, params: ControlParams, label: 
     sys.run(
         &mut last,
         &params,
-        0,
-        STEPS,
+        Steps::new(0, STEPS),
         Some(&mut tape),
         &mut |_, _| {},
     )

@@ -3,7 +3,7 @@
 //! controller's committed steps replay exactly and MPPI is deterministic across thread counts.
 
 use morph::apps::rope::compare::{RopeSettings, run_rope};
-use morph::engine::integrator::Controlled;
+use morph::engine::integrator::{Controlled, Steps};
 use morph::engine::mpm::{ControlParams, ControlPlan};
 use nalgebra::Vector3;
 use std::process::Command;
@@ -90,7 +90,7 @@ fn non_finite_or_misshapen_control_knots_are_refused() {
     let err = plan.check_params(&p).unwrap_err().to_string();
     assert!(err.contains("knot 3 is not finite"), "{err}");
     let mut s = rope.initial.clone();
-    let err = morph::engine::with_integrator!(&rope.engine, sys => sys.run(&mut s, &p, 0, 5, None, &mut |_, _| {}))
+    let err = morph::engine::with_integrator!(&rope.engine, sys => sys.run(&mut s, &p, Steps::new(0, 5), None, &mut |_, _| {}))
         .unwrap_err()
         .to_string();
     assert!(err.contains("not finite"), "{err}");

@@ -12,6 +12,7 @@ use std::borrow::Cow;
 pub mod recompute;
 
 pub use crate::mpm::control::{StepControl, StepControls};
+pub use crate::mpm::model::Steps;
 
 /// A cost on every state along a run: `seed(k, state, adj)` adds to `adj` the adjoint of the
 /// cost on the state after global step `k` (see [`Integrator::backward_seeded`]).
@@ -64,12 +65,15 @@ pub trait RunTape: Default + Clone + Send + Sync {
     fn bytes(&self) -> usize;
 }
 
-/// A time integrator over a [`Model`], with a tape and a reverse pass.
-pub trait Integrator: Send + Sync {
+/// A time integrator over a [`Model`] (which it dereferences to), with a tape and a reverse
+/// pass.
+pub trait Integrator: std::ops::Deref<Target = Model> + Send + Sync {
     /// What the reverse pass needs from a forward run.
     type Tape: RunTape;
 
-    fn model(&self) -> &Model;
+    fn model(&self) -> &Model {
+        self
+    }
 
     /// Runs `n_steps` steps from `state` (global steps `first_step..`, which time-dependent
     /// effects read and errors name), recording a tape when given one.
@@ -81,7 +85,7 @@ pub trait Integrator: Send + Sync {
         n_steps: usize,
         tape: Option<&mut Self::Tape>,
     ) -> Result<(), SimError> {
-        self.forward_observed(state, controls, first_step, n_steps, tape, None)
+        self.forward_observed(state, controls, Steps::new(first_step, n_steps), tape, None)
     }
 
     /// [`Integrator::forward`] where `on_step(k, state)`, when given, sees the state after
@@ -90,8 +94,7 @@ pub trait Integrator: Send + Sync {
         &self,
         state: &mut State,
         controls: &StepControls,
-        first_step: usize,
-        n_steps: usize,
+        steps: Steps,
         tape: Option<&mut Self::Tape>,
         on_step: Option<&mut OnStep>,
     ) -> Result<(), SimError>;
@@ -156,20 +159,15 @@ impl RunTape for crate::mpm::Tape {
 impl Integrator for Euler {
     type Tape = crate::mpm::Tape;
 
-    fn model(&self) -> &Model {
-        &self.model
-    }
-
     fn forward_observed(
         &self,
         state: &mut State,
         controls: &StepControls,
-        first_step: usize,
-        n_steps: usize,
+        steps: Steps,
         tape: Option<&mut Self::Tape>,
         mut on_step: Option<&mut OnStep>,
     ) -> Result<(), SimError> {
-        self.forward_driven(state, controls, None, first_step, n_steps, tape, |k, s| {
+        self.forward_driven(state, controls, None, steps, tape, |k, s| {
             if let Some(f) = on_step.as_deref_mut() {
                 f(k, s)
             }
@@ -217,8 +215,7 @@ pub trait Controlled: Integrator {
         &self,
         state: &mut State,
         params: &ControlParams,
-        first_step: usize,
-        n_steps: usize,
+        steps: Steps,
         tape: Option<&mut Self::Tape>,
         on_step: &mut dyn FnMut(usize, &State),
     ) -> Result<Vec<f64>, SimError>;
@@ -252,24 +249,15 @@ impl Controlled for Euler {
         &self,
         state: &mut State,
         params: &ControlParams,
-        first_step: usize,
-        n_steps: usize,
+        steps: Steps,
         tape: Option<&mut Self::Tape>,
         on_step: &mut dyn FnMut(usize, &State),
     ) -> Result<Vec<f64>, SimError> {
-        let mut energy = Vec::with_capacity(n_steps);
-        self.forward_driven(
-            state,
-            &[],
-            Some(params),
-            first_step,
-            n_steps,
-            tape,
-            |k, s| {
-                energy.push(kinetic(&self.mass, &s.v));
-                on_step(k, s);
-            },
-        )?;
+        let mut energy = Vec::with_capacity(steps.count);
+        self.forward_driven(state, &[], Some(params), steps, tape, |k, s| {
+            energy.push(kinetic(&self.mass, &s.v));
+            on_step(k, s);
+        })?;
         Ok(energy)
     }
 

@@ -13,7 +13,7 @@ use super::gradient::{GradientSettings, gradient_control};
 use super::mppi::{MppiSettings, mppi_control};
 use super::scene::{Rope, RopeConfig};
 use super::{Committed, ControlEvent};
-use crate::engine::integrator::{Controlled, IntegratorKind};
+use crate::engine::integrator::{Controlled, IntegratorKind, Steps};
 use crate::engine::material::MaterialModel;
 use crate::engine::mpm::ControlParams;
 use crate::engine::mpm::SimError;
@@ -164,7 +164,7 @@ fn replay<S: Controlled>(
     }
     let mut max_offset = 0.0f64;
     let mut particle_energy = 0.0;
-    let energy = sys.run(&mut s, params, 0, steps, None, &mut |k, st| {
+    let energy = sys.run(&mut s, params, Steps::new(0, steps), None, &mut |k, st| {
         if k + 1 == steps {
             particle_energy = sys.particle_energy(st, params, k);
         }

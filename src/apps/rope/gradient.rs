@@ -7,7 +7,7 @@
 //! committed and its end state carried over.
 
 use super::{ControlEvent, ControllerRun, Online, free_knots};
-use crate::engine::integrator::Controlled;
+use crate::engine::integrator::{Controlled, Steps};
 use crate::engine::mpm::ControlParams;
 use crate::engine::mpm::SimError;
 use crate::engine::mpm::State;
@@ -118,8 +118,7 @@ pub fn gradient_control<S: Controlled>(
             let ran = sys.run(
                 &mut s,
                 &run.params,
-                a,
-                len,
+                Steps::new(a, len),
                 Some(&mut tape),
                 &mut |k, st| {
                     if k + 1 == a + n {

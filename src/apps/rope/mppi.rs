@@ -8,7 +8,7 @@
 //! generator, so runs are identical whatever the thread count.
 
 use super::{ControlEvent, ControllerRun, Online, free_knots};
-use crate::engine::integrator::Controlled;
+use crate::engine::integrator::{Controlled, Steps};
 use crate::engine::mpm::ControlParams;
 use crate::engine::mpm::SimError;
 use crate::engine::mpm::State;
@@ -139,7 +139,7 @@ pub fn mppi_control<S: Controlled>(
                 .par_iter()
                 .map(|p| {
                     let mut s = run.state.clone();
-                    match sys.run(&mut s, p, k, len, None, &mut |_, _| {}) {
+                    match sys.run(&mut s, p, Steps::new(k, len), None, &mut |_, _| {}) {
                         Ok(e) => dt * e.iter().sum::<f64>(),
                         Err(_) => f64::INFINITY,
                     }
@@ -181,7 +181,13 @@ pub fn mppi_control<S: Controlled>(
         // Commit the first steps of the plan and shift the window (new knots hold the plan's
         // last value as a warm start).
         let commit = settings.replan_steps.min(total - k);
-        let energy = sys.run(&mut run.state, &run.params, k, commit, None, &mut |_, _| {})?;
+        let energy = sys.run(
+            &mut run.state,
+            &run.params,
+            Steps::new(k, commit),
+            None,
+            &mut |_, _| {},
+        )?;
         run.simulated_steps += commit;
         for knots_e in run.params.iter_mut() {
             let last = knots_e[knots.end - 1];

@@ -232,7 +232,8 @@ pub(super) fn passive_path(
         }
     };
     crate::engine::with_integrator!(engine, sim => {
-        sim.forward_observed(&mut state, &[], 0, last * substeps, None, Some(&mut on_step))
+        let steps = crate::engine::integrator::Steps::new(0, last * substeps);
+        sim.forward_observed(&mut state, &[], steps, None, Some(&mut on_step))
     })?;
     Ok(passive)
 }

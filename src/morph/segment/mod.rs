@@ -16,7 +16,7 @@
 use super::basis::{ControlBasis, ControlResolution};
 use super::reach::ReachLoss;
 use crate::engine::integrator::recompute::{self, Checkpointed, ChunkPlan};
-use crate::engine::integrator::{Integrator, RunTape, SeedAfter, StepControl};
+use crate::engine::integrator::{Integrator, RunTape, SeedAfter, StepControl, Steps};
 use crate::engine::mpm::{SimError, State, StateGrad};
 use crate::loss::{FineMassLoss, MassLoss, volume_cost};
 use crate::optim::Adam;
@@ -521,8 +521,7 @@ impl<I: Integrator> Segment<'_, I> {
         self.sim.forward_observed(
             &mut state,
             &schedule,
-            self.first_step,
-            self.steps,
+            Steps::new(self.first_step, self.steps),
             None,
             Some(on_step),
         )?;

@@ -11,7 +11,7 @@
 //! picks the longest chunk that fits a budget; when the whole tape fits, it is kept and
 //! nothing is recomputed.
 
-use super::{Integrator, RunTape, StepControls};
+use super::{Integrator, RunTape, StepControls, Steps};
 use crate::mpm::{Gradients, SimError, State, StateGrad};
 
 /// How a run is cut into chunks.
@@ -156,8 +156,7 @@ pub fn record<I: Integrator>(
         sim.forward_observed(
             &mut state,
             ctrl,
-            first_step + a,
-            b - a,
+            Steps::new(first_step + a, b - a),
             tape.as_mut(),
             Some(on_step),
         )?;

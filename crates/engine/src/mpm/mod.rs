@@ -14,6 +14,7 @@ pub mod grid;
 pub mod grid_update;
 pub mod kernel;
 pub mod model;
+pub mod pipeline;
 pub mod profile;
 pub mod scratch;
 pub mod stages;

@@ -13,6 +13,20 @@ use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 use std::sync::Arc;
 
+/// A run's global steps, `first..first + count` (time-dependent effects read them and
+/// errors name them).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Steps {
+    pub first: usize,
+    pub count: usize,
+}
+
+impl Steps {
+    pub fn new(first: usize, count: usize) -> Steps {
+        Steps { first, count }
+    }
+}
+
 /// Everything fixed during a simulation, whichever integrator runs it.
 #[derive(Debug)]
 pub struct Model {

@@ -13,15 +13,16 @@
 
 use crate::mpm::SimError;
 use crate::mpm::State;
-use crate::mpm::effect::{GridContext, GridEffects, GridForm};
-use crate::mpm::grid::{Bins, SharedMut};
-use crate::mpm::grid_update::{apply_grid_effects, grid_quotients, grid_update_reverse};
+use crate::mpm::effect::GridForm;
+use crate::mpm::grid::{Bins, SharedMut, Tile};
 use crate::mpm::kernel::{Cached, KernelKind, Stencil};
 use crate::mpm::model::Model;
+use crate::mpm::pipeline::{self, Form, Forward, GridView, Reverse};
+use crate::mpm::profile::Laps;
 use crate::mpm::scratch::{GridScratch, Pool};
-use crate::mpm::stages::{self, CHUNK, Parallel};
+use crate::mpm::stages::{self, Parallel};
 use crate::mpm::stress::StressInputs;
-use crate::mpm::transfer::{self, Affine, AxisField};
+use crate::mpm::transfer::{self, Affine, Node, ScatterGrad};
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 
@@ -210,110 +211,29 @@ impl Rk4 {
         }
     }
 
-    /// The context the effects see at evaluation `at`.
-    fn grid_context<'a>(&'a self, mass: &'a [f64], at: &At) -> GridContext<'a> {
-        GridContext {
-            form: GridForm::Rate,
-            spec: &self.grid,
-            mass,
-            dt: self.dt,
-            step: at.step,
-            time: (at.step as f64 + at.theta) * self.dt,
-        }
-    }
-
-    /// Forward pieces shared by the evaluation and its reverse. Only the region's grid nodes
-    /// (see [`crate::mpm::grid`]) are touched, in dense buffers borrowed from the pool, so the
-    /// cost follows the particles and not the domain's size.
-    fn forward_grid<const N: usize>(&self, s: &State, at: &At) -> Result<Forward, SimError>
+    /// The forward pass of one evaluation, in buffers from the pool: only the region's grid
+    /// nodes (see [`crate::mpm::grid`]) are touched, so the cost follows the particles and
+    /// not the domain's size.
+    fn forward_grid<'a, const N: usize>(
+        &'a self,
+        s: &'a State,
+        at: &'a At<'a>,
+    ) -> Result<Evaluation<'a>, SimError>
     where
         Stencil<N>: Cached,
     {
-        let (values, step) = (at.values, at.step);
-        let n = s.len();
-        let (strides, origin, dx) = (self.grid.strides(), self.grid.origin_vec(), self.grid.dx);
-        let bins = Bins::build(&self.grid, &s.x, N, step)?;
-        let mut buf = self.pool.take();
-        let par = Parallel::for_particles(n);
-        // Every particle's stencil, built once for this evaluation's transfers (and, kept
-        // with the buffers, for its reverse).
-        let mut cache = std::mem::take(&mut buf.stencils);
-        stages::stencils::<N>(self.simd, &s.x, &origin, dx, par, &mut cache);
-        let stencils = &*cache.sized::<N>(n);
-        let body = self.body_accelerations(values);
-        let mut stress_force = vec![Matrix3::zeros(); n];
-        stages::stress(
-            self.material.as_ref(),
-            self.simd,
-            &s.f,
-            None,
-            |p| self.stress_inputs(p),
-            par,
-            &mut stress_force,
-            &mut [],
-        );
-        {
-            let GridScratch {
-                nodes, node_axes, ..
-            } = &mut buf;
-            stages::p2g(
-                self.simd,
-                &bins,
-                stencils,
-                &self.mass,
-                par,
-                |p| self.scatter_fields(s, values, &stress_force, &body, p),
-                node_axes,
-                nodes,
-                self.grid.node_count(),
-            );
-        }
-        self.grid_rates(at, &bins, par, &mut buf);
-        let inv_d = self.inv_d();
-        buf.velocity_axes.set_from(&buf.fields[0], &bins, par.on);
-        let (grid_axes, grid_a) = (&buf.velocity_axes, &buf.fields[1]);
-        let gathered: Vec<Gathered> = stencils
-            .par_iter()
-            .with_min_len(par.min_len())
-            .map(|st| {
-                let (velocity, grad_v) =
-                    transfer::gather_affine(self.simd, st, &strides, grid_axes, inv_d);
-                Gathered {
-                    velocity,
-                    acceleration: transfer::interpolate(st, &strides, grid_a),
-                    grad_v,
-                }
-            })
-            .collect();
-        buf.stencils = cache;
-        Ok(Forward {
-            bins,
-            body,
-            stress_force,
-            buf,
-            gathered,
-        })
-    }
-
-    /// The grid stage of an evaluation, on the region: the nodal masses, then each node's
-    /// velocity `p / m` and acceleration `f / m` through the effects.
-    fn grid_rates(&self, at: &At, bins: &Bins, par: Parallel, buf: &mut Scratch) {
-        let GridScratch {
-            nodes,
-            mass: grid_mass,
-            fields: [grid_v, grid_a],
-            ..
-        } = buf;
-        grid_quotients(bins, par, nodes, grid_mass, [grid_v, grid_a]);
-        let ctx = self.grid_context(grid_mass, at);
-        let effects = GridEffects::new(&self.effects, GridForm::Rate);
-        apply_grid_effects(
-            bins,
-            par,
-            &effects,
-            &ctx,
-            [&mut grid_v[..], &mut grid_a[..]],
-        );
+        let mut pass = RatePass {
+            rk4: self,
+            s,
+            at,
+            body: self.body_accelerations(at.values),
+            stress_force: Vec::new(),
+            gathered: Vec::new(),
+        };
+        let (mut bins, mut buf) = (Bins::default(), self.pool.take());
+        let mut laps = Laps::start(None);
+        pipeline::forward::<N, 2, _>(&self.model, &mut pass, &mut bins, &mut buf, &mut laps)?;
+        Ok(Evaluation { bins, pass, buf })
     }
 
     fn rhs_impl<const N: usize>(&self, s: &State, at: &At, out: &mut State) -> Result<(), SimError>
@@ -336,7 +256,7 @@ impl Rk4 {
             .with_min_len(par.min_len())
             .enumerate()
             .for_each(|(p, (dx, dv, df))| {
-                let g = &fw.gathered[p];
+                let g = &fw.pass.gathered[p];
                 match self.prescribed_velocity(values, p) {
                     None => {
                         *dx = g.velocity;
@@ -353,8 +273,8 @@ impl Rk4 {
         Ok(())
     }
 
-    /// The reverse of [`Rk4::rhs`]: the forward evaluation replayed, then its stages
-    /// backwards (G2P with dF/dt, the grid, P2G with the stress).
+    /// The reverse of [`Rk4::rhs`]: the forward evaluation replayed, then the pipeline's
+    /// reverse pass in the ODE form ([`RateReverse`]).
     fn rhs_reverse_impl<const N: usize>(&self, s: &State, at: &At, grad_out: &State) -> RhsGrad
     where
         Stencil<N>: Cached,
@@ -364,17 +284,29 @@ impl Rk4 {
             .expect("reverse pass replays a forward evaluation that succeeded");
         let n = s.len();
         let mut grad = State::ode_zeros(n);
-        // The forward evaluation's stencils (put back with the buffers at the end).
-        let mut cache = std::mem::take(&mut fw.buf.stencils);
-        let stencils = &*cache.sized::<N>(n);
-        // dL/d(clamp velocity) per particle, summed per control afterwards (in particle order,
-        // so the result does not depend on the thread count).
-        let mut grad_u = vec![Vector3::zeros(); n];
-        self.g2p_rate_reverse::<N>(s, grad_out, &mut fw, stencils, &mut grad, &mut grad_u);
-        let effect_params = self.grid_rate_reverse(at, &fw.bins, &mut fw.buf);
-        let grad_body =
-            self.p2g_rate_reverse::<N>(s, at.values, &mut fw, stencils, &mut grad, &mut grad_u);
-        fw.buf.stencils = cache;
+        // dL/d(clamp velocity) and dL/d(body acceleration) per particle, summed per control
+        // afterwards (in particle order, so the result does not depend on the thread count).
+        let (mut grad_u, mut grad_body) = (vec![Vector3::zeros(); n], vec![Vector3::zeros(); n]);
+        let mut effect_params = self.zero_effect_params();
+        let State { x, v, f, .. } = &mut grad;
+        let mut rev = RateReverse {
+            pass: &fw.pass,
+            grad_out,
+            grad: [SharedMut::new(x), SharedMut::new(v)],
+            grad_f: SharedMut::new(f),
+            grad_u: SharedMut::new(&mut grad_u),
+            grad_body: SharedMut::new(&mut grad_body),
+        };
+        let mut laps = Laps::start(None);
+        let (model, bins) = (&self.model, &fw.bins);
+        pipeline::reverse::<N, 2, _>(
+            model,
+            &mut rev,
+            bins,
+            &mut fw.buf,
+            &mut effect_params,
+            &mut laps,
+        );
         self.pool.put(fw.buf);
         let controls = self.control_value_grads(&grad_u, &grad_body);
         RhsGrad {
@@ -382,190 +314,6 @@ impl Rk4 {
             controls,
             effect_params,
         }
-    }
-
-    /// G2P and dF/dt reverse: a scatter into the grid adjoints (`fw.buf.grad_fields`),
-    /// into `grad.x`, `grad.f` and the clamped particles' `grad_u`.
-    fn g2p_rate_reverse<const N: usize>(
-        &self,
-        s: &State,
-        grad_out: &State,
-        fw: &mut Forward,
-        stencils: &[Stencil<N>],
-        grad: &mut State,
-        grad_u: &mut [Vector3<f64>],
-    ) where
-        Stencil<N>: Cached,
-    {
-        let par = Parallel::for_particles(s.len());
-        let strides = self.grid.strides();
-        let inv_d = self.inv_d();
-        let GridScratch {
-            fields: [grid_v, grid_a],
-            grad_fields: [grad_v, grad_a],
-            velocity_axes: grid_axes,
-            grad_axes: [grad_axes, grad_a_axes],
-            ..
-        } = &mut fw.buf;
-        let gx = SharedMut::new(&mut grad.x);
-        let gf = SharedMut::new(&mut grad.f);
-        let gu = SharedMut::new(grad_u);
-        let gathered = &fw.gathered;
-        let bins = &fw.bins;
-        // Tile channels 0-2: dL/dv's axes; 3-5: dL/da's.
-        let nodes = grid_v.len();
-        let AxisField { axes: gv, tiles } = grad_axes;
-        let ga = &mut grad_a_axes.axes;
-        for axis in gv.iter_mut().chain(ga.iter_mut()) {
-            axis.resize(nodes, 0.0);
-        }
-        let [gv0, gv1, gv2] = gv;
-        let [ga0, ga1, ga2] = ga;
-        bins.scatter(
-            par.on,
-            tiles,
-            &mut [gv0, gv1, gv2, ga0, ga1, ga2],
-            |tile, p| {
-                let g_out = &gathered[p];
-                let g_df = grad_out.f[p];
-                let mut g = Gathered {
-                    velocity: grad_out.x[p],
-                    acceleration: grad_out.v[p],
-                    grad_v: g_df * s.f[p].transpose(),
-                };
-                if self.is_clamped(p) {
-                    // SAFETY: each particle is visited exactly once.
-                    unsafe { *gu.get(p) += g.velocity };
-                    g.velocity = Vector3::zeros();
-                    g.acceleration = Vector3::zeros();
-                }
-                let st = &stencils[p];
-                let d = transfer::gather_affine_reverse(
-                    self.simd,
-                    st,
-                    &strides,
-                    grid_axes,
-                    inv_d,
-                    &g.velocity,
-                    &g.grad_v,
-                    &g_out.velocity,
-                    tile,
-                ) + transfer::interpolate_reverse(
-                    st,
-                    &strides,
-                    grid_a,
-                    &g.acceleration,
-                    tile,
-                    3,
-                );
-                // SAFETY: each particle is visited exactly once.
-                unsafe {
-                    *gx.get(p) += d;
-                    *gf.get(p) += g_out.grad_v.transpose() * g_df;
-                }
-            },
-        );
-        grad_axes.write_vectors(grad_v, bins, par.on);
-        grad_a_axes.write_vectors(grad_a, bins, par.on);
-    }
-
-    /// Grid reverse: the effects backwards (each given its inputs, replayed from the
-    /// quotient), then v = p / m, a = f / m, into `buf.grad_nodes`, on the region (see
-    /// [`grid_update_reverse`]).
-    fn grid_rate_reverse(&self, at: &At, bins: &Bins, buf: &mut Scratch) -> Vec<Vec<f64>> {
-        let mut effect_params = self.zero_effect_params();
-        let GridScratch {
-            nodes,
-            mass: grid_mass,
-            grad_fields: [grad_v, grad_a],
-            grad_nodes,
-            ..
-        } = buf;
-        let ctx = self.grid_context(grid_mass, at);
-        let effects = GridEffects::new(&self.effects, GridForm::Rate);
-        grid_update_reverse(
-            bins,
-            Parallel::for_particles(bins.order.len()),
-            &effects,
-            &ctx,
-            |i| transfer::quotient(&nodes[i]),
-            |i| [grad_v[i], grad_a[i]],
-            grad_nodes,
-            &mut effect_params,
-        );
-        effect_params
-    }
-
-    /// P2G reverse (a gather) and the stress reverse, into `grad` and the clamped particles'
-    /// `grad_u`; returns dL/d(body acceleration) per particle.
-    fn p2g_rate_reverse<const N: usize>(
-        &self,
-        s: &State,
-        values: &[Vector3<f64>],
-        fw: &mut Forward,
-        stencils: &[Stencil<N>],
-        grad: &mut State,
-        grad_u: &mut [Vector3<f64>],
-    ) -> Vec<Vector3<f64>>
-    where
-        Stencil<N>: Cached,
-    {
-        let n = s.len();
-        let strides = self.grid.strides();
-        let mut grad_body = vec![Vector3::zeros(); n];
-        let par = Parallel::for_particles(n);
-        fw.buf
-            .grad_node_axes
-            .set_from(&fw.buf.grad_nodes, &fw.bins, par.on);
-        let grad_nodes = &fw.buf.grad_node_axes;
-        (
-            grad.x.par_chunks_mut(CHUNK),
-            grad.v.par_chunks_mut(CHUNK),
-            grad.f.par_chunks_mut(CHUNK),
-            grad_u.par_chunks_mut(CHUNK),
-            grad_body.par_chunks_mut(CHUNK),
-        )
-            .into_par_iter()
-            .with_min_len(par.min_batches())
-            .enumerate()
-            .for_each(|(k, (gx, gv, gf, gu, gb))| {
-                let p0 = k * CHUNK;
-                let len = gx.len();
-                // dL/d(the force field's slope K_p), for the stress stage's reverse.
-                let mut grad_k = [Matrix3::zeros(); CHUNK];
-                for i in 0..len {
-                    let p = p0 + i;
-                    let fields = self.scatter_fields(s, values, &fw.stress_force, &fw.body, p);
-                    let m = self.mass[p];
-                    let g = transfer::scatter_reverse(
-                        self.simd,
-                        &stencils[p],
-                        &strides,
-                        m,
-                        &fields,
-                        grad_nodes,
-                    );
-                    gx[i] += g.x;
-                    // Momentum field m v~, force field m b + K (x_i - x_p).
-                    match self.is_clamped(p) {
-                        false => gv[i] += m * g.value[0],
-                        true => gu[i] += m * g.value[0],
-                    }
-                    gb[i] = m * g.value[1];
-                    grad_k[i] = g.slope[1];
-                }
-                stages::stress_reverse(
-                    self.material.as_ref(),
-                    self.simd,
-                    p0,
-                    &s.f[p0..p0 + len],
-                    &[],
-                    |p| self.stress_inputs(p),
-                    &grad_k[..len],
-                    |i, _, g_f| gf[i] += g_f,
-                );
-            });
-        grad_body
     }
 
     /// Checks a state before integrating it.
@@ -583,7 +331,6 @@ impl Rk4 {
 /// The grid buffers of one evaluation: momentum and force a node.
 type Scratch = GridScratch<2>;
 
-/// Intermediate results of one forward evaluation.
 /// What the gather returns for one particle.
 #[derive(Clone, Copy, Debug)]
 struct Gathered {
@@ -593,10 +340,186 @@ struct Gathered {
     grad_v: Matrix3<f64>,
 }
 
-struct Forward {
+/// One forward evaluation: its bins, its form's results and its grid.
+struct Evaluation<'a> {
     bins: Bins,
+    pass: RatePass<'a>,
+    buf: Scratch,
+}
+
+/// The ODE form as a [`Form`] of the one pipeline (see [`crate::mpm::pipeline`]): two fields
+/// a node (momentum `m v~`; force `m b + K (x_i - x_p)`, `K` the stress), the effects as
+/// rates, and a gather of each particle's velocity, acceleration and velocity gradient.
+struct RatePass<'a> {
+    rk4: &'a Rk4,
+    s: &'a State,
+    at: &'a At<'a>,
     body: Vec<Vector3<f64>>,
     stress_force: Vec<Matrix3<f64>>,
-    buf: Scratch,
     gathered: Vec<Gathered>,
+}
+
+impl Form<2> for RatePass<'_> {
+    const GRID: GridForm = GridForm::Rate;
+
+    fn positions(&self) -> &[Vector3<f64>] {
+        &self.s.x
+    }
+    fn step(&self) -> usize {
+        self.at.step
+    }
+    fn time(&self) -> f64 {
+        (self.at.step as f64 + self.at.theta) * self.rk4.dt
+    }
+    fn stress_inputs(&self, p: usize) -> StressInputs<'_> {
+        self.rk4.stress_inputs(p)
+    }
+    fn fields(&self, p: usize) -> [Affine; 2] {
+        let (values, force) = (self.at.values, &self.stress_force);
+        self.rk4
+            .scatter_fields(self.s, values, force, &self.body, p)
+    }
+}
+
+impl Forward<2> for RatePass<'_> {
+    fn stress(&mut self, par: Parallel) {
+        let rk4 = self.rk4;
+        self.stress_force.resize(self.s.len(), Matrix3::zeros());
+        stages::stress(
+            rk4.material.as_ref(),
+            rk4.simd,
+            &self.s.f,
+            None,
+            |p| rk4.stress_inputs(p),
+            par,
+            &mut self.stress_force,
+            &mut [],
+        );
+    }
+
+    fn gather<const N: usize>(&mut self, grid: GridView<N, 2>, par: Parallel) {
+        let rk4 = self.rk4;
+        let (strides, inv_d) = (rk4.grid.strides(), rk4.inv_d());
+        let (grid_axes, grid_a) = (grid.velocity, &grid.fields[1]);
+        self.gathered = grid
+            .stencils
+            .par_iter()
+            .with_min_len(par.min_len())
+            .map(|st| {
+                let (velocity, grad_v) =
+                    transfer::gather_affine(rk4.simd, st, &strides, grid_axes, inv_d);
+                Gathered {
+                    velocity,
+                    acceleration: transfer::interpolate(st, &strides, grid_a),
+                    grad_v,
+                }
+            })
+            .collect();
+    }
+}
+
+/// The reverse of one evaluation from its forward: reads dL/d(dS/dt) (`grad_out`) and keeps
+/// every particle's adjoints (each written by its own particle's calls alone).
+struct RateReverse<'a> {
+    pass: &'a RatePass<'a>,
+    grad_out: &'a State,
+    /// dL/dx, dL/dv; dL/dF.
+    grad: [SharedMut<'a, Vector3<f64>>; 2],
+    grad_f: SharedMut<'a, Matrix3<f64>>,
+    grad_u: SharedMut<'a, Vector3<f64>>,
+    grad_body: SharedMut<'a, Vector3<f64>>,
+}
+
+impl Form<2> for RateReverse<'_> {
+    const GRID: GridForm = GridForm::Rate;
+
+    fn positions(&self) -> &[Vector3<f64>] {
+        self.pass.positions()
+    }
+    fn step(&self) -> usize {
+        self.pass.step()
+    }
+    fn time(&self) -> f64 {
+        self.pass.time()
+    }
+    fn stress_inputs(&self, p: usize) -> StressInputs<'_> {
+        self.pass.stress_inputs(p)
+    }
+    fn fields(&self, p: usize) -> [Affine; 2] {
+        self.pass.fields(p)
+    }
+}
+
+impl Reverse<2> for RateReverse<'_> {
+    /// G2P and dF/dt reverse: channels 0-2 dL/dv's axes, 3-5 dL/da's. A clamped particle's
+    /// rates are its control's: their adjoints go to `grad_u`.
+    fn gather_reverse<const N: usize>(&self, p: usize, grid: &GridView<N, 2>, tile: &mut Tile) {
+        let (rk4, s, grad_out) = (self.pass.rk4, self.pass.s, self.grad_out);
+        let (strides, inv_d) = (rk4.grid.strides(), rk4.inv_d());
+        let (g_out, st) = (&self.pass.gathered[p], &grid.stencils[p]);
+        let g_df = grad_out.f[p];
+        let mut g = Gathered {
+            velocity: grad_out.x[p],
+            acceleration: grad_out.v[p],
+            grad_v: g_df * s.f[p].transpose(),
+        };
+        if rk4.is_clamped(p) {
+            // SAFETY: each particle is visited exactly once.
+            unsafe { *self.grad_u.get(p) += g.velocity };
+            g.velocity = Vector3::zeros();
+            g.acceleration = Vector3::zeros();
+        }
+        let d = transfer::gather_affine_reverse(
+            rk4.simd,
+            st,
+            &strides,
+            grid.velocity,
+            inv_d,
+            &g.velocity,
+            &g.grad_v,
+            &g_out.velocity,
+            tile,
+        ) + transfer::interpolate_reverse(
+            st,
+            &strides,
+            &grid.fields[1],
+            &g.acceleration,
+            tile,
+            3,
+        );
+        // SAFETY: as above.
+        unsafe {
+            *self.grad[0].get(p) += d;
+            *self.grad_f.get(p) += g_out.grad_v.transpose() * g_df;
+        }
+    }
+
+    fn grid_input(&self, nodes: &[Node<2>], i: usize) -> [Vector3<f64>; 2] {
+        transfer::quotient(&nodes[i])
+    }
+
+    /// Momentum field `m v~`, force field `m b + K (x_i - x_p)`.
+    fn scatter_reverse(&self, p: usize, g: &ScatterGrad<2>) -> Matrix3<f64> {
+        let rk4 = self.pass.rk4;
+        let m = rk4.mass[p];
+        // SAFETY: each particle is visited exactly once.
+        unsafe {
+            *self.grad[0].get(p) += g.x;
+            match rk4.is_clamped(p) {
+                false => *self.grad[1].get(p) += m * g.value[0],
+                true => *self.grad_u.get(p) += m * g.value[0],
+            }
+            *self.grad_body.get(p) = m * g.value[1];
+        }
+        g.slope[1]
+    }
+
+    fn elastic(&self, range: std::ops::Range<usize>) -> (&[Matrix3<f64>], &[f64]) {
+        (&self.pass.s.f[range], &[])
+    }
+
+    fn stress_reverse(&self, p: usize, _grad_c: Matrix3<f64>, grad_fe: Matrix3<f64>) {
+        // SAFETY: each particle is visited exactly once.
+        unsafe { *self.grad_f.get(p) += grad_fe };
+    }
 }

@@ -8,10 +8,9 @@
 //! `gS = gS' + gS1 + gS2 + gS3 + gS4` with `gSi = f_rev(Si, gki)`.
 
 use super::rhs::{At, Rk4};
-use crate::integrator::{Integrator, OnStep, RunTape, SeedAfter, StepControls};
+use crate::integrator::{Integrator, OnStep, RunTape, SeedAfter, StepControls, Steps};
 use crate::mpm::ControlParams;
 use crate::mpm::SimError;
-use crate::mpm::model::Model;
 use crate::mpm::{Gradients, State, StateGrad};
 use nalgebra::Matrix3;
 use rayon::prelude::*;
@@ -142,19 +141,18 @@ pub struct Rk4Tape {
 impl Integrator for Rk4 {
     type Tape = Rk4Tape;
 
-    fn model(&self) -> &Model {
-        &self.model
-    }
-
     fn forward_observed(
         &self,
         state: &mut State,
         controls: &StepControls,
-        first_step: usize,
-        n_steps: usize,
+        steps: Steps,
         mut tape: Option<&mut Rk4Tape>,
         mut on_step: Option<&mut OnStep>,
     ) -> Result<(), SimError> {
+        let Steps {
+            first: first_step,
+            count: n_steps,
+        } = steps;
         let params = self.controls.zero_params();
         let mut s = state.ode_part();
         self.check_state(&s, first_step)?;

@@ -7,7 +7,7 @@
 
 use super::rhs::Rk4;
 use super::rk4::Rk4Tape;
-use crate::integrator::{ControlGradient, Controlled};
+use crate::integrator::{ControlGradient, Controlled, Steps};
 use crate::mpm::ControlParams;
 use crate::mpm::SimError;
 use crate::mpm::State;
@@ -31,11 +31,14 @@ impl Rk4 {
         &self,
         s: &mut State,
         params: &ControlParams,
-        first_step: usize,
-        n_steps: usize,
+        steps: Steps,
         mut tape: Option<&mut Rk4Tape>,
         mut on_step: impl FnMut(usize, &State),
     ) -> Result<Vec<f64>, SimError> {
+        let Steps {
+            first: first_step,
+            count: n_steps,
+        } = steps;
         self.controls.check_params(params)?;
         self.check_state(s, first_step)?;
         if let Some(t) = tape.as_deref_mut() {
@@ -130,13 +133,12 @@ impl Controlled for Rk4 {
         &self,
         state: &mut State,
         params: &ControlParams,
-        first_step: usize,
-        n_steps: usize,
+        steps: Steps,
         tape: Option<&mut Rk4Tape>,
         on_step: &mut dyn FnMut(usize, &State),
     ) -> Result<Vec<f64>, SimError> {
         let mut s = state.ode_part();
-        let energy = self.rollout(&mut s, params, first_step, n_steps, tape, |k, st| {
+        let energy = self.rollout(&mut s, params, steps, tape, |k, st| {
             on_step(k, &st.clone().with_affine())
         })?;
         *state = s.with_affine();

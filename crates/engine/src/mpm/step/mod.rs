@@ -2,15 +2,15 @@
 
 use super::advance::{advance, advance_reverse};
 use super::control::ControlForm;
-use super::effect::{GridContext, GridEffects, GridForm};
+use super::effect::GridForm;
 use super::error::SimError;
 use super::grid::{Bins, SharedMut};
-use super::grid_update::{apply_grid_effects, grid_quotients, grid_update_reverse};
 use super::kernel::{Cached, KernelKind, Stencil};
-use super::model::Model;
+use super::model::{Model, Steps};
+use super::pipeline;
 use super::profile::{Laps, Stage, StageClock};
 use super::scratch::GridScratch;
-use super::stages::{self, CHUNK, Parallel};
+use super::stages::{self, Parallel};
 use super::state::{State, StateGrad, par_copy};
 use super::stress::StressInputs;
 use super::transfer::{self, Affine};
@@ -19,7 +19,10 @@ use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 use std::sync::Arc;
 
+mod pass;
 mod reverse;
+
+use pass::{ParticleScratch, StepPass};
 
 /// The symplectic-Euler MLS-MPM integrator over a [`Model`] (which it dereferences to).
 #[derive(Debug)]
@@ -54,12 +57,7 @@ impl From<Model> for Euler {
 pub struct Workspace {
     bins: Bins,
     grid: GridScratch<1>,
-    /// Each particle's elastic gradient `Fe` (the control applied), and its adjoint.
-    fe: Vec<Matrix3<f64>>,
-    grad_fe: Vec<Matrix3<f64>>,
-    affine: Vec<Matrix3<f64>>,
-    kept: Vec<f64>,
-    scale: Vec<f64>,
+    particles: ParticleScratch,
 }
 
 /// One step of the reverse pass for the model's kernel ([`Euler::reverse_impl`]).
@@ -173,18 +171,6 @@ impl Euler {
         }
     }
 
-    /// The context the grid effects see in global step `step`.
-    fn grid_context<'a>(&'a self, mass: &'a [f64], step: usize) -> GridContext<'a> {
-        GridContext {
-            form: GridForm::Step,
-            spec: &self.grid,
-            mass,
-            dt: self.dt,
-            step,
-            time: step as f64 * self.dt,
-        }
-    }
-
     /// Product of the effects' momentum factors in global step `step` (1 when no drag is on).
     fn momentum_retention(&self, step: usize) -> f64 {
         let time = step as f64 * self.dt;
@@ -225,7 +211,8 @@ impl Euler {
         n_steps: usize,
         tape: Option<&mut Tape>,
     ) -> Result<(), SimError> {
-        self.forward_driven(state, controls, None, first_step, n_steps, tape, |_, _| {})
+        let steps = Steps::new(first_step, n_steps);
+        self.forward_driven(state, controls, None, steps, tape, |_, _| {})
     }
 
     /// [`Euler::forward`] with the model's boundary controls driven by the knots
@@ -238,11 +225,14 @@ impl Euler {
         state: &mut State,
         controls: &super::control::StepControls,
         params: Option<&ControlParams>,
-        first_step: usize,
-        n_steps: usize,
+        steps: Steps,
         mut tape: Option<&mut Tape>,
         mut on_step: impl FnMut(usize, &State),
     ) -> Result<(), SimError> {
+        let Steps {
+            first: first_step,
+            count: n_steps,
+        } = steps;
         let mut ws = Workspace::default();
         if let Some(t) = tape.as_deref_mut() {
             t.steps.clear();
@@ -269,8 +259,9 @@ impl Euler {
         Ok(())
     }
 
-    /// One step: the stages in order (P1 the stress, P2G, G the grid update, G2P with P2 the
-    /// particle update), and what the reverse pass needs pushed onto `tape`.
+    /// One step: a forward pass of the pipeline in the Euler step's form ([`StepPass`]:
+    /// P1 the stress, P2G, G the grid update, G2P with P2 the particle update), and what
+    /// the reverse pass needs pushed onto `tape`.
     #[allow(clippy::too_many_arguments)]
     fn step_impl<const N: usize>(
         &self,
@@ -286,183 +277,27 @@ impl Euler {
     {
         self.check_size(state.len())?;
         self.check_control(fc, step)?;
-        let (origin, dx) = (self.grid.origin_vec(), self.grid.dx);
         let mut laps = Laps::start(self.clock.as_deref());
-        let par = Parallel::for_particles(state.len());
-        ws.bins = Bins::build(&self.grid, &state.x, N, step)?;
-        laps.lap(Stage::Bins);
-        self.stress_stage(state, fc, tape.is_some(), par, ws);
-        laps.lap(Stage::Stress);
-        // P2G (a tiled scatter).
-        let retention = self.momentum_retention(step);
-        let body = values.map(|v| self.body_accelerations(v));
-        let stencils =
-            stages::stencils::<N>(self.simd, &state.x, &origin, dx, par, &mut ws.grid.stencils);
-        let affine = &ws.affine;
-        stages::p2g(
-            self.simd,
-            &ws.bins,
-            stencils,
-            &self.mass,
-            par,
-            |p| {
-                [Affine {
-                    value: self.particle_momentum(state, values, body.as_deref(), retention, p),
-                    slope: affine[p],
-                }]
-            },
-            &mut ws.grid.node_axes,
-            &mut ws.grid.nodes,
-            self.grid.node_count(),
-        );
-        laps.lap(Stage::P2g);
-        let (grid_mass, grid_v_pre) =
-            self.grid_stage::<N>(state, values, step, tape.is_some(), par, ws);
-        laps.lap(Stage::Grid);
-        if let Some(tape) = tape {
-            tape.push(StepTape {
-                pre: state.par_clone(),
-                bins: ws.bins.clone(),
-                affine: par_copy(&ws.affine),
-                kept: std::mem::take(&mut ws.kept),
-                scale: std::mem::take(&mut ws.scale),
-                grid_mass,
-                grid_v: grid_v_pre,
-                step,
-            });
-            laps.lap(Stage::Tape);
-        }
-        self.g2p_stage::<N>(state, values, par, ws);
-        laps.lap(Stage::G2p);
+        let Workspace {
+            bins,
+            grid,
+            particles,
+        } = ws;
+        let mut pass = StepPass {
+            euler: self,
+            state,
+            fc,
+            values,
+            body: values.map(|v| self.body_accelerations(v)),
+            retention: self.momentum_retention(step),
+            step,
+            buf: particles,
+            tape,
+            taped_grid: Default::default(),
+        };
+        pipeline::forward::<N, 1, _>(&self.model, &mut pass, bins, grid, &mut laps)?;
+        let state = pass.state;
         self.check_finite_and_cfl(state.first_non_finite(), &state.v, step)
-    }
-
-    /// P1: each particle's elastic gradient (the control applied), its stress (batched
-    /// across particles) and its affine momentum, into `ws`; with `taped`, what spares the
-    /// reverse pass recomputing the stress.
-    fn stress_stage(
-        &self,
-        state: &State,
-        fc: Option<&[Matrix3<f64>]>,
-        taped: bool,
-        par: Parallel,
-        ws: &mut Workspace,
-    ) {
-        let n = state.len();
-        ws.fe.resize(n, Matrix3::zeros());
-        ws.affine.resize(n, Matrix3::zeros());
-        // With a tape, the stress stage keeps what spares the reverse pass recomputing it.
-        let keep = if taped {
-            self.material.kept_per_particle()
-        } else {
-            0
-        };
-        ws.kept.resize(n * keep, 0.0);
-        let form = self.control_form;
-        // The plastic form's volume factors (kept on the tape: its reverse needs them twice).
-        ws.scale.clear();
-        if let (Some(fc), ControlForm::Plastic) = (fc, form) {
-            ws.scale.par_extend(
-                fc.par_iter()
-                    .with_min_len(par.min_len())
-                    .map(|fc| form.scale(fc)),
-            );
-        }
-        let scale = &ws.scale;
-        stages::stress_of(
-            self.material.as_ref(),
-            self.simd,
-            |p| match fc {
-                Some(fc) => form.apply_scaled(&state.f[p], &fc[p], scale_of(scale, p)),
-                None => state.f[p],
-            },
-            &mut ws.fe,
-            Some(&state.c),
-            |p| self.stress_inputs(p),
-            par,
-            &mut ws.affine,
-            &mut ws.kept,
-        );
-    }
-
-    /// G: the grid velocity, then the effects and the clamps, into `ws.grid.fields[0]`. Taped, returns
-    /// the nodal masses and the velocity before the effects.
-    fn grid_stage<const N: usize>(
-        &self,
-        state: &State,
-        values: Option<&[Vector3<f64>]>,
-        step: usize,
-        taped: bool,
-        par: Parallel,
-        ws: &mut Workspace,
-    ) -> (Vec<f64>, Vec<Vector3<f64>>)
-    where
-        Stencil<N>: Cached,
-    {
-        // G: grid velocity, then effects.
-        grid_quotients(
-            &ws.bins,
-            par,
-            &ws.grid.nodes,
-            &mut ws.grid.mass,
-            [&mut ws.grid.fields[0]],
-        );
-        let effects = GridEffects::new(&self.effects, GridForm::Step);
-        let (grid_mass, grid_v_pre) = match taped {
-            true => (par_copy(&ws.grid.mass), par_copy(&ws.grid.fields[0])),
-            false => (Vec::new(), Vec::new()),
-        };
-        let ctx = self.grid_context(&ws.grid.mass, step);
-        apply_grid_effects(&ws.bins, par, &effects, &ctx, [&mut ws.grid.fields[0][..]]);
-        // Kinematic controls hold the nodes their particles touch at the prescribed velocity
-        // (a grid boundary condition: the body near a clamp feels it through its stress).
-        if let Some(vals) = values {
-            for (i, e) in self.clamp_nodes::<N>(&state.x) {
-                ws.grid.fields[0][i] = vals[e];
-            }
-        }
-        (grid_mass, grid_v_pre)
-    }
-
-    /// G2P and P2: a per-particle gather of the grid velocity and its gradient, then the
-    /// particle update, in place.
-    fn g2p_stage<const N: usize>(
-        &self,
-        state: &mut State,
-        values: Option<&[Vector3<f64>]>,
-        par: Parallel,
-        ws: &mut Workspace,
-    ) where
-        Stencil<N>: Cached,
-    {
-        let (dt, inv_d, strides) = (self.dt, self.inv_d(), self.grid.strides());
-        // G2P and P2 (per-particle gather, in place).
-        ws.grid
-            .velocity_axes
-            .set_from(&ws.grid.fields[0], &ws.bins, par.on);
-        let grid_v = &ws.grid.velocity_axes;
-        let fe = &ws.fe;
-        let stencils = ws.grid.stencils.sized::<N>(state.len());
-        let State { x, v, c, f } = state;
-        x.par_iter_mut()
-            .zip(v.par_iter_mut())
-            .zip(c.par_iter_mut().zip(f.par_iter_mut()))
-            .enumerate()
-            .with_min_len(par.min_len())
-            .for_each(|(p, ((x, v), (c, f)))| {
-                let s = &stencils[p];
-                let (mut vel, mut cn) =
-                    transfer::gather_affine(self.simd, s, &strides, grid_v, inv_d);
-                if let Some(u) = values.and_then(|vals| self.prescribed_velocity(vals, p)) {
-                    vel = u;
-                    cn = Matrix3::zeros();
-                }
-                let (xn, fnew) = advance(x, &fe[p], &vel, &cn, dt);
-                *x = xn;
-                *v = vel;
-                *c = cn;
-                *f = fnew;
-            });
     }
 
     /// Reverse pass over a taped rollout. `grad_last` is dL/d(state after the last step);

@@ -1,14 +1,164 @@
-//! The reverse of one Euler step, stage by stage backwards (see [`super::Euler`]'s
-//! `step_impl` for the forward): the grid velocity G2P read replayed from the tape, G2P with
-//! the particle update, the grid update, P2G with the stress.
+//! The reverse of one Euler step: the forward's grid replayed from the tape, then the
+//! pipeline's reverse pass in the Euler step's form ([`StepReverse`]; see
+//! [`crate::mpm::pipeline`]): G2P with the particle update, the grid update (the clamped
+//! nodes' adjoints to their controls), P2G with the stress.
 
 use super::*;
+use crate::mpm::grid::Tile;
+use crate::mpm::pipeline::{Form, GridView, Reverse};
+use crate::mpm::transfer::{Node, ScatterGrad};
+
+/// The reverse of one taped step: reads the tape and `post` (the state after the step), and
+/// keeps every particle's adjoints (each written by its own particle's calls alone).
+struct StepReverse<'a> {
+    euler: &'a Euler,
+    tape: &'a StepTape,
+    post: &'a State,
+    fc: Option<&'a [Matrix3<f64>]>,
+    values: Option<&'a [Vector3<f64>]>,
+    body: Option<Vec<Vector3<f64>>>,
+    retention: f64,
+    fe: &'a [Matrix3<f64>],
+    /// The nodes the clamps held, and dL/d(each control's value) through them.
+    clamp_nodes: Vec<(usize, usize)>,
+    grad_clamp: Vec<Vector3<f64>>,
+    /// dL/d(state): dL/d(post) in, dL/d(pre) out.
+    adj: [SharedMut<'a, Vector3<f64>>; 2],
+    adj_m: [SharedMut<'a, Matrix3<f64>>; 2],
+    grad_fe: SharedMut<'a, Matrix3<f64>>,
+    grad_fc: SharedMut<'a, Matrix3<f64>>,
+    /// dL/d(prescribed velocity) and dL/d(scattered momentum) per particle (with controls).
+    grad_u: SharedMut<'a, Vector3<f64>>,
+    grad_mom: SharedMut<'a, Vector3<f64>>,
+}
+
+impl StepReverse<'_> {
+    fn clamped(&self, p: usize) -> bool {
+        self.values.is_some() && self.euler.is_clamped(p)
+    }
+}
+
+impl Form<1> for StepReverse<'_> {
+    const GRID: GridForm = GridForm::Step;
+
+    fn positions(&self) -> &[Vector3<f64>] {
+        &self.tape.pre.x
+    }
+    fn step(&self) -> usize {
+        self.tape.step
+    }
+    fn time(&self) -> f64 {
+        self.tape.step as f64 * self.euler.dt
+    }
+    fn stress_inputs(&self, p: usize) -> StressInputs<'_> {
+        self.euler.stress_inputs(p)
+    }
+    fn fields(&self, p: usize) -> [Affine; 1] {
+        let (e, pre, body) = (self.euler, &self.tape.pre, self.body.as_deref());
+        [Affine {
+            value: e.particle_momentum(pre, self.values, body, self.retention, p),
+            slope: self.tape.affine[p],
+        }]
+    }
+    fn grid_masses<'g>(&'g self, _scattered: &'g [f64]) -> &'g [f64] {
+        &self.tape.grid_mass
+    }
+    fn hold<const N: usize>(&mut self, fields: &mut [Vec<Vector3<f64>>; 1]) {
+        self.clamp_nodes =
+            self.euler
+                .hold_clamps::<N>(&self.tape.pre.x, self.values, &mut fields[0]);
+    }
+}
+
+impl Reverse<1> for StepReverse<'_> {
+    /// P2 reverse and G2P reverse, fused per particle. A clamped particle's velocity is its
+    /// prescribed one: its adjoint goes to the control (`grad_u`), not to the gather.
+    fn gather_reverse<const N: usize>(&self, p: usize, grid: &GridView<N, 1>, tile: &mut Tile) {
+        let (e, post, s) = (self.euler, self.post, &grid.stencils[p]);
+        let (dt, inv_d, strides) = (e.dt, e.inv_d(), e.grid.strides());
+        // SAFETY: each particle is visited exactly once.
+        let (x_adj, fe_adj) = unsafe { (self.adj[0].get(p), self.grad_fe.get(p)) };
+        let (av, ac, af) = unsafe {
+            (
+                *self.adj[1].get(p),
+                *self.adj_m[0].get(p),
+                *self.adj_m[1].get(p),
+            )
+        };
+        let g = advance_reverse(&self.fe[p], &post.c[p], dt, x_adj, &av, &ac, &af);
+        *fe_adj = g.fe;
+        // The gather's own velocity (a clamped particle's state holds the prescribed one
+        // instead).
+        let (grad_vel, gathered) = if self.clamped(p) {
+            // SAFETY: as above.
+            unsafe { *self.grad_u.get(p) = av + dt * *x_adj };
+            let v = transfer::gather_affine(e.simd, s, &strides, grid.velocity, inv_d).0;
+            (Vector3::zeros(), v)
+        } else {
+            (g.vel, post.v[p])
+        };
+        *x_adj += transfer::gather_affine_reverse(
+            e.simd,
+            s,
+            &strides,
+            grid.velocity,
+            inv_d,
+            &grad_vel,
+            &g.c,
+            &gathered,
+            tile,
+        );
+    }
+
+    /// The clamped nodes' velocities are the controls' values.
+    fn hold_reverse(&mut self, grad_fields: &mut [Vec<Vector3<f64>>; 1]) {
+        self.grad_clamp = vec![Vector3::zeros(); self.euler.controls.effects.len()];
+        for &(i, e) in &self.clamp_nodes {
+            self.grad_clamp[e] += grad_fields[0][i];
+            grad_fields[0][i] = Vector3::zeros();
+        }
+    }
+
+    fn grid_input(&self, _nodes: &[Node<1>], i: usize) -> [Vector3<f64>; 1] {
+        [self.tape.grid_v[i]]
+    }
+
+    fn scatter_reverse(&self, p: usize, g: &ScatterGrad<1>) -> Matrix3<f64> {
+        let m = self.euler.mass[p];
+        // SAFETY: each particle is visited exactly once.
+        unsafe {
+            *self.adj[0].get(p) += g.x;
+            *self.adj[1].get(p) = match self.clamped(p) {
+                true => Vector3::zeros(),
+                false => (self.retention * m) * g.value[0],
+            };
+            if self.values.is_some() {
+                *self.grad_mom.get(p) = g.value[0];
+            }
+        }
+        g.slope[0]
+    }
+
+    fn elastic(&self, range: std::ops::Range<usize>) -> (&[Matrix3<f64>], &[f64]) {
+        let keep = self.euler.material.kept_per_particle();
+        (&self.fe[range.clone()], self.tape.kept_of(range, keep))
+    }
+
+    fn stress_reverse(&self, p: usize, grad_c: Matrix3<f64>, grad_fe: Matrix3<f64>) {
+        // SAFETY: each particle is visited exactly once.
+        unsafe {
+            *self.adj_m[0].get(p) = grad_c;
+            let total_fe = *self.grad_fe.get(p) + grad_fe;
+            let (g_f, g_fc) = self.euler.control_reverse(self.tape, self.fc, p, &total_fe);
+            *self.adj_m[1].get(p) = g_f;
+            *self.grad_fc.get(p) = g_fc;
+        }
+    }
+}
 
 impl Euler {
     /// Reverse of one step: turns `adj` from dL/d(post) into dL/d(pre) and returns dL/dFc.
-    /// Also returns dL/d(control values) when `values` (the forward pass's) are given. The
-    /// stages run backwards: the grid velocity G2P read (replayed from the tape), G2P with
-    /// the particle update, the grid update, P2G with the stress.
+    /// Also returns dL/d(control values) when `values` (the forward pass's) are given.
     #[allow(clippy::too_many_arguments)]
     pub(super) fn reverse_impl<const N: usize>(
         &self,
@@ -24,15 +174,50 @@ impl Euler {
         Stencil<N>: Cached,
     {
         let mut laps = Laps::start(self.clock.as_deref());
-        let effects = GridEffects::new(&self.effects, GridForm::Step);
-        let clamp_nodes = self.reverse_setup::<N>(tape, fc, values, &effects, rws);
+        let n = tape.pre.len();
+        let par = Parallel::for_particles(n);
+        self.replay::<N>(tape, fc, rws);
+        let with_values = if values.is_some() { n } else { 0 };
+        let (mut grad_u, mut grad_mom) = (
+            vec![Vector3::zeros(); with_values],
+            vec![Vector3::zeros(); with_values],
+        );
+        let mut grad_fc = vec![Matrix3::zeros(); n];
+        let Workspace {
+            grid, particles, ..
+        } = rws;
+        particles.grad_fe.resize(n, Matrix3::zeros());
+        let StateGrad { x, v, c, f } = adj;
+        let mut form = StepReverse {
+            euler: self,
+            tape,
+            post,
+            fc,
+            values,
+            body: values.map(|v| self.body_accelerations(v)),
+            retention: self.momentum_retention(tape.step),
+            fe: &particles.fe,
+            clamp_nodes: Vec::new(),
+            grad_clamp: Vec::new(),
+            adj: [SharedMut::new(x), SharedMut::new(v)],
+            adj_m: [SharedMut::new(c), SharedMut::new(f)],
+            grad_fe: SharedMut::new(&mut particles.grad_fe),
+            grad_fc: SharedMut::new(&mut grad_fc),
+            grad_u: SharedMut::new(&mut grad_u),
+            grad_mom: SharedMut::new(&mut grad_mom),
+        };
+        pipeline::effects_and_boundary::<N, 1, _>(&self.model, &mut form, &tape.bins, par, grid);
         laps.lap(Stage::RevSetup);
-        let grad_u = self.g2p_reverse::<N>(tape, post, values, adj, rws);
-        laps.lap(Stage::RevG2p);
-        let grad_clamp = self.grid_reverse(tape, &clamp_nodes, &effects, effect_params, rws);
-        laps.lap(Stage::RevGrid);
-        let (grad_fc, grad_mom) = self.p2g_stress_reverse::<N>(tape, fc, values, adj, rws);
-        laps.lap(Stage::RevP2gStress);
+        pipeline::reverse::<N, 1, _>(
+            &self.model,
+            &mut form,
+            &tape.bins,
+            grid,
+            effect_params,
+            &mut laps,
+        );
+        let grad_clamp = std::mem::take(&mut form.grad_clamp);
+        drop(form);
         let grad_values = match values {
             None => Vec::new(),
             Some(_) => self.control_values_reverse(grad_u, &grad_mom, &grad_clamp),
@@ -40,26 +225,22 @@ impl Euler {
         (grad_fc, grad_values)
     }
 
-    /// What the reverse stages read: each particle's elastic `Fe` (the control applied to
-    /// the tape's F), and the grid velocity G2P read, replayed from the tape through the grid
-    /// effects and the clamps. Returns the clamped nodes and their controls.
-    fn reverse_setup<const N: usize>(
+    /// What the reverse stages read from the forward that the tape does not hold: each
+    /// particle's elastic `Fe` (the control applied to the tape's F), its stencil, and the
+    /// grid velocity before the effects (which the pipeline then replays).
+    fn replay<const N: usize>(
         &self,
         tape: &StepTape,
         fc: Option<&[Matrix3<f64>]>,
-        values: Option<&[Vector3<f64>]>,
-        effects: &GridEffects,
         rws: &mut Workspace,
-    ) -> Vec<(usize, usize)>
-    where
+    ) where
         Stencil<N>: Cached,
     {
-        let pre = &tape.pre;
-        let form = self.control_form;
-        rws.fe.resize(pre.len(), Matrix3::zeros());
+        let (pre, form) = (&tape.pre, self.control_form);
         let par = Parallel::for_particles(pre.len());
-        rws.fe
-            .par_iter_mut()
+        let fe = &mut rws.particles.fe;
+        fe.resize(pre.len(), Matrix3::zeros());
+        fe.par_iter_mut()
             .enumerate()
             .with_min_len(par.min_len())
             .for_each(|(p, fe)| {
@@ -68,225 +249,9 @@ impl Euler {
                     None => pre.f[p],
                 }
             });
-        let par = Parallel::for_particles(pre.len());
-        let ctx = self.grid_context(&tape.grid_mass, tape.step);
+        let (origin, dx) = (self.grid.origin_vec(), self.grid.dx);
+        stages::stencils::<N>(self.simd, &pre.x, &origin, dx, par, &mut rws.grid.stencils);
         rws.grid.fields[0].clone_from(&tape.grid_v);
-        apply_grid_effects(
-            &tape.bins,
-            par,
-            effects,
-            &ctx,
-            [&mut rws.grid.fields[0][..]],
-        );
-        let clamp_nodes = match values {
-            Some(vals) => {
-                let nodes = self.clamp_nodes::<N>(&pre.x);
-                for &(i, e) in &nodes {
-                    rws.grid.fields[0][i] = vals[e];
-                }
-                nodes
-            }
-            None => Vec::new(),
-        };
-        rws.grid
-            .velocity_axes
-            .set_from(&rws.grid.fields[0], &tape.bins, par.on);
-        clamp_nodes
-    }
-
-    /// G2P reverse with the particle update's (P2), into `adj.x`, `rws.grad_fe` and the grid
-    /// velocity's adjoint; returns dL/d(prescribed velocity) of each clamped particle.
-    fn g2p_reverse<const N: usize>(
-        &self,
-        tape: &StepTape,
-        post: &State,
-        values: Option<&[Vector3<f64>]>,
-        adj: &mut StateGrad,
-        rws: &mut Workspace,
-    ) -> Vec<Vector3<f64>>
-    where
-        Stencil<N>: Cached,
-    {
-        let pre = &tape.pre;
-        let n = pre.len();
-        let par = Parallel::for_particles(n);
-        let nodes = self.grid.node_count();
-        let (dt, inv_d) = (self.dt, self.inv_d());
-        let (strides, origin, dx) = (self.grid.strides(), self.grid.origin_vec(), self.grid.dx);
-        let (fe, grid_v) = (&rws.fe, &rws.grid.velocity_axes);
-        // P2 reverse and G2P reverse, fused per particle (a scatter into the grid velocity
-        // adjoint, block by block into tiles). A clamped particle's velocity is its
-        // prescribed one: its adjoint goes to the control (`grad_u`), not to the gather.
-        let clamped = |p: usize| values.is_some() && self.is_clamped(p);
-        let mut grad_u = vec![Vector3::zeros(); if values.is_some() { n } else { 0 }];
-        rws.grad_fe.resize(n, Matrix3::zeros());
-        let StateGrad {
-            x: ax,
-            v: av,
-            c: ac,
-            f: af,
-        } = adj;
-        {
-            let gx = SharedMut::new(ax);
-            let gfe = SharedMut::new(&mut rws.grad_fe);
-            let gu = SharedMut::new(&mut grad_u);
-            let (av, ac, af) = (&*av, &*ac, &*af);
-            let stencils =
-                stages::stencils::<N>(self.simd, &pre.x, &origin, dx, par, &mut rws.grid.stencils);
-            rws.grid.grad_axes[0].scatter(&tape.bins, par.on, nodes, |tile, p| {
-                // SAFETY: each particle is visited exactly once.
-                let (x_adj, fe_adj) = unsafe { (gx.get(p), gfe.get(p)) };
-                let g = advance_reverse(&fe[p], &post.c[p], dt, x_adj, &av[p], &ac[p], &af[p]);
-                *fe_adj = g.fe;
-                let s = &stencils[p];
-                // The gather's own velocity (a clamped particle's state holds the prescribed
-                // one instead).
-                let (grad_vel, gathered) = if clamped(p) {
-                    // SAFETY: as above.
-                    unsafe { *gu.get(p) = av[p] + dt * *x_adj };
-                    let v = transfer::gather_affine(self.simd, s, &strides, grid_v, inv_d).0;
-                    (Vector3::zeros(), v)
-                } else {
-                    (g.vel, post.v[p])
-                };
-                *x_adj += transfer::gather_affine_reverse(
-                    self.simd, s, &strides, grid_v, inv_d, &grad_vel, &g.c, &gathered, tile,
-                );
-            });
-        }
-        grad_u
-    }
-
-    /// The grid update's reverse: the clamped nodes' adjoints go to their controls, then the
-    /// effects backwards, then `v = p / m`, into `rws.grid.grad_nodes`. Returns dL/d(clamp values).
-    fn grid_reverse(
-        &self,
-        tape: &StepTape,
-        clamp_nodes: &[(usize, usize)],
-        effects: &GridEffects,
-        effect_params: &mut [Vec<f64>],
-        rws: &mut Workspace,
-    ) -> Vec<Vector3<f64>> {
-        let (bins, par) = (&tape.bins, Parallel::for_particles(tape.pre.len()));
-        let ctx = self.grid_context(&tape.grid_mass, tape.step);
-        rws.grid.grad_axes[0].write_vectors(&mut rws.grid.grad_fields[0], bins, par.on);
-        // The clamped nodes' velocities are the controls' values.
-        let grad_grid_v = &mut rws.grid.grad_fields[0];
-        let mut grad_clamp = vec![Vector3::zeros(); self.controls.effects.len()];
-        for &(i, e) in clamp_nodes {
-            grad_clamp[e] += grad_grid_v[i];
-            grad_grid_v[i] = Vector3::zeros();
-        }
-        let grad_grid_v = &*grad_grid_v;
-        grid_update_reverse(
-            bins,
-            par,
-            effects,
-            &ctx,
-            |i| [tape.grid_v[i]],
-            |i| [grad_grid_v[i]],
-            &mut rws.grid.grad_nodes,
-            effect_params,
-        );
-        grad_clamp
-    }
-
-    /// P2G reverse (a gather) and the stress's (P1), in batches of CHUNK particles (the
-    /// material takes their stress differentials together), into `adj`. Returns dL/dFc and
-    /// dL/d(scattered momentum) per particle (for the controls, when `values` are given).
-    fn p2g_stress_reverse<const N: usize>(
-        &self,
-        tape: &StepTape,
-        fc: Option<&[Matrix3<f64>]>,
-        values: Option<&[Vector3<f64>]>,
-        adj: &mut StateGrad,
-        rws: &mut Workspace,
-    ) -> (Vec<Matrix3<f64>>, Vec<Vector3<f64>>)
-    where
-        Stencil<N>: Cached,
-    {
-        let pre = &tape.pre;
-        let n = pre.len();
-        let strides = self.grid.strides();
-        let fe = &rws.fe;
-        let clamped = |p: usize| values.is_some() && self.is_clamped(p);
-        let StateGrad {
-            x: ax,
-            v: av,
-            c: ac,
-            f: af,
-        } = adj;
-        let retention = self.momentum_retention(tape.step);
-        let body = values.map(|v| self.body_accelerations(v));
-        let mut grad_fc = vec![Matrix3::zeros(); n];
-        // dL/d(scattered momentum) per particle, for the controls.
-        let mut grad_mom = vec![Vector3::zeros(); if values.is_some() { n } else { 0 }];
-        let gm = SharedMut::new(&mut grad_mom);
-        let par = Parallel::for_particles(n);
-        rws.grid
-            .grad_node_axes
-            .set_from(&rws.grid.grad_nodes, &tape.bins, par.on);
-        let (grad_nodes, grad_fe) = (&rws.grid.grad_node_axes, &rws.grad_fe);
-        let stencils = &rws.grid.stencils.sized::<N>(n)[..];
-        (
-            ax.par_chunks_mut(CHUNK),
-            av.par_chunks_mut(CHUNK),
-            ac.par_chunks_mut(CHUNK),
-            af.par_chunks_mut(CHUNK),
-            grad_fc.par_chunks_mut(CHUNK),
-        )
-            .into_par_iter()
-            .with_min_len(par.min_batches())
-            .enumerate()
-            .for_each(|(k, (gx, gv, gc, gf, gfc))| {
-                let p0 = k * CHUNK;
-                let len = gx.len();
-                let mut grad_a = [Matrix3::zeros(); CHUNK];
-                for i in 0..len {
-                    let p = p0 + i;
-                    let s = &stencils[p];
-                    let m = self.mass[p];
-                    let momentum = Affine {
-                        value: self.particle_momentum(pre, values, body.as_deref(), retention, p),
-                        slope: tape.affine[p],
-                    };
-                    let g = transfer::scatter_reverse(
-                        self.simd,
-                        s,
-                        &strides,
-                        m,
-                        &[momentum],
-                        grad_nodes,
-                    );
-                    gx[i] += g.x;
-                    gv[i] = if clamped(p) {
-                        Vector3::zeros()
-                    } else {
-                        (retention * m) * g.value[0]
-                    };
-                    if values.is_some() {
-                        // SAFETY: each particle is visited exactly once.
-                        unsafe { *gm.get(p) = g.value[0] };
-                    }
-                    grad_a[i] = g.slope[0];
-                }
-                let kept = tape.kept_of(p0..p0 + len, self.material.kept_per_particle());
-                stages::stress_reverse(
-                    self.material.as_ref(),
-                    self.simd,
-                    p0,
-                    &fe[p0..p0 + len],
-                    kept,
-                    |p| self.stress_inputs(p),
-                    &grad_a[..len],
-                    |i, g_c, g_fe| {
-                        gc[i] = g_c;
-                        let total_fe = grad_fe[p0 + i] + g_fe;
-                        (gf[i], gfc[i]) = self.control_reverse(tape, fc, p0 + i, &total_fe);
-                    },
-                );
-            });
-        (grad_fc, grad_mom)
     }
 
     /// The reverse of `Fe = control(F, Fc)` for particle `p`: (dL/dF, dL/dFc) from dL/dFe
