@@ -54,8 +54,9 @@ pub trait Form<const K: usize>: Sync {
     fn grid_masses<'g>(&'g self, scattered: &'g [f64]) -> &'g [f64] {
         scattered
     }
-    /// G, last part: the boundary the grid holds after the effects.
-    fn hold<const N: usize>(&mut self, _fields: &mut [Vec<Vector3<f64>>; K]) {}
+    /// The boundary controls' values in this pass (what the clamps hold; none: no
+    /// clamp acts).
+    fn control_values(&self) -> Option<&[Vector3<f64>]>;
 }
 
 /// The forward stages' own parts of a form.
@@ -78,8 +79,6 @@ pub trait Reverse<const K: usize>: Form<K> {
     /// Reverse of G2P and the particle update for particle `p`: scatters dL/d(fields) into
     /// `tile` (channel `3 k + j`: field `k`'s axis `j`).
     fn gather_reverse<const N: usize>(&self, p: usize, grid: &GridView<N, K>, tile: &mut Tile);
-    /// Reverse of [`Form::hold`]: the held nodes' adjoints go to what held them.
-    fn hold_reverse(&mut self, _grad_fields: &mut [Vec<Vector3<f64>>; K]) {}
     /// Node `i`'s quotients as the effects received them.
     fn grid_input(&self, nodes: &[Node<K>], i: usize) -> [Vector3<f64>; K];
     /// Reverse of P2G for particle `p` from what its fields gathered; returns dL/d(the
@@ -172,7 +171,7 @@ where
 }
 
 /// G after the quotients (in `grid.fields`), forward and in a replay: the effects, the
-/// form's boundary, and the velocity by axis for the gather.
+/// clamps (see [`hold_clamps`]), and the velocity by axis for the gather.
 pub fn effects_and_boundary<const N: usize, const K: usize, F: Form<K>>(
     model: &Model,
     form: &mut F,
@@ -186,13 +185,14 @@ pub fn effects_and_boundary<const N: usize, const K: usize, F: Form<K>>(
     let ctx = context(model, form, form.grid_masses(&grid.mass));
     let fields = grid.fields.each_mut().map(|f| &mut f[..]);
     apply_grid_effects(bins, par, &effects, &ctx, fields);
-    form.hold::<N>(&mut grid.fields);
+    let (x, values) = (form.positions(), form.control_values());
+    grid.held = hold_clamps::<N, K>(model, x, values, &mut grid.fields);
     grid.velocity_axes.set_from(&grid.fields[0], bins, par.on);
 }
 
 /// One reverse pass of `form`, once `grid` holds its forward's (see the module's note):
 /// the form keeps the particles' adjoints; the effects' parameter adjoints are added to
-/// `effect_params`.
+/// `effect_params`. Returns dL/d(each control's value) through the nodes its clamp held.
 pub fn reverse<const N: usize, const K: usize, F: Reverse<K>>(
     model: &Model,
     form: &mut F,
@@ -200,19 +200,21 @@ pub fn reverse<const N: usize, const K: usize, F: Reverse<K>>(
     grid: &mut GridScratch<K>,
     effect_params: &mut [Vec<f64>],
     laps: &mut Laps,
-) where
+) -> Vec<Vector3<f64>>
+where
     Stencil<N>: Cached,
 {
     let n = form.positions().len();
     let par = Parallel::for_particles(n);
     gather_reverse::<N, K, F>(model, form, bins, par, grid);
     laps.lap(Stage::RevG2p);
-    grid_reverse(model, form, bins, par, grid, effect_params);
+    let grad_held = grid_reverse(model, form, bins, par, grid, effect_params);
     laps.lap(Stage::RevGrid);
     grid.grad_node_axes.set_from(&grid.grad_nodes, bins, par.on);
     let stencils = &grid.stencils.sized::<N>(n)[..];
     scatter_and_stress_reverse(model, form, par, stencils, &grid.grad_node_axes);
     laps.lap(Stage::RevP2gStress);
+    grad_held
 }
 
 /// G2P's reverse: every particle's [`Form::gather_reverse`], block by block into tiles,
@@ -268,15 +270,16 @@ fn grid_reverse<const K: usize, F: Reverse<K>>(
     par: Parallel,
     grid: &mut GridScratch<K>,
     effect_params: &mut [Vec<f64>],
-) {
+) -> Vec<Vector3<f64>> {
     let GridScratch {
         nodes,
         mass,
+        held,
         grad_fields,
         grad_nodes,
         ..
     } = grid;
-    form.hold_reverse(grad_fields);
+    let grad_held = release_clamps(model, held, grad_fields);
     let effects = GridEffects::new(&model.effects, F::GRID);
     let ctx = context(model, form, form.grid_masses(mass));
     grid_update_reverse(
@@ -289,6 +292,7 @@ fn grid_reverse<const K: usize, F: Reverse<K>>(
         grad_nodes,
         effect_params,
     );
+    grad_held
 }
 
 /// P2G's reverse (a gather of the node adjoints) and P1's, in batches of [`CHUNK`]
@@ -332,4 +336,53 @@ fn scatter_and_stress_reverse<const N: usize, const K: usize, F: Reverse<K>>(
                 |i, g_c, g_fe| form.stress_reverse(range.start + i, g_c, g_fe),
             );
         });
+}
+
+/// The one clamp rule, a grid boundary condition: every node in a clamped particle's stencil
+/// (at `x`) moves with its control, `v_i = u` (and `a_i = 0` in the ODE form), after the
+/// effects. A clamp that only overrode its particles' motion would let the rest of the body
+/// slide off it: the body feels a boundary through the grid. Returns the held nodes with
+/// their controls (sorted by node; where two controls meet, the first).
+pub fn hold_clamps<const N: usize, const K: usize>(
+    model: &Model,
+    x: &[Vector3<f64>],
+    values: Option<&[Vector3<f64>]>,
+    fields: &mut [Vec<Vector3<f64>>; K],
+) -> Vec<(usize, usize)> {
+    let Some(values) = values else {
+        return Vec::new();
+    };
+    let (strides, origin, dx) = (model.grid.strides(), model.grid.origin_vec(), model.grid.dx);
+    let mut held = Vec::new();
+    for (p, xp) in x.iter().enumerate() {
+        if let Some(e) = model.kinematic_control(p) {
+            let stencil = Stencil::<N>::new(xp, &origin, dx);
+            stencil.for_each_node(&strides, |i, _, _, _| held.push((i, e)));
+        }
+    }
+    held.sort_unstable();
+    held.dedup_by_key(|n| n.0);
+    for &(i, e) in &held {
+        for (k, field) in fields.iter_mut().enumerate() {
+            field[i] = if k == 0 { values[e] } else { Vector3::zeros() };
+        }
+    }
+    held
+}
+
+/// Reverse of [`hold_clamps`]: the held nodes' adjoints go to their controls' values
+/// (returned, one a control) and no further.
+fn release_clamps<const K: usize>(
+    model: &Model,
+    held: &[(usize, usize)],
+    grad_fields: &mut [Vec<Vector3<f64>>; K],
+) -> Vec<Vector3<f64>> {
+    let mut grad_values = vec![Vector3::zeros(); model.controls.effects.len()];
+    for &(i, e) in held {
+        grad_values[e] += grad_fields[0][i];
+        for field in grad_fields.iter_mut() {
+            field[i] = Vector3::zeros();
+        }
+    }
+    grad_values
 }

@@ -17,6 +17,8 @@ pub struct GridScratch<const K: usize> {
     pub mass: Vec<f64>,
     /// The grid update's fields (velocity; and acceleration in the ODE form).
     pub fields: [Vec<Vector3<f64>>; K],
+    /// The nodes the clamps held, with the control holding each.
+    pub held: Vec<(usize, usize)>,
     /// The velocity by axis, for the gather.
     pub velocity_axes: AxisField,
     /// Every particle's stencil, built once a pass.
@@ -36,6 +38,7 @@ impl<const K: usize> Default for GridScratch<K> {
             node_axes: AxisNodes::default(),
             mass: Vec::new(),
             fields: std::array::from_fn(|_| Vec::new()),
+            held: Vec::new(),
             velocity_axes: AxisField::default(),
             stencils: StencilCache::default(),
             grad_fields: std::array::from_fn(|_| Vec::new()),

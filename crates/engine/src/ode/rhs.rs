@@ -299,7 +299,7 @@ impl Rk4 {
         };
         let mut laps = Laps::start(None);
         let (model, bins) = (&self.model, &fw.bins);
-        pipeline::reverse::<N, 2, _>(
+        let grad_held = pipeline::reverse::<N, 2, _>(
             model,
             &mut rev,
             bins,
@@ -308,7 +308,10 @@ impl Rk4 {
             &mut laps,
         );
         self.pool.put(fw.buf);
-        let controls = self.control_value_grads(&grad_u, &grad_body);
+        let mut controls = self.control_value_grads(&grad_u, &grad_body);
+        for (g, held) in controls.iter_mut().zip(&grad_held) {
+            *g += held;
+        }
         RhsGrad {
             state: grad,
             controls,
@@ -379,6 +382,9 @@ impl Form<2> for RatePass<'_> {
         self.rk4
             .scatter_fields(self.s, values, force, &self.body, p)
     }
+    fn control_values(&self) -> Option<&[Vector3<f64>]> {
+        Some(self.at.values)
+    }
 }
 
 impl Forward<2> for RatePass<'_> {
@@ -447,6 +453,9 @@ impl Form<2> for RateReverse<'_> {
     }
     fn fields(&self, p: usize) -> [Affine; 2] {
         self.pass.fields(p)
+    }
+    fn control_values(&self) -> Option<&[Vector3<f64>]> {
+        self.pass.control_values()
     }
 }
 

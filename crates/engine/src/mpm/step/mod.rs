@@ -377,22 +377,6 @@ impl Euler {
         (grads, grad_params)
     }
 
-    /// The grid nodes the kinematic controls hold, with the control holding each: every node
-    /// in a clamped particle's stencil (sorted by node; where two controls meet, the first).
-    fn clamp_nodes<const N: usize>(&self, x: &[Vector3<f64>]) -> Vec<(usize, usize)> {
-        let (strides, origin, dx) = (self.grid.strides(), self.grid.origin_vec(), self.grid.dx);
-        let mut nodes = Vec::new();
-        for (p, xp) in x.iter().enumerate() {
-            if let Some(e) = self.kinematic_control(p) {
-                Stencil::<N>::new(xp, &origin, dx)
-                    .for_each_node(&strides, |i, _, _, _| nodes.push((i, e)));
-            }
-        }
-        nodes.sort_unstable();
-        nodes.dedup_by_key(|n| n.0);
-        nodes
-    }
-
     /// The momentum particle `p` scatters: its prescribed velocity's, or `m v` after drag
     /// plus the body force's impulse `m b dt`.
     #[inline]

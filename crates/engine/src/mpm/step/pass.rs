@@ -32,27 +32,6 @@ pub(super) struct StepPass<'a> {
     pub taped_grid: (Vec<f64>, Vec<Vector3<f64>>),
 }
 
-impl Euler {
-    /// Holds the nodes the kinematic controls' particles (at `x`) touch at the controls'
-    /// `values` (a grid boundary condition: the body near a clamp feels it through its
-    /// stress); returns the held nodes and their controls.
-    pub(super) fn hold_clamps<const N: usize>(
-        &self,
-        x: &[Vector3<f64>],
-        values: Option<&[Vector3<f64>]>,
-        grid_v: &mut [Vector3<f64>],
-    ) -> Vec<(usize, usize)> {
-        let Some(values) = values else {
-            return Vec::new();
-        };
-        let nodes = self.clamp_nodes::<N>(x);
-        for &(i, e) in &nodes {
-            grid_v[i] = values[e];
-        }
-        nodes
-    }
-}
-
 impl Form<1> for StepPass<'_> {
     const GRID: GridForm = GridForm::Step;
 
@@ -75,9 +54,8 @@ impl Form<1> for StepPass<'_> {
             slope: self.buf.affine[p],
         }]
     }
-    fn hold<const N: usize>(&mut self, fields: &mut [Vec<Vector3<f64>>; 1]) {
-        self.euler
-            .hold_clamps::<N>(&self.state.x, self.values, &mut fields[0]);
+    fn control_values(&self) -> Option<&[Vector3<f64>]> {
+        self.values
     }
 }
 

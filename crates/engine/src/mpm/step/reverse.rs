@@ -19,9 +19,6 @@ struct StepReverse<'a> {
     body: Option<Vec<Vector3<f64>>>,
     retention: f64,
     fe: &'a [Matrix3<f64>],
-    /// The nodes the clamps held, and dL/d(each control's value) through them.
-    clamp_nodes: Vec<(usize, usize)>,
-    grad_clamp: Vec<Vector3<f64>>,
     /// dL/d(state): dL/d(post) in, dL/d(pre) out.
     adj: [SharedMut<'a, Vector3<f64>>; 2],
     adj_m: [SharedMut<'a, Matrix3<f64>>; 2],
@@ -63,10 +60,8 @@ impl Form<1> for StepReverse<'_> {
     fn grid_masses<'g>(&'g self, _scattered: &'g [f64]) -> &'g [f64] {
         &self.tape.grid_mass
     }
-    fn hold<const N: usize>(&mut self, fields: &mut [Vec<Vector3<f64>>; 1]) {
-        self.clamp_nodes =
-            self.euler
-                .hold_clamps::<N>(&self.tape.pre.x, self.values, &mut fields[0]);
+    fn control_values(&self) -> Option<&[Vector3<f64>]> {
+        self.values
     }
 }
 
@@ -108,15 +103,6 @@ impl Reverse<1> for StepReverse<'_> {
             &gathered,
             tile,
         );
-    }
-
-    /// The clamped nodes' velocities are the controls' values.
-    fn hold_reverse(&mut self, grad_fields: &mut [Vec<Vector3<f64>>; 1]) {
-        self.grad_clamp = vec![Vector3::zeros(); self.euler.controls.effects.len()];
-        for &(i, e) in &self.clamp_nodes {
-            self.grad_clamp[e] += grad_fields[0][i];
-            grad_fields[0][i] = Vector3::zeros();
-        }
     }
 
     fn grid_input(&self, _nodes: &[Node<1>], i: usize) -> [Vector3<f64>; 1] {
@@ -197,8 +183,6 @@ impl Euler {
             body: values.map(|v| self.body_accelerations(v)),
             retention: self.momentum_retention(tape.step),
             fe: &particles.fe,
-            clamp_nodes: Vec::new(),
-            grad_clamp: Vec::new(),
             adj: [SharedMut::new(x), SharedMut::new(v)],
             adj_m: [SharedMut::new(c), SharedMut::new(f)],
             grad_fe: SharedMut::new(&mut particles.grad_fe),
@@ -208,7 +192,7 @@ impl Euler {
         };
         pipeline::effects_and_boundary::<N, 1, _>(&self.model, &mut form, &tape.bins, par, grid);
         laps.lap(Stage::RevSetup);
-        pipeline::reverse::<N, 1, _>(
+        let grad_clamp = pipeline::reverse::<N, 1, _>(
             &self.model,
             &mut form,
             &tape.bins,
@@ -216,7 +200,6 @@ impl Euler {
             effect_params,
             &mut laps,
         );
-        let grad_clamp = std::mem::take(&mut form.grad_clamp);
         drop(form);
         let grad_values = match values {
             None => Vec::new(),
