@@ -354,6 +354,7 @@ fn run_to_folder<'py>(
     (overwrite, resume): (bool, bool),
     (on_event, on_frame): (Option<Py<PyAny>>, Option<Py<PyAny>>),
 ) -> PyResult<Bound<'py, PyAny>> {
+    let settings = &settings.clone().checked().map_err(SettingsError::new_err)?;
     let stop = AtomicUsize::new(0);
     let callbacks = Callbacks {
         on_event,

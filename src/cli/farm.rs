@@ -51,7 +51,6 @@ pub fn run(args: &FarmTemplateArgs) -> ExitCode {
     });
     let job = parsed.and_then(|c| {
         let (settings, source, targets) = c.morph.job()?;
-        settings.validate()?;
         settings.validate_targets(targets.len())?;
         Ok((
             settings,

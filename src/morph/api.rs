@@ -207,8 +207,14 @@ pub struct Job {
 }
 
 impl Job {
-    /// Loads and places the meshes, fills the source with particles, builds the model.
+    /// Checks the settings (here, where a program hands them in), loads and places the
+    /// meshes, fills the source with particles, builds the model.
     pub fn prepare(&self) -> Result<Prepared, MorphError> {
+        let settings = self
+            .settings
+            .clone()
+            .checked()
+            .map_err(MorphError::Settings)?;
         let loaded = |m: &MeshSource| -> Result<Option<LoadedMesh>, MorphError> {
             Ok(match m {
                 MeshSource::File(p) => Some(crate::geometry::load_mesh(p)?),
@@ -231,7 +237,7 @@ impl Job {
             .collect();
         let source_name = self.source.name();
         Prepared::from_meshes(
-            &self.settings,
+            &settings,
             (self.source.mesh(&source_file), &source_name),
             &targets,
         )

@@ -31,4 +31,4 @@ pub use api::*;
 pub use chain::*;
 pub use output::sinks::{self, FrameRecord, FrameSink, SinkFrame};
 pub use prepare::*;
-pub use settings::{MorphSettings, Preset};
+pub use settings::{CheckedSettings, MorphSettings, Preset};

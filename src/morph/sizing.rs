@@ -9,7 +9,7 @@
 //! summary and the manifest.
 
 use super::MorphError;
-use super::settings::MorphSettings;
+use super::settings::CheckedSettings;
 use crate::geometry::thickness::thickness;
 use crate::geometry::{LoadedMesh, MorphGeometry};
 use serde::{Deserialize, Serialize};
@@ -41,10 +41,10 @@ pub struct Sizing {
 /// `settings` with the particles per cell the thin parts call for, and what was decided;
 /// `settings` as they are (and `None`) when a budget is set or the rule is off.
 pub fn size(
-    settings: &MorphSettings,
+    settings: &CheckedSettings,
     source: (&LoadedMesh, &Path),
     targets: &[(&LoadedMesh, &Path)],
-) -> Result<(MorphSettings, Option<Sizing>), MorphError> {
+) -> Result<(CheckedSettings, Option<Sizing>), MorphError> {
     if settings.particles.is_some() || settings.thin_across <= 0.0 {
         return Ok((settings.clone(), None));
     }
@@ -87,10 +87,10 @@ pub fn size(
         .rev()
         .find(|&k| k == k0 || particles_at(k) <= DETAIL_BUDGET as f64)
         .unwrap_or(k0);
-    let mut sized = settings.clone();
+    let mut sized = (**settings).clone();
     sized.particles_per_cell = chosen;
     Ok((
-        sized,
+        CheckedSettings::derived(sized),
         Some(Sizing {
             thinnest: name,
             across_before,
@@ -106,6 +106,7 @@ pub fn size(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::MorphSettings;
     use crate::geometry::assets::{cube, uv_sphere};
     use crate::geometry::{TriMesh, prepare_mesh};
     use nalgebra::Vector3;
@@ -139,7 +140,8 @@ mod tests {
         let sphere = Path::new("sphere.obj");
         let source = prepare_mesh(sphere, uv_sphere(1.0, 24, 48, |_, _| 1.0), Vec::new()).unwrap();
         let settings = MorphSettings::default();
-        let (sized, sizing) = size(&settings, (&source, sphere), &[(&target, path)]).unwrap();
+        let checked = settings.clone().checked().unwrap();
+        let (sized, sizing) = size(&checked, (&source, sphere), &[(&target, path)]).unwrap();
         let sizing = sizing.expect("the default sizes for thin parts");
         assert_eq!(sizing.thinnest, "table.obj");
         assert!(sizing.across_before < 2.0, "{sizing:?}");
@@ -187,11 +189,12 @@ mod tests {
             "{chosen:?} against {two:?}"
         );
         // Off, nothing is sized.
+        let off_settings = MorphSettings {
+            thin_across: 0.0,
+            ..settings
+        };
         let (_, off) = size(
-            &MorphSettings {
-                thin_across: 0.0,
-                ..settings
-            },
+            &off_settings.checked().unwrap(),
             (&source, sphere),
             &[(&target, path)],
         )

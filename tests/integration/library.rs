@@ -123,7 +123,7 @@ fn a_memory_budget_never_changes_the_morph() {
         s.optimizer.learning_rate = kind.default_learning_rate();
         let run = |budget: usize| {
             let mut prep = morph::Prepared::from_meshes(
-                &s,
+                &s.clone().checked().unwrap(),
                 (&src, Path::new("sphere")),
                 &[(&tgt, Path::new("lobes"))],
             )

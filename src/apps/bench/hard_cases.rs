@@ -229,7 +229,12 @@ fn measure(case: &Case) -> Result<Measured, MorphError> {
     };
     let (src, src_path) = load("source", &case.source)?;
     let (tgt, tgt_path) = load("target", &case.target)?;
-    let mut prep = Prepared::from_meshes(&case.settings, (&src, &src_path), &[(&tgt, &tgt_path)])?;
+    let settings = case
+        .settings
+        .clone()
+        .checked()
+        .map_err(MorphError::Settings)?;
+    let mut prep = Prepared::from_meshes(&settings, (&src, &src_path), &[(&tgt, &tgt_path)])?;
     prep.plan_memory(case.memory_limit)?;
     let mut watch = Watch {
         prep: &prep,

@@ -51,7 +51,9 @@ pub fn run(meshes: &Path, only: &[String]) -> anyhow::Result<()> {
                 out.display()
             );
         }
-        let settings = MorphSettings::preset(case.preset);
+        let settings = MorphSettings::preset(case.preset)
+            .checked()
+            .map_err(anyhow::Error::msg)?;
         let clock = Instant::now();
         let summary = morph_to_folder(
             &settings,

@@ -181,13 +181,8 @@ pub fn mppi_control<S: Controlled>(
         // Commit the first steps of the plan and shift the window (new knots hold the plan's
         // last value as a warm start).
         let commit = settings.replan_steps.min(total - k);
-        let energy = sys.run(
-            &mut run.state,
-            &run.params,
-            Steps::new(k, commit),
-            None,
-            &mut |_, _| {},
-        )?;
+        let steps = Steps::new(k, commit);
+        let energy = sys.run(&mut run.state, &run.params, steps, None, &mut |_, _| {})?;
         run.simulated_steps += commit;
         for knots_e in run.params.iter_mut() {
             let last = knots_e[knots.end - 1];

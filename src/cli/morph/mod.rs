@@ -14,7 +14,7 @@ use morph::memory::MemoryLimit;
 use morph::scene_file::SceneFile;
 use morph::segment::Optimizer;
 use morph::settings::{Inbetween, RebuiltMethod, Surfaces, UsdFormat, limits};
-use morph::{MorphSettings, Preset};
+use morph::{CheckedSettings, MorphSettings, Preset};
 use std::path::PathBuf;
 
 pub const LONG_ABOUT: &str = "\
@@ -305,7 +305,7 @@ impl MorphArgs {
 
     /// The settings, source and targets these options ask for (a scene file read over its
     /// preset, then each option given).
-    pub fn job(&self) -> Result<(MorphSettings, PathBuf, Vec<PathBuf>), String> {
+    pub fn job(&self) -> Result<(CheckedSettings, PathBuf, Vec<PathBuf>), String> {
         let (settings, mut source, mut targets) = match &self.scene {
             Some(path) => {
                 let scene = SceneFile::read(path, self.preset)?;
@@ -342,7 +342,8 @@ impl MorphArgs {
                 None => "give a TARGET mesh after the SOURCE (see morph --help)".into(),
             });
         }
-        Ok((self.settings(settings)?, source, targets))
+        // The settings are made here, so they are checked here, once.
+        Ok((self.settings(settings)?.checked()?, source, targets))
     }
 
     /// `base` (the preset's, or the scene file's) with the options given on the command line.

@@ -71,7 +71,7 @@ fn signal_name(signal: usize) -> &'static str {
 }
 /// `morph SOURCE TARGET`: progress bars on a terminal, JSON lines with --json.
 pub fn run(args: &MorphArgs) -> ExitCode {
-    // The library checks the settings (morph_to_folder, before the folder is touched).
+    // Settings checked as they are made (`job`); the targets' count by the library.
     let (settings, source, targets) = match args.job() {
         Ok(j) => j,
         Err(e) => return fail_run(args, 2, &e),

@@ -32,7 +32,7 @@ use super::memory::MemoryLimit;
 use super::metrics::FillMetrics;
 use super::motion::MotionMeasures;
 use super::quality::Quality;
-use super::{MorphError, MorphEvent, MorphSettings, Prepared, checkpoint};
+use super::{CheckedSettings, MorphError, MorphEvent, Prepared, checkpoint};
 use crate::io::outdir::{self, Previous, Staging};
 use manifest::Manifest;
 use serde::Serialize;
@@ -149,14 +149,13 @@ const STAGING_NAMES: &[&str] = &[
 /// replaced only once the new one is complete, and an interrupted run's staging folder is
 /// cleared (`--overwrite`) only after the new inputs have loaded.
 pub fn morph_to_folder(
-    settings: &MorphSettings,
+    settings: &CheckedSettings,
     source: &Path,
     targets: &[PathBuf],
     request: &OutputRequest,
     mut on_event: impl FnMut(&MorphEvent),
 ) -> Result<Summary, MorphError> {
     let clock = Instant::now();
-    settings.validate().map_err(MorphError::Settings)?;
     settings
         .validate_targets(targets.len())
         .map_err(MorphError::Settings)?;
@@ -381,7 +380,7 @@ fn earlier_staging(
 /// Loads the meshes and sets the morph up, within the memory limit: refused before the fill
 /// when the estimate is over it, and again on the exact counts.
 fn prepare_within(
-    settings: &MorphSettings,
+    settings: &CheckedSettings,
     source: &Path,
     targets: &[PathBuf],
     limit: MemoryLimit,

@@ -3,7 +3,10 @@
 //! and substeps, the keyframe schedule and the losses; and what the chain asks of it
 //! (each segment's targets, path, weights).
 
-use super::{MorphError, MorphSettings, WorldFrame, inbetween, motion, quality, segment, settings};
+use super::{
+    CheckedSettings, MorphError, MorphSettings, WorldFrame, inbetween, motion, quality, segment,
+    settings,
+};
 
 mod queries;
 mod setup;
@@ -128,11 +131,10 @@ impl Prepared {
     /// (spread over the shot when empty), the last being the final one. [`super::Job::prepare`] does
     /// the same from files.
     pub fn from_meshes(
-        settings: &MorphSettings,
+        settings: &CheckedSettings,
         source: (&LoadedMesh, &Path),
         targets: &[(&LoadedMesh, &Path)],
     ) -> Result<Prepared, MorphError> {
-        settings.validate().map_err(MorphError::Settings)?;
         settings
             .validate_targets(targets.len())
             .map_err(MorphError::Settings)?;

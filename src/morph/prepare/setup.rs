@@ -2,7 +2,7 @@
 //! budget, the shot's timing, the effects, the substeps, the losses, the keyframes' masses,
 //! the body's own path before the first keyframe, the coarser level.
 
-use super::{MorphError, MorphSettings, Prepared, settings};
+use super::{CheckedSettings, MorphError, MorphSettings, Prepared, settings};
 use crate::engine::Engine;
 use crate::engine::integrator::Integrator;
 use crate::engine::mpm::{GridSpec, SimError, State};
@@ -82,7 +82,7 @@ pub(super) fn timed(
             .map(|k| 1 + (last - 1) * k / targets)
             .collect();
     }
-    settings.validate().map_err(MorphError::Settings)?;
+    debug_assert_eq!(settings.validate(), Ok(()));
     Ok((settings, shot))
 }
 
@@ -263,6 +263,7 @@ pub(super) fn coarse_level(
             settings.levels
         )));
     }
+    let below = CheckedSettings::derived(below);
     Ok(Some(Box::new(Prepared::from_meshes(
         &below, source, targets,
     )?)))

@@ -12,6 +12,8 @@ use serde::{Deserialize, Serialize};
 
 mod validate;
 
+pub use validate::CheckedSettings;
+
 /// Allowed ranges of the count settings; [`MorphSettings::validate`] and the CLI's `--help`
 /// both read them.
 pub mod limits {

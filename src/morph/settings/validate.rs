@@ -234,3 +234,38 @@ fn range(name: &str, v: usize, r: std::ops::RangeInclusive<usize>) -> Result<(),
         ))
     }
 }
+
+/// Settings that passed [`MorphSettings::validate`]: what a morph's set-up takes, so that they
+/// are checked once, where they are made (the command line, a scene file, the Python module,
+/// a program's own [`MorphSettings`]), and nowhere below.
+#[derive(Clone, Debug)]
+pub struct CheckedSettings(MorphSettings);
+
+impl std::ops::Deref for CheckedSettings {
+    type Target = MorphSettings;
+    fn deref(&self) -> &MorphSettings {
+        &self.0
+    }
+}
+
+impl MorphSettings {
+    /// These settings, checked ([`MorphSettings::validate`]).
+    pub fn checked(self) -> Result<CheckedSettings, String> {
+        self.validate()?;
+        Ok(CheckedSettings(self))
+    }
+}
+
+impl CheckedSettings {
+    pub fn into_inner(self) -> MorphSettings {
+        self.0
+    }
+
+    /// Settings the set-up derives from checked ones (the thin parts' particles, the grid a
+    /// budget gives, the shot's timing, a coarser level), which hold what the checks ask by
+    /// construction; debug builds check them again.
+    pub(crate) fn derived(settings: MorphSettings) -> CheckedSettings {
+        debug_assert_eq!(settings.validate(), Ok(()));
+        CheckedSettings(settings)
+    }
+}
