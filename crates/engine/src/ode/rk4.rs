@@ -13,7 +13,6 @@ use crate::mpm::ControlParams;
 use crate::mpm::SimError;
 use crate::mpm::{Gradients, State, StateGrad};
 use nalgebra::Matrix3;
-use rayon::prelude::*;
 use std::borrow::Cow;
 
 /// Stage fractions of the step at which RK4 evaluates `f`.
@@ -146,47 +145,17 @@ impl Integrator for Rk4 {
         state: &mut State,
         controls: &StepControls,
         steps: Steps,
-        mut tape: Option<&mut Rk4Tape>,
+        tape: Option<&mut Rk4Tape>,
         mut on_step: Option<&mut OnStep>,
     ) -> Result<(), SimError> {
-        let Steps {
-            first: first_step,
-            count: n_steps,
-        } = steps;
         let params = self.controls.zero_params();
         let mut s = state.ode_part();
-        self.check_state(&s, first_step)?;
-        if let Some(t) = tape.as_deref_mut() {
-            t.first_step = first_step;
-            t.steps.clear();
-            t.pre_control_f.clear();
-        }
-        for k in 0..n_steps {
-            // The control jumps F at the step's start, as in the Euler step.
-            let fc = controls.get(k).and_then(|c| c.as_deref());
-            self.check_control(fc, first_step + k)?;
-            let form = self.control_form;
-            let pre_f = fc.map(|fc| {
-                let pre = s.f.clone();
-                s.f.par_iter_mut()
-                    .zip(&pre)
-                    .zip(fc)
-                    .for_each(|((f, pre), c)| *f = form.apply(pre, c));
-                pre
-            });
-            let stages = self.rk4_step(&mut s, &params, first_step + k, tape.is_some())?;
-            if let (Some(t), Some(st)) = (tape.as_deref_mut(), stages) {
-                t.steps.push(st);
-                t.pre_control_f.push(pre_f);
-            }
+        self.forward_driven(&mut s, controls, &params, steps, tape, |k, st| {
             if let Some(f) = on_step.as_deref_mut() {
-                f(first_step + k, &s.clone().with_affine());
+                f(k, &st.clone().with_affine());
             }
-        }
+        })?;
         *state = s.with_affine();
-        if let Some(t) = tape {
-            t.last = state.clone();
-        }
         Ok(())
     }
 
@@ -221,52 +190,27 @@ impl Rk4 {
         mut seed_after: Option<&mut SeedAfter>,
     ) -> Gradients {
         let params = self.controls.zero_params();
-        let mut grad_params = self.controls.zero_params();
-        let mut effect_params = self.zero_effect_params();
-        let mut adj = grad_last.ode_part();
-        let first_step = tape.first_step;
-        let mut grad_controls = vec![None; tape.steps.len()];
-        for k in (0..tape.steps.len()).rev() {
-            if let Some(seed_after) = seed_after.as_deref_mut() {
-                let mut seed = StateGrad::zeros(adj.x.len());
-                seed_after(first_step + k, &tape.state_at(k + 1), &mut seed);
-                for (a, g) in adj.x.iter_mut().zip(&seed.x) {
-                    *a += g;
-                }
-                for (a, g) in adj.v.iter_mut().zip(&seed.v) {
-                    *a += g;
-                }
-                for (a, g) in adj.f.iter_mut().zip(&seed.f) {
-                    *a += g;
-                }
+        let seed = |i: usize, adj: &mut State, _: &mut ControlParams| {
+            let Some(seed_after) = seed_after.as_deref_mut() else {
+                return;
+            };
+            let mut seed = StateGrad::zeros(adj.x.len());
+            seed_after(tape.first_step + i, &tape.state_at(i + 1), &mut seed);
+            for (a, g) in adj.x.iter_mut().zip(&seed.x) {
+                *a += g;
             }
-            self.rk4_step_reverse(
-                &tape.steps[k],
-                &params,
-                first_step + k,
-                &mut adj,
-                &mut grad_params,
-                &mut effect_params,
-            );
-            // Reverse of the control's jump at the step's start.
-            if let (Some(Some(fc)), Some(Some(pre_f))) =
-                (controls.get(k), tape.pre_control_f.get(k))
-            {
-                let form = self.control_form;
-                let (grad_f, grad_fc): (Vec<_>, Vec<_>) = adj
-                    .f
-                    .par_iter()
-                    .zip(pre_f.par_iter().zip(fc.par_iter()))
-                    .map(|(g, (f, c))| form.apply_reverse(f, c, g))
-                    .unzip();
-                adj.f = grad_f;
-                grad_controls[k] = Some(grad_fc);
+            for (a, g) in adj.v.iter_mut().zip(&seed.v) {
+                *a += g;
             }
-        }
+            for (a, g) in adj.f.iter_mut().zip(&seed.f) {
+                *a += g;
+            }
+        };
+        let g = self.backward_driven(tape, controls, &params, grad_last.ode_part(), seed);
         Gradients {
-            initial: adj.with_affine(),
-            controls: grad_controls,
-            effect_params,
+            initial: g.initial.with_affine(),
+            controls: g.controls,
+            effect_params: g.effect_params,
         }
     }
 }
