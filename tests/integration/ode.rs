@@ -9,7 +9,9 @@ use crate::common;
 use common::Lcg;
 use morph::apps::rope::scene::{Actuation, ClampMode, RopeConfig};
 use morph::engine::Engine;
-use morph::engine::integrator::{Controlled, IntegratorKind, Steps};
+use morph::engine::integrator::{
+    Controlled, Controls, Integrator, IntegratorKind, StepControl, Steps,
+};
 use morph::engine::material::MaterialModel;
 use morph::engine::mpm::{ControlParams, Interpolation};
 use morph::engine::mpm::{KernelKind, State};
@@ -285,4 +287,106 @@ fn euler_reverse_and_controls_match_finite_differences_cubic_constant_velocity()
         ClampMode::Velocity,
         IntegratorKind::Euler,
     );
+}
+
+/// Both kinds of control in one run, through the one interface both integrators take
+/// ([`Controls`]): every step's `Fc` and the boundary controls' knots together, and the
+/// gradients of a linear function of the final state with respect to each, along a random
+/// direction, against central differences.
+#[test]
+fn both_kinds_of_control_in_one_run_match_finite_differences() {
+    for integrator in IntegratorKind::ALL {
+        let (engine, init, params) = setup(
+            KernelKind::Quadratic,
+            Interpolation::Linear,
+            ClampMode::Velocity,
+            11,
+            MaterialModel::FixedCorotated,
+            integrator,
+        );
+        let label = format!("{integrator:?}");
+        morph::engine::with_integrator!(&engine, sys => check_both(sys, &init, &params, &label));
+    }
+}
+
+fn check_both<S: Integrator>(sys: &S, init: &State, params: &ControlParams, label: &str) {
+    let n = init.len();
+    let mut rng = Lcg(5);
+    let layer = |rng: &mut Lcg, scale: f64| -> Vec<Matrix3<f64>> {
+        (0..n).map(|_| scale * rng.mat3()).collect()
+    };
+    let fc: Vec<Vec<Matrix3<f64>>> = (0..STEPS).map(|_| layer(&mut rng, 0.01)).collect();
+    let dir_f: Vec<Vec<Matrix3<f64>>> = (0..STEPS).map(|_| layer(&mut rng, 1.0)).collect();
+    let dir_k: ControlParams = params
+        .iter()
+        .map(|k| k.iter().map(|_| rng.vec3()).collect())
+        .collect();
+    let probe = Cost::new(n, &mut rng).probe;
+    let shared = |f: &[Vec<Matrix3<f64>>]| -> Vec<Option<StepControl>> {
+        f.iter().map(|l| Some(l.clone().into())).collect()
+    };
+    let run = |f: &[Option<StepControl>], knots: &ControlParams, tape: Option<&mut S::Tape>| {
+        let mut s = init.clone();
+        let controls = Controls {
+            f,
+            knots: Some(knots),
+        };
+        sys.forward_observed(&mut s, controls, Steps::new(0, STEPS), tape, None)
+            .unwrap();
+        dot(&probe, &s)
+    };
+    let mut tape = S::Tape::default();
+    run(&shared(&fc), params, Some(&mut tape));
+    let controls = Controls {
+        f: &shared(&fc),
+        knots: Some(params),
+    };
+    let g = sys.backward_seeded(&tape, controls, probe.clone(), &mut |_, _, _| {});
+    // Along the knots' direction.
+    let analytic: f64 = g
+        .knots
+        .iter()
+        .zip(&dir_k)
+        .flat_map(|(a, d)| a.iter().zip(d))
+        .map(|(a, d)| a.dot(d))
+        .sum();
+    let numeric = fd(
+        |h| {
+            let knots: ControlParams = params
+                .iter()
+                .zip(&dir_k)
+                .map(|(k, d)| k.iter().zip(d).map(|(k, d)| k + h * d).collect())
+                .collect();
+            run(&shared(&fc), &knots, None)
+        },
+        H,
+    );
+    let e = rel_err(analytic, numeric);
+    assert!(
+        e < TOL,
+        "{label}: knots {analytic} vs {numeric} (rel {e:.2e})"
+    );
+    // Along every step's Fc.
+    let analytic: f64 = g
+        .controls
+        .iter()
+        .zip(&dir_f)
+        .map(|(g, d)| {
+            let g = g.as_ref().expect("every step had a control");
+            g.iter().zip(d).map(|(a, b)| a.dot(b)).sum::<f64>()
+        })
+        .sum();
+    let numeric = fd(
+        |h| {
+            let moved: Vec<Vec<Matrix3<f64>>> = fc
+                .iter()
+                .zip(&dir_f)
+                .map(|(l, d)| l.iter().zip(d).map(|(a, b)| a + h * b).collect())
+                .collect();
+            run(&shared(&moved), params, None)
+        },
+        H,
+    );
+    let e = rel_err(analytic, numeric);
+    assert!(e < TOL, "{label}: Fc {analytic} vs {numeric} (rel {e:.2e})");
 }

@@ -11,7 +11,7 @@ use std::borrow::Cow;
 
 pub mod recompute;
 
-pub use crate::mpm::control::{StepControl, StepControls};
+pub use crate::mpm::control::{Controls, StepControl, StepControls};
 pub use crate::mpm::model::Steps;
 
 /// A cost on every state along a run: `seed(k, state, adj)` adds to `adj` the adjoint of the
@@ -85,15 +85,16 @@ pub trait Integrator: std::ops::Deref<Target = Model> + Send + Sync {
         n_steps: usize,
         tape: Option<&mut Self::Tape>,
     ) -> Result<(), SimError> {
-        self.forward_observed(state, controls, Steps::new(first_step, n_steps), tape, None)
+        let steps = Steps::new(first_step, n_steps);
+        self.forward_observed(state, Controls::of_f(controls), steps, tape, None)
     }
 
-    /// [`Integrator::forward`] where `on_step(k, state)`, when given, sees the state after
-    /// every global step `k`.
+    /// [`Integrator::forward`] with both kinds of control ([`Controls`]), where
+    /// `on_step(k, state)`, when given, sees the state after every global step `k`.
     fn forward_observed(
         &self,
         state: &mut State,
-        controls: &StepControls,
+        controls: Controls,
         steps: Steps,
         tape: Option<&mut Self::Tape>,
         on_step: Option<&mut OnStep>,
@@ -111,16 +112,17 @@ pub trait Integrator: std::ops::Deref<Target = Model> + Send + Sync {
         controls: &StepControls,
         grad_last: StateGrad,
     ) -> Gradients {
-        self.backward_seeded(tape, controls, grad_last, &mut |_, _, _| {})
+        self.backward_seeded(tape, Controls::of_f(controls), grad_last, &mut |_, _, _| {})
     }
 
-    /// [`Integrator::backward`] for a cost on every state along the run:
-    /// `seed_after(k, state, adj)` adds to `adj` the adjoint of the cost on the state after
-    /// global step `k` (before any control of the next step), before that step is reversed.
+    /// [`Integrator::backward`] with both kinds of control (the forward's), for a cost on
+    /// every state along the run: `seed_after(k, state, adj)` adds to `adj` the adjoint of
+    /// the cost on the state after global step `k` (before any control of the next step),
+    /// before that step is reversed. With knots, [`Gradients::knots`] holds their gradient.
     fn backward_seeded(
         &self,
         tape: &Self::Tape,
-        controls: &StepControls,
+        controls: Controls,
         grad_last: StateGrad,
         seed_after: &mut SeedAfter,
     ) -> Gradients;
@@ -162,12 +164,13 @@ impl Integrator for Euler {
     fn forward_observed(
         &self,
         state: &mut State,
-        controls: &StepControls,
+        controls: Controls,
         steps: Steps,
         tape: Option<&mut Self::Tape>,
         mut on_step: Option<&mut OnStep>,
     ) -> Result<(), SimError> {
-        self.forward_driven(state, controls, None, steps, tape, |k, s| {
+        let (f, knots) = (controls.f, controls.knots);
+        self.forward_driven(state, f, knots, steps, tape, |k, s| {
             if let Some(f) = on_step.as_deref_mut() {
                 f(k, s)
             }
@@ -185,12 +188,13 @@ impl Integrator for Euler {
     fn backward_seeded(
         &self,
         tape: &Self::Tape,
-        controls: &StepControls,
+        controls: Controls,
         grad_last: StateGrad,
         seed_after: &mut SeedAfter,
     ) -> Gradients {
-        self.backward_driven(tape, controls, None, grad_last, seed_after)
-            .0
+        let (grads, knots) =
+            self.backward_driven(tape, controls.f, controls.knots, grad_last, seed_after);
+        Gradients { knots, ..grads }
     }
 }
 

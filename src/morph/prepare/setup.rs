@@ -233,7 +233,8 @@ pub(super) fn passive_path(
     };
     crate::engine::with_integrator!(engine, sim => {
         let steps = crate::engine::integrator::Steps::new(0, last * substeps);
-        sim.forward_observed(&mut state, &[], steps, None, Some(&mut on_step))
+        let none = crate::engine::integrator::Controls::of_f(&[]);
+        sim.forward_observed(&mut state, none, steps, None, Some(&mut on_step))
     })?;
     Ok(passive)
 }

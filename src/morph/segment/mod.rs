@@ -16,7 +16,7 @@
 use super::basis::{ControlBasis, ControlResolution};
 use super::reach::ReachLoss;
 use crate::engine::integrator::recompute::{self, Checkpointed, ChunkPlan};
-use crate::engine::integrator::{Integrator, RunTape, SeedAfter, StepControl, Steps};
+use crate::engine::integrator::{Controls, Integrator, RunTape, SeedAfter, StepControl, Steps};
 use crate::engine::mpm::{SimError, State, StateGrad};
 use crate::loss::{FineMassLoss, MassLoss, volume_cost};
 use crate::optim::Adam;
@@ -520,7 +520,7 @@ impl<I: Integrator> Segment<'_, I> {
         let schedule = self.schedule(layers, 0);
         self.sim.forward_observed(
             &mut state,
-            &schedule,
+            Controls::of_f(&schedule),
             Steps::new(self.first_step, self.steps),
             None,
             Some(on_step),

@@ -11,7 +11,7 @@
 //! picks the longest chunk that fits a budget; when the whole tape fits, it is kept and
 //! nothing is recomputed.
 
-use super::{Integrator, RunTape, StepControls, Steps};
+use super::{Controls, Integrator, RunTape, StepControls, Steps};
 use crate::mpm::{Gradients, SimError, State, StateGrad};
 
 /// How a run is cut into chunks.
@@ -155,7 +155,7 @@ pub fn record<I: Integrator>(
         let ctrl = controls.get(a..).unwrap_or(&[]);
         sim.forward_observed(
             &mut state,
-            ctrl,
+            Controls::of_f(ctrl),
             Steps::new(first_step + a, b - a),
             tape.as_mut(),
             Some(on_step),
@@ -221,7 +221,7 @@ pub fn reverse<I: Integrator>(
             }
         };
         let g = match seed_after.as_deref_mut() {
-            Some(seed) => sim.backward_seeded(tape, ctrl, adj, seed),
+            Some(seed) => sim.backward_seeded(tape, Controls::of_f(ctrl), adj, seed),
             None => sim.backward(tape, ctrl, adj),
         };
         adj = g.initial;
@@ -246,6 +246,7 @@ pub fn reverse<I: Integrator>(
         initial: adj,
         controls: Vec::new(),
         effect_params: effect_params.unwrap_or_default(),
+        knots: Vec::new(),
     })
 }
 

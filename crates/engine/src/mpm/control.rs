@@ -13,6 +13,7 @@
 //!   for comparison (docs/morph.md).
 
 use super::SimError;
+use super::boundary::ControlParams;
 use nalgebra::Matrix3;
 use serde::{Deserialize, Serialize};
 
@@ -23,6 +24,30 @@ pub type StepControls = [Option<StepControl>];
 
 /// One step's controls (see [`StepControls`]).
 pub type StepControl = std::sync::Arc<[Matrix3<f64>]>;
+
+/// What drives a run, the one notion of a control both integrators take: the per-step
+/// deformation-gradient controls `f` (the morph's) and the knots of the model's boundary
+/// controls (body forces, clamps: [`super::boundary`]; the rope's), either of them empty.
+#[derive(Clone, Copy, Debug)]
+pub struct Controls<'a> {
+    pub f: &'a StepControls,
+    pub knots: Option<&'a ControlParams>,
+}
+
+impl<'a> Controls<'a> {
+    /// Deformation-gradient controls alone.
+    pub fn of_f(f: &'a StepControls) -> Controls<'a> {
+        Controls { f, knots: None }
+    }
+
+    /// The boundary controls' knots alone.
+    pub fn of_knots(knots: &'a ControlParams) -> Controls<'a> {
+        Controls {
+            f: &[],
+            knots: Some(knots),
+        }
+    }
+}
 
 /// How `Fc` enters `F`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]

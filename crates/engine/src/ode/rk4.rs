@@ -8,7 +8,7 @@
 //! `gS = gS' + gS1 + gS2 + gS3 + gS4` with `gSi = f_rev(Si, gki)`.
 
 use super::rhs::{At, Rk4};
-use crate::integrator::{Integrator, OnStep, RunTape, SeedAfter, StepControls, Steps};
+use crate::integrator::{Controls, Integrator, OnStep, RunTape, SeedAfter, StepControls, Steps};
 use crate::mpm::ControlParams;
 use crate::mpm::SimError;
 use crate::mpm::{Gradients, State, StateGrad};
@@ -143,14 +143,15 @@ impl Integrator for Rk4 {
     fn forward_observed(
         &self,
         state: &mut State,
-        controls: &StepControls,
+        controls: Controls,
         steps: Steps,
         tape: Option<&mut Rk4Tape>,
         mut on_step: Option<&mut OnStep>,
     ) -> Result<(), SimError> {
-        let params = self.controls.zero_params();
+        let zero = self.controls.zero_params();
+        let params = controls.knots.unwrap_or(&zero);
         let mut s = state.ode_part();
-        self.forward_driven(&mut s, controls, &params, steps, tape, |k, st| {
+        self.forward_driven(&mut s, controls.f, params, steps, tape, |k, st| {
             if let Some(f) = on_step.as_deref_mut() {
                 f(k, &st.clone().with_affine());
             }
@@ -165,13 +166,13 @@ impl Integrator for Rk4 {
     }
 
     fn backward(&self, tape: &Rk4Tape, controls: &StepControls, grad_last: StateGrad) -> Gradients {
-        self.reverse_run(tape, controls, grad_last, None)
+        self.reverse_run(tape, Controls::of_f(controls), grad_last, None)
     }
 
     fn backward_seeded(
         &self,
         tape: &Rk4Tape,
-        controls: &StepControls,
+        controls: Controls,
         grad_last: StateGrad,
         seed_after: &mut SeedAfter,
     ) -> Gradients {
@@ -185,11 +186,12 @@ impl Rk4 {
     fn reverse_run(
         &self,
         tape: &Rk4Tape,
-        controls: &StepControls,
+        controls: Controls,
         grad_last: StateGrad,
         mut seed_after: Option<&mut SeedAfter>,
     ) -> Gradients {
-        let params = self.controls.zero_params();
+        let zero = self.controls.zero_params();
+        let params = controls.knots.unwrap_or(&zero);
         let seed = |i: usize, adj: &mut State, _: &mut ControlParams| {
             let Some(seed_after) = seed_after.as_deref_mut() else {
                 return;
@@ -206,11 +208,16 @@ impl Rk4 {
                 *a += g;
             }
         };
-        let g = self.backward_driven(tape, controls, &params, grad_last.ode_part(), seed);
+        let g = self.backward_driven(tape, controls.f, params, grad_last.ode_part(), seed);
         Gradients {
             initial: g.initial.with_affine(),
             controls: g.controls,
             effect_params: g.effect_params,
+            knots: if controls.knots.is_some() {
+                g.params
+            } else {
+                Vec::new()
+            },
         }
     }
 }

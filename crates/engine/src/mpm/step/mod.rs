@@ -149,6 +149,8 @@ pub struct Gradients {
     pub controls: Vec<Option<Vec<Matrix3<f64>>>>,
     /// dL/d(parameters) of each effect, in scene order.
     pub effect_params: Vec<Vec<f64>>,
+    /// dL/d(the boundary controls' knots), when the run was given knots (else empty).
+    pub knots: ControlParams,
 }
 
 /// Where in each step the Euler integrator reads the boundary controls: the middle, so a
@@ -373,6 +375,7 @@ impl Euler {
             initial: adj,
             controls: grad_controls,
             effect_params,
+            knots: Vec::new(),
         };
         (grads, grad_params)
     }
