@@ -3,14 +3,14 @@
 //! is one too ([`crate::ode::rhs`]), and an RK4 step four of them. What differs between the
 //! two is a [`Form`] of `K` fields a node, the one type parameter of the pipeline: what a
 //! particle scatters (APIC momentum; or momentum and force), how the effects read the grid
-//! (a step, or rates), the boundary the grid holds (the Euler step's clamped nodes), and what
-//! the gather makes of the grid (the next state; or the state's rates).
+//! (a step, or rates), and what the gather makes of the grid (the next state; or the state's
+//! rates). The clamps follow one rule for both ([`hold_clamps`]).
 //!
 //! Forward: bins, P1 the stress, stencils and P2G, G the grid update (quotients, effects,
-//! the form's boundary), G2P with the form's particle update.
+//! clamps), G2P with the form's particle update.
 //! Reverse, after the integrator has put the forward's grid back (from its tape, or by
 //! running the forward again): G2P's reverse (a scatter into the `K` field adjoints), G's
-//! (the boundary, the effects backwards, the quotients), P2G's with P1's (a gather, then the
+//! (the clamps, the effects backwards, the quotients), P2G's with P1's (a gather, then the
 //! stress differential in batches).
 
 use super::effect::{GridContext, GridEffects, GridForm};
@@ -261,7 +261,7 @@ fn gather_reverse<const N: usize, const K: usize, F: Reverse<K>>(
     }
 }
 
-/// G's reverse: the boundary's, then the effects backwards and the quotients', into
+/// G's reverse: the clamps', then the effects backwards and the quotients', into
 /// `grid.grad_nodes`.
 fn grid_reverse<const K: usize, F: Reverse<K>>(
     model: &Model,
