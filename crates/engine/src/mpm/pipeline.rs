@@ -349,7 +349,9 @@ pub fn hold_clamps<const N: usize, const K: usize>(
     values: Option<&[Vector3<f64>]>,
     fields: &mut [Vec<Vector3<f64>>; K],
 ) -> Vec<(usize, usize)> {
-    let Some(values) = values else {
+    let kinematic = model.controls.effects.iter().any(|e| e.kind.is_kinematic());
+    let Some(values) = values.filter(|_| kinematic) else {
+        // No clamp: the ODE form's every evaluation passes here, so no scan of the particles.
         return Vec::new();
     };
     let (strides, origin, dx) = (model.grid.strides(), model.grid.origin_vec(), model.grid.dx);
