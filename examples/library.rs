@@ -49,9 +49,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     )?;
     let cube = prepare_mesh(Path::new("<cube>"), assets::cube(2.0, 4), vec![])?;
     let mut settings = MorphSettings::preset(Preset::Draft);
-    settings.resolution = 16;
-    settings.segments = 2;
-    settings.optimizer.iterations = 3;
+    settings.body.resolution = 16;
+    settings.method.segments = 2;
+    settings.method.optimizer.iterations = 3;
     let job = Job {
         source: MeshSource::Memory {
             name: "<sphere>".into(),

@@ -56,8 +56,8 @@ scene = bpy.context.scene
 manifest = json.loads((work / "morph" / "manifest.json").read_text())
 speeds = [f["rms_speed"] for f in manifest["frames"]]
 check("the change begins on the panel's begin frame: still before it, moving after",
-      manifest["settings"]["begin"] == 7 and all(s == 0 for s in speeds[:7]) and speeds[7] > 0
-      and manifest["motion"]["first_frame"] == 7, (manifest["settings"]["begin"], speeds[:9]))
+      manifest["settings"]["shot"]["begin"] == 7 and all(s == 0 for s in speeds[:7]) and speeds[7] > 0
+      and manifest["motion"]["first_frame"] == 7, (manifest["settings"]["shot"]["begin"], speeds[:9]))
 objects = {o.name: o for o in scene.objects}
 print("     objects:", sorted(objects))
 check("imported particles, carried and rebuilt objects",

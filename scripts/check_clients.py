@@ -55,7 +55,7 @@ def mgrid_header(path):
 
 def frame_range(manifest):
     """The first and last frame numbers (`--start-frame`, 1 by default)."""
-    first = manifest["settings"].get("start_frame", 1)
+    first = manifest["settings"]["shot"].get("start_frame", 1)
     return first, first + len(manifest["frames"]) - 1
 
 
@@ -127,7 +127,7 @@ def check_usd(out, manifest):
               all(len(rebuilt.GetPointsAttr().Get(t)) > 0 for t in range(first, last + 1)))
     else:
         print("     (no rebuilt surface in this output: its checks skipped)")
-    if manifest["settings"].get("volume"):
+    if manifest["settings"]["outputs"].get("volume"):
         check_usd_volume(out, manifest, stage)
     else:
         print("     (no volumes in this output (--volume): their checks skipped)")
@@ -220,7 +220,7 @@ def check_blender(out, manifest):
         check("blender carried mesh: rest attribute", "rest" in [a.name for a in mesh.attributes],
               [a.name for a in mesh.attributes])
 
-    if manifest["settings"].get("volume"):
+    if manifest["settings"]["outputs"].get("volume"):
         check("blender volume object from the USD", objects.get("volume") is not None
               and objects["volume"].type == "VOLUME", sorted(objects))
         check_blender_volume(out, manifest)

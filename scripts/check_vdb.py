@@ -44,7 +44,7 @@ check("vdb: voxel (0, 0, 0) at the grid's origin",
 # The per-frame volumes (--volume): a density grid whose integral is the frame's volume.
 manifest = json.load(open(out / "manifest.json"))
 frames = manifest["frames"]
-if manifest["settings"].get("volume"):
+if manifest["settings"]["outputs"].get("volume"):
     for frame in (frames[0], frames[-1]):
         name = frame["points"].replace("frames/", "volumes/").replace(".ply", ".vdb")
         grid = vdb.read(str(out / name), "density")

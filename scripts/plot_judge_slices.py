@@ -88,7 +88,7 @@ def judge(folder, mesh_path):
     axes = [np.arange(lo[i], hi[i] + step, step) for i in range(3)]
     lattice = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
     inside = np.concatenate([mesh.contains(lattice[i:i + 20000]) for i in range(0, len(lattice), 20000)])
-    spacing = m["dx_sim"] * m["sim_to_world"]["scale"] / m["settings"]["particles_per_cell"]
+    spacing = m["dx_sim"] * m["sim_to_world"]["scale"] / m["settings"]["body"]["particles_per_cell"]
     covered = cKDTree(points).query(lattice, distance_upper_bound=COVER_RADIUS * spacing)[0] < np.inf
     return m, lattice, inside, covered, step, hi - lo
 
@@ -110,7 +110,7 @@ def main():
         middle = np.median(lattice[inside][:, c])
         sel = np.abs(lattice[:, c] - middle) < step / 2
         if by_material:
-            spacing = m["dx_sim"] * m["sim_to_world"]["scale"] / m["settings"]["particles_per_cell"]
+            spacing = m["dx_sim"] * m["sim_to_world"]["scale"] / m["settings"]["body"]["particles_per_cell"]
             covered = covered.copy()
             covered[sel] = material_cover(folder, m, lattice[sel], spacing)
         for mask, colour, name in [

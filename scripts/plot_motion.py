@@ -22,13 +22,13 @@ def load(folder):
     speed = [f["rms_speed"] for f in frames]
     iou = [f["progress_iou"][-1] for f in frames]
     # Progress and the easing curve count from the frame the shape change begins on.
-    begin = m["settings"].get("begin", 1)
+    begin = m["settings"]["shot"].get("begin", 1)
     start = iou[begin - 1]
     progress = [(x - start) / (iou[-1] - start) for x in iou]
-    every = m["settings"]["frame_every"]
-    steps = m["settings"]["steps_per_segment"]
+    every = m["settings"]["shot"]["frame_every"]
+    steps = m["settings"]["method"]["steps_per_segment"]
     boundaries = list(range(1 + steps // every, len(frames) + 1, steps // every))
-    arrive = m["settings"]["at"][-1]
+    arrive = m["settings"]["shot"]["at"][-1]
     return speed, progress, boundaries, arrive, begin, m.get("motion") or {}
 
 

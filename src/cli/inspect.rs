@@ -10,9 +10,9 @@ use std::process::ExitCode;
 pub struct InspectArgs {
     /// The mesh file.
     mesh: PathBuf,
-    #[arg(long, default_value_t = defaults().resolution as u16,
+    #[arg(long, default_value_t = defaults().body.resolution as u16,
           value_parser = clap::value_parser!(u16).range(*limits::RESOLUTION.start() as i64..=*limits::RESOLUTION.end() as i64),
-          help = help("Grid cells across the domain's longest side", Some(limits::RESOLUTION), defaults().resolution))]
+          help = help("Grid cells across the domain's longest side", Some(limits::RESOLUTION), defaults().body.resolution))]
     resolution: u16,
 }
 

@@ -198,7 +198,7 @@ impl MeshSource {
 }
 
 /// One morph: a source, the targets it passes through in turn (the last is the final
-/// shape; each reached at its frame in `settings.at`, spread over the shot when empty), and
+/// shape; each reached at its frame in `settings.shot.at`, spread over the shot when empty), and
 /// the settings. What the command line runs, as a library call.
 pub struct Job {
     pub source: MeshSource,

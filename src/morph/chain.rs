@@ -72,11 +72,11 @@ impl Prepared {
     fn level_event(&self, levels: usize) -> MorphEvent {
         let s = &self.settings;
         MorphEvent::Level {
-            level: s.levels,
+            level: s.method.levels,
             levels,
             particles: self.initial.len(),
             grid_cells: self.model().grid.cells,
-            segments: s.segments,
+            segments: s.method.segments,
             iterations: self.level_iterations(),
         }
     }
@@ -84,9 +84,9 @@ impl Prepared {
     /// Evaluations per segment on this level.
     pub fn level_iterations(&self) -> usize {
         let s = &self.settings;
-        match s.refine_iterations {
-            Some(n) if s.levels > 1 => n,
-            _ => s.optimizer.iterations,
+        match s.method.refine_iterations {
+            Some(n) if s.method.levels > 1 => n,
+            _ => s.method.optimizer.iterations,
         }
     }
 }
@@ -112,8 +112,8 @@ fn warm_start(
         chain(coarse, sim, progress, clock, &mut quiet, below.as_ref(), true)
     })?;
     records.push(LevelRecord {
-        level: coarse.settings.levels,
-        resolution: coarse.settings.resolution,
+        level: coarse.settings.method.levels,
+        resolution: coarse.settings.body.resolution,
         particles: coarse.initial.len(),
         evaluations: result.segments.iter().map(|r| r.evaluations).sum(),
         initial_loss: result.initial_loss,
@@ -128,7 +128,7 @@ fn warm_start(
         .world_to_sim
         .after(&coarse.geometry.placement.sim_to_world());
     let rest: Vec<Vector3<f64>> = coarse.initial.x.iter().map(|x| to_here.apply(x)).collect();
-    let spacing = to_here.scale / coarse.settings.particles_per_cell as f64;
+    let spacing = to_here.scale / coarse.settings.body.particles_per_cell as f64;
     let prolongation = levels::Prolongation::new(&rest, &prep.initial.x, spacing);
     Ok(Some(WarmStart {
         controls,
@@ -143,7 +143,7 @@ impl RunProgress {
             pass: 0,
             segments_done: 0,
             state: prep.initial.clone(),
-            controls: vec![Vec::new(); prep.settings.segments],
+            controls: vec![Vec::new(); prep.settings.method.segments],
             iterations: Vec::new(),
             segments: Vec::new(),
             frames: 0,
@@ -170,9 +170,9 @@ pub fn run_prepared(
         grid_cells: prep.model().grid.cells,
         dx: prep.model().grid.dx,
         dt: prep.model().dt,
-        segments: s.segments,
-        passes: s.passes,
-        iterations: s.optimizer.iterations,
+        segments: s.method.segments,
+        passes: s.method.passes,
+        iterations: s.method.optimizer.iterations,
         frames: prep.frame_count(),
         warnings: prep.geometry.warnings.clone(),
     });
@@ -183,20 +183,20 @@ pub fn run_prepared(
         }
         None => RunProgress::start(prep),
     };
-    if progress.segments_done == s.segments && progress.pass + 1 < s.passes {
+    if progress.segments_done == s.method.segments && progress.pass + 1 < s.method.passes {
         progress.pass += 1;
         progress.segments_done = 0;
     }
     // Coarse-to-fine: the levels below are solved again on a resume (deterministic, and an
     // eighth of the cost each) while some segment of the first pass has yet to start.
     let mut levels = Vec::new();
-    let warm = if progress.pass == 0 && progress.segments_done < s.segments {
-        warm_start(prep, s.levels, observer, &mut levels)?
+    let warm = if progress.pass == 0 && progress.segments_done < s.method.segments {
+        warm_start(prep, s.method.levels, observer, &mut levels)?
     } else {
         None
     };
-    if s.levels > 1 {
-        observer.event(&prep.level_event(s.levels));
+    if s.method.levels > 1 {
+        observer.event(&prep.level_event(s.method.levels));
     }
     let (mut result, _) = crate::engine::with_integrator!(&prep.engine, sim => {
         chain(prep, sim, progress, clock, observer, warm.as_ref(), false)
@@ -219,7 +219,7 @@ fn chain<I: Integrator>(
     let initial_loss = prep.loss_of(&prep.initial)?;
     let optimizer = OptimizerSettings {
         iterations: prep.level_iterations(),
-        ..s.optimizer.clone()
+        ..s.method.optimizer.clone()
     };
     let run = ChainRun {
         prep,
@@ -231,8 +231,8 @@ fn chain<I: Integrator>(
         keep_controls,
     };
     let (first_pass, first_segment) = (progress.pass, progress.segments_done);
-    for pass in first_pass..s.passes {
-        let last_pass = pass + 1 == s.passes;
+    for pass in first_pass..s.method.passes {
+        let last_pass = pass + 1 == s.method.passes;
         progress.pass = pass;
         let from = if pass == first_pass { first_segment } else { 0 };
         if from == 0 {
@@ -243,7 +243,7 @@ fn chain<I: Integrator>(
                 progress.frames += 1;
             }
         }
-        for k in from..s.segments {
+        for k in from..s.method.segments {
             run.segment(k, last_pass, &mut progress, observer)?;
         }
     }
@@ -411,12 +411,12 @@ impl<I: Integrator> ChainRun<'_, I> {
             arrival_weight: prep.segment_arrival_weight(k),
             volume_weight: prep.volume_weight(),
             path,
-            path_weight: s.path_weight,
+            path_weight: s.method.path_weight,
             waypoints: &[],
-            waypoint_weight: s.waypoint_weight,
+            waypoint_weight: s.method.waypoint_weight,
             smoothing: prep.segment_smoothing(k),
             anchor,
-            resolution: s.control_resolution,
+            resolution: s.method.control_resolution,
             tape_budget: prep.tape_budget,
         }
     }
@@ -525,11 +525,12 @@ impl<I: Integrator> ChainRun<'_, I> {
         for j in k..=end {
             let fresh = progress.controls[j].is_empty() && self.warm.is_none();
             let mut layers = start_of(j);
-            let carried = init
-                .last()
-                .filter(|_| fresh && s.carry_controls > 0.0 && prep.segment_smoothing(j) > 0.0);
+            let carried = init.last().filter(|_| {
+                fresh && s.method.carry_controls > 0.0 && prep.segment_smoothing(j) > 0.0
+            });
             if let Some(last) = carried {
-                let layer: Vec<Matrix3<f64>> = last.iter().map(|c| c * s.carry_controls).collect();
+                let layer: Vec<Matrix3<f64>> =
+                    last.iter().map(|c| c * s.method.carry_controls).collect();
                 layers.iter_mut().for_each(|l| l.clone_from(&layer));
             }
             init.extend(layers);
@@ -625,7 +626,7 @@ pub fn optimization_failure(
     // large); accepted ones that left the loss where it was were too small to matter.
     let steps = iterations.iter().filter(|i| i.iteration > 0);
     let undone = steps.clone().filter(|i| !i.loss.is_finite()).count();
-    let lr = settings.optimizer.learning_rate;
+    let lr = settings.method.optimizer.learning_rate;
     let advice = match (2 * undone >= steps.count(), outsized.is_empty()) {
         (true, true) => format!(
             "most steps raised the objective or blew the simulation up: try a smaller --learning-rate (now {lr:e})"
@@ -704,7 +705,7 @@ pub fn non_finite(settings: &MorphSettings, r: &SegmentRecord) -> Option<String>
         ));
     }
     // No gradient is recorded (NaN) for a segment of one evaluation.
-    let took_gradient = settings.optimizer.iterations > 1 && r.evaluations > 1;
+    let took_gradient = settings.method.optimizer.iterations > 1 && r.evaluations > 1;
     (took_gradient && !r.grad_norm_first.is_finite()).then(|| {
         format!(
             "the objective's gradient is not finite ({at}, loss {:.3e}), so no control could move: {lower}",
@@ -719,10 +720,10 @@ impl RunProgress {
     fn check(&self, prep: &Prepared) -> Result<(), MorphError> {
         let (s, particles) = (&prep.settings, prep.initial.len());
         let layers = prep.segment_layers();
-        let fits = self.pass < s.passes
-            && self.segments_done <= s.segments
+        let fits = self.pass < s.method.passes
+            && self.segments_done <= s.method.segments
             && self.state.len() == particles
-            && self.controls.len() == s.segments
+            && self.controls.len() == s.method.segments
             && self.controls.iter().zip(&layers).all(|(l, &layers)| {
                 l.is_empty() || (l.len() == layers && l.iter().all(|p| p.len() == particles))
             });

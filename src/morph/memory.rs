@@ -188,7 +188,7 @@ pub fn fixed_bytes(
     nodes: u64,
     keyframes: u64,
 ) -> u64 {
-    let fine_nodes = if settings.fine_weight > 0.0 {
+    let fine_nodes = if settings.method.fine_weight > 0.0 {
         nodes * (super::FINE_REFINE as u64).pow(3)
     } else {
         0
@@ -196,10 +196,15 @@ pub fn fixed_bytes(
     // A segment's path points (one target per frame inside it) and a look-ahead window's
     // (its segments' frames, and a target at each segment end but the last, plus the
     // window's own, with its fine target beside the segment's), over the longest window.
-    let window = settings.lookahead as u64 + 1;
-    let path_points = if settings.path_weight > 0.0 {
-        let longest = settings.shot().segment_steps.into_iter().max().unwrap_or(0);
-        window * (longest / settings.frame_every.max(1)) as u64
+    let window = settings.method.lookahead as u64 + 1;
+    let path_points = if settings.method.path_weight > 0.0 {
+        let longest = settings
+            .timing()
+            .segment_steps
+            .into_iter()
+            .max()
+            .unwrap_or(0);
+        window * (longest / settings.shot.frame_every.max(1)) as u64
     } else {
         0
     } + 2 * (window - 1);
@@ -213,7 +218,7 @@ pub fn fixed_bytes(
         + coarse_level_bytes(settings, particles, targets, nodes, keyframes)
 }
 
-/// Bytes a coarser level keeps while the finer one runs (`settings.levels > 1`): its own
+/// Bytes a coarser level keeps while the finer one runs (`settings.method.levels > 1`): its own
 /// setup, the controls it found for every segment, and the map carrying them up (a
 /// quadratic B-spline stencil of coarse particles per fine particle). A level has an eighth
 /// of the particles and nodes of the one above.
@@ -224,12 +229,12 @@ fn coarse_level_bytes(
     nodes: u64,
     keyframes: u64,
 ) -> u64 {
-    if settings.levels <= 1 {
+    if settings.method.levels <= 1 {
         return 0;
     }
     let mut below = settings.clone();
-    below.levels -= 1;
-    below.passes = 1;
+    below.method.levels -= 1;
+    below.method.passes = 1;
     let (n, t, g) = (
         particles.div_ceil(8),
         targets.div_ceil(8),
@@ -244,8 +249,8 @@ fn coarse_level_bytes(
 
 /// The control layers of each segment of the shot `s` makes.
 fn segment_layers(s: &MorphSettings) -> impl Iterator<Item = usize> {
-    let stride = s.control_stride.max(1);
-    s.shot()
+    let stride = s.method.control_stride.max(1);
+    s.timing()
         .segment_steps
         .into_iter()
         .map(move |k| k.div_ceil(stride))
@@ -258,7 +263,11 @@ fn segment_layers(s: &MorphSettings) -> impl Iterator<Item = usize> {
 fn working_bytes(s: &MorphSettings, n: usize) -> u64 {
     let layers = segment_layers(s).max().unwrap_or(0);
     let layer = n * size_of::<Matrix3<f64>>();
-    let kept = if s.passes > 1 { s.segments } else { 0 };
+    let kept = if s.method.passes > 1 {
+        s.method.segments
+    } else {
+        0
+    };
     let controls = (kept + 6) * layers * layer;
     let free = layers * 9 * n;
     let adam = 5 * free * size_of::<f64>();
@@ -288,20 +297,20 @@ pub struct Counts {
 /// a refusal gives one figure for one morph.
 pub fn least_bytes(settings: &MorphSettings, c: &Counts) -> (u64, u64) {
     let n = c.particles as usize;
-    let material = settings.material.build();
-    let shot = settings.shot();
-    let substeps = match settings.dt {
+    let material = settings.body.material.build();
+    let shot = settings.timing();
+    let substeps = match settings.method.dt {
         Some(_) => 1,
         None => {
             let (bound, _) = crate::engine::material::stable_dt(
                 material.wave_modulus(),
-                settings.material.density,
+                settings.body.material.density,
                 c.dx,
             );
             super::substeps_for(shot.step, 0.5 * bound).unwrap_or(1)
         }
     };
-    let window = settings.lookahead + 1;
+    let window = settings.method.lookahead + 1;
     let steps = (0..shot.segment_steps.len())
         .map(|k| {
             shot.segment_steps[k..(k + window).min(shot.segment_steps.len())]
@@ -313,7 +322,7 @@ pub fn least_bytes(settings: &MorphSettings, c: &Counts) -> (u64, u64) {
         * substeps;
     let gradient = n * size_of::<Matrix3<f64>>();
     let step = gradient
-        + match settings.integrator {
+        + match settings.method.integrator {
             crate::engine::integrator::IntegratorKind::Euler => {
                 crate::engine::mpm::StepTape::bytes_for(
                     n,
@@ -326,20 +335,20 @@ pub fn least_bytes(settings: &MorphSettings, c: &Counts) -> (u64, u64) {
             }
         };
     let fixed = fixed_bytes(settings, c.particles, c.targets, c.nodes, c.keyframes)
-        + (settings.control_stride * substeps * gradient) as u64;
+        + (settings.method.control_stride * substeps * gradient) as u64;
     // The chunks with the smallest peak (what the plan takes when nothing fits).
     let least = ChunkPlan::within(
         0,
         steps,
         step,
         State::bytes_for(n),
-        settings.control_stride * substeps,
+        settings.method.control_stride * substeps,
     );
     let tape = least.peak_bytes(
         steps,
         step,
         State::bytes_for(n),
-        settings.control_stride * substeps,
+        settings.method.control_stride * substeps,
     ) as f64;
     let run = fixed + (tape * (1.0 + ALLOCATOR_SLACK)) as u64;
     let usd = usd_bytes(settings, c.particles, c.frames, c.source_vertices);
@@ -393,7 +402,7 @@ pub fn check_before_setup(
         keyframes: keyframes as u64,
         dx: estimate.dx,
         source_vertices: source_vertices as u64,
-        frames: settings.shot().frame_count() as u64,
+        frames: settings.timing().frame_count() as u64,
     };
     check_least(settings, &counts, limit)
 }
@@ -519,11 +528,17 @@ pub fn usd_bytes(
     source_vertices: u64,
 ) -> u64 {
     use super::settings::Surfaces;
-    if settings.usd == crate::io::usd::UsdFormat::None {
+    if settings.outputs.usd == crate::io::usd::UsdFormat::None {
         return 0;
     }
-    let carried = matches!(settings.surfaces, Surfaces::Carried | Surfaces::Both);
-    let rebuilt = matches!(settings.surfaces, Surfaces::Rebuilt | Surfaces::Both);
+    let carried = matches!(
+        settings.outputs.surfaces,
+        Surfaces::Carried | Surfaces::Both
+    );
+    let rebuilt = matches!(
+        settings.outputs.surfaces,
+        Surfaces::Rebuilt | Surfaces::Both
+    );
     let rebuilt_vertices =
         (REBUILT_VERTICES_PER_AREA * (particles as f64).powf(2.0 / 3.0)).ceil() as u64;
     let per_frame = particles * USD_PARTICLE_BYTES

@@ -14,7 +14,7 @@
 //! A morph writes its resolved scene (every setting, absolute mesh paths) as `scene.toml` in
 //! its output folder: `morph --scene OUT/scene.toml` runs it again, bit for bit.
 
-use super::settings::{MorphSettings, Preset};
+use super::settings::{self, MorphSettings, Preset};
 use std::path::{Path, PathBuf};
 
 /// The name of the resolved scene in an output folder.
@@ -49,15 +49,21 @@ impl SceneFile {
             .is_some_and(|e| e.eq_ignore_ascii_case("json"));
         let mut table = table_of(text, &shown, json)?;
         let (source, targets) = take_inputs(&mut table, path.parent(), &shown)?;
-        if let Some(toml::Value::Table(m)) = table.get_mut("material") {
+        if let Some(toml::Value::Table(m)) = part_mut(&mut table, "body").get_mut("material") {
             young_poisson_to_lame(m).map_err(|e| format!("scene file '{shown}': {e}"))?;
         }
+        let given = |table: &toml::Table, key: &str| {
+            let part = settings::part_of(key).unwrap_or("shot");
+            table
+                .get(part)
+                .and_then(toml::Value::as_table)
+                .is_some_and(|t| t.contains_key(key))
+        };
         // The file's frame rate rule is the command line's: a frame every n steps (or a set
         // dt) without fps replaces the rate.
-        let table_had_frames = table.contains_key("frames");
-        let no_fps = !table.contains_key("fps")
-            && (table.contains_key("frame_every") || table.contains_key("dt"));
-        let seconds = table.remove("seconds");
+        let table_had_frames = given(&table, "frames");
+        let no_fps = !given(&table, "fps") && (given(&table, "frame_every") || given(&table, "dt"));
+        let seconds = part_mut(&mut table, "shot").remove("seconds");
         let preset = match (preset, table.get("preset")) {
             (Some(p), _) => p,
             (None, Some(v)) => v.clone().try_into().map_err(|e| {
@@ -70,23 +76,21 @@ impl SceneFile {
             .expect("settings serialize to TOML");
         // A resolution the file gives replaces its preset's particle budget (as on the command
         // line); a budget it gives wins over any resolution.
-        if table.contains_key("resolution") && !table.contains_key("particles") {
-            merged.remove("particles");
+        if given(&table, "resolution") && !given(&table, "particles") {
+            part_mut(&mut merged, "body").remove("particles");
         }
         // A grid or particles per cell it gives are what it asks for: the thin parts' rule
         // does not change them (unless the file sets it too).
-        let sized = ["resolution", "particles_per_cell"]
-            .iter()
-            .any(|k| table.contains_key(*k));
-        if sized && !table.contains_key("thin_across") {
-            merged.insert("thin_across".into(), toml::Value::Float(0.0));
+        let sized = given(&table, "resolution") || given(&table, "particles_per_cell");
+        if sized && !given(&table, "thin_across") {
+            part_mut(&mut merged, "body").insert("thin_across".into(), toml::Value::Float(0.0));
         }
         merge(&mut merged, table);
         let mut settings: MorphSettings = toml::Value::Table(merged)
             .try_into()
             .map_err(|e| format!("scene file '{shown}': {}", one_line(&e.to_string())))?;
         if no_fps {
-            settings.fps = None;
+            settings.shot.fps = None;
         }
         if let Some(v) = seconds {
             if table_had_frames {
@@ -103,7 +107,7 @@ impl SceneFile {
                     ));
                 }
             };
-            settings.frames = Some(settings.frames_for(seconds).map_err(|e| {
+            settings.shot.frames = Some(settings.frames_for(seconds).map_err(|e| {
                 format!(
                     "scene file '{shown}': {}",
                     e.replace("--seconds", "seconds")
@@ -128,7 +132,7 @@ impl SceneFile {
                 .to_string()
         };
         let mut settings = settings.clone();
-        for c in &mut settings.colliders {
+        for c in &mut settings.world.colliders {
             c.mesh = PathBuf::from(absolute(&c.mesh));
         }
         let mut table = toml::Table::new();
@@ -153,10 +157,17 @@ impl SceneFile {
 /// modulus and Poisson's ratio in `[material]`) are known too.
 fn unknown_key(table: &toml::Table) -> Option<String> {
     let mut given = table.clone();
-    for key in ["source", "targets", "seconds", "preset"] {
+    for key in ["source", "targets", "preset"] {
         given.remove(key);
     }
-    if let Some(toml::Value::Table(m)) = given.get_mut("material") {
+    if let Some(toml::Value::Table(shot)) = given.get_mut("shot") {
+        shot.remove("seconds");
+    }
+    if let Some(toml::Value::Table(m)) = given
+        .get_mut("body")
+        .and_then(|b| b.as_table_mut())
+        .and_then(|b| b.get_mut("material"))
+    {
         m.remove("youngs_modulus");
         m.remove("poisson_ratio");
     }
@@ -207,6 +218,43 @@ fn line_of(text: &str, key: &str, json: bool) -> Option<usize> {
         .map(|i| i + 1)
 }
 
+/// Moves each setting the file gives flat into its part's table (`frames = 97` becomes
+/// `[shot] frames = 97`; `seconds` is the shot's), so that a key may be given either way. A
+/// key given both ways is refused.
+fn nest(table: &mut toml::Table) -> Result<(), String> {
+    let flat: Vec<String> = (table.keys())
+        .filter(|k| settings::part_of(k).is_some() || *k == "seconds")
+        .cloned()
+        .collect();
+    if let Some((part, _)) =
+        (settings::PARTS.iter()).find(|(p, _)| table.get(*p).is_some_and(|v| !v.is_table()))
+    {
+        return Err(format!("`{part}` must be a table of settings"));
+    }
+    for key in flat {
+        let part = settings::part_of(&key).unwrap_or("shot");
+        let value = table.remove(&key).expect("listed above");
+        if part_mut(table, part).insert(key.clone(), value).is_some() {
+            return Err(format!(
+                "`{key}` is given twice: on its own and in [{part}]"
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// The table of part `part` (made empty when the file gives none of its keys; [`nest`] has
+/// refused a part that is not a table).
+fn part_mut<'a>(table: &'a mut toml::Table, part: &str) -> &'a mut toml::Table {
+    let entry = table
+        .entry(part)
+        .or_insert_with(|| toml::Value::Table(toml::Table::new()));
+    match entry {
+        toml::Value::Table(t) => t,
+        other => unreachable!("part `{part}` is {other}, which nest refuses"),
+    }
+}
+
 /// `over`'s values replace `base`'s; tables merge key by key.
 fn merge(base: &mut toml::Table, over: toml::Table) {
     for (key, value) in over {
@@ -240,7 +288,7 @@ fn young_poisson_to_lame(m: &mut toml::Table) -> Result<(), String> {
             other => Err(format!("[material] {key} must be a number, got {other}")),
         }
     };
-    let d = MorphSettings::default().material;
+    let d = MorphSettings::default().body.material;
     let (e0, nu0) = crate::engine::material::young_poisson_from_lame(d.mu, d.lambda);
     let e = e
         .map(|v| number(v, "youngs_modulus"))
@@ -367,6 +415,8 @@ fn table_of(text: &str, shown: &dyn std::fmt::Display, json: bool) -> Result<tom
             format!("scene file '{shown}': {}", one_line(&e.to_string()))
         })?
     };
+    let mut table = table;
+    nest(&mut table).map_err(|e| format!("scene file '{shown}': {e}"))?;
     if let Some(key) = unknown_key(&table) {
         let line = line_of(text, &key, json).map_or(String::new(), |l| format!(" line {l}:"));
         return Err(format!(
@@ -412,7 +462,7 @@ fn take_inputs(
             ));
         }
     };
-    if let Some(toml::Value::Array(colliders)) = table.get_mut("colliders") {
+    if let Some(toml::Value::Array(colliders)) = part_mut(table, "world").get_mut("colliders") {
         for c in colliders {
             if let Some(toml::Value::String(m)) = c.get_mut("mesh") {
                 *m = resolve(m).display().to_string();
@@ -431,7 +481,7 @@ mod tests {
         let text = "preset = \"draft\"\nresolution = 16\n\n[ground]\nheight = 0.0\nfrction = 0.3\n";
         let e = SceneFile::parse(text, Path::new("shot.toml"), None).unwrap_err();
         assert!(
-            e.contains("line 6") && e.contains("`ground.frction`") && e.contains("shot.toml"),
+            e.contains("line 6") && e.contains("`world.ground.frction`") && e.contains("shot.toml"),
             "{e}"
         );
         let e = SceneFile::parse("gravty = [0, -9.8, 0]\n", Path::new("s.toml"), None).unwrap_err();
@@ -447,7 +497,7 @@ mod tests {
         let text = "[[colliders]]\nmesh = \"a.obj\"\n[[colliders]]\nmesh = \"b.obj\"\nfriction = 0.2\nsticky = true\n[material]\nyoungs_modulus = 1e5\npoisson_ratio = 0.3\n";
         let e = SceneFile::parse(text, Path::new("s.toml"), None).unwrap_err();
         assert!(
-            e.contains("line 6") && e.contains("`colliders.1.sticky`"),
+            e.contains("line 6") && e.contains("`world.colliders.1.sticky`"),
             "{e}"
         );
         // A value of the wrong type is reported as such, not as an unknown key.
@@ -459,15 +509,33 @@ mod tests {
     }
 
     #[test]
+    fn a_key_may_be_given_flat_or_under_its_part_but_not_both() {
+        let parse = |text: &str| SceneFile::parse(text, Path::new("s.toml"), None);
+        let flat = parse("frames = 49\nresolution = 20\n[optimizer]\niterations = 3\n").unwrap();
+        let nested = parse(
+            "[shot]\nframes = 49\n[body]\nresolution = 20\n[method.optimizer]\niterations = 3\n",
+        )
+        .unwrap();
+        assert_eq!(flat.settings, nested.settings);
+        assert_eq!(nested.settings.shot.frames, Some(49));
+        let e = parse("frames = 49\n[shot]\nframes = 50\n").unwrap_err();
+        assert!(e.contains("`frames` is given twice"), "{e}");
+        let e = parse("shot = 3\n").unwrap_err();
+        assert!(e.contains("`shot` must be a table"), "{e}");
+        let e = parse("[shot]\nresolution = 20\n").unwrap_err();
+        assert!(e.contains("unknown key `shot.resolution`"), "{e}");
+    }
+
+    #[test]
     fn a_file_changes_only_the_keys_it_gives_over_its_preset() {
         let text = "preset = \"draft\"\nresolution = 20\n[material]\ndensity = 80.0\n[optimizer]\niterations = 3\n";
         let s = SceneFile::parse(text, Path::new("a/shot.toml"), None)
             .unwrap()
             .settings;
         let mut want = MorphSettings::preset(Preset::Draft);
-        want.resolution = 20;
-        want.material.density = 80.0;
-        want.optimizer.iterations = 3;
+        want.body.resolution = 20;
+        want.body.material.density = 80.0;
+        want.method.optimizer.iterations = 3;
         assert_eq!(s, want);
     }
 
@@ -478,13 +546,21 @@ mod tests {
                 .unwrap()
                 .settings
         };
-        assert!(MorphSettings::preset(Preset::Final).particles.is_some());
+        assert!(
+            MorphSettings::preset(Preset::Final)
+                .body
+                .particles
+                .is_some()
+        );
         let s = parse("preset = \"final\"\nresolution = 40\n");
-        assert_eq!((s.resolution, s.particles), (40, None));
+        assert_eq!((s.body.resolution, s.body.particles), (40, None));
         let s = parse("preset = \"final\"\nresolution = 40\nparticles = 9000\n");
-        assert_eq!(s.particles, Some(9000));
+        assert_eq!(s.body.particles, Some(9000));
         let s = parse("preset = \"final\"\n");
-        assert_eq!(s.particles, MorphSettings::preset(Preset::Final).particles);
+        assert_eq!(
+            s.body.particles,
+            MorphSettings::preset(Preset::Final).body.particles
+        );
     }
 
     #[test]
@@ -494,11 +570,13 @@ mod tests {
                 .unwrap()
                 .settings
         };
-        assert_eq!(parse("").thin_across, 2.5);
-        assert_eq!(parse("resolution = 40\n").thin_across, 0.0);
-        assert_eq!(parse("particles_per_cell = 3\n").thin_across, 0.0);
+        assert_eq!(parse("").body.thin_across, 2.5);
+        assert_eq!(parse("resolution = 40\n").body.thin_across, 0.0);
+        assert_eq!(parse("particles_per_cell = 3\n").body.thin_across, 0.0);
         assert_eq!(
-            parse("resolution = 40\nthin_across = 3.0\n").thin_across,
+            parse("resolution = 40\nthin_across = 3.0\n")
+                .body
+                .thin_across,
             3.0
         );
         let negative = SceneFile::parse("thin_across = -1.0\n", Path::new("shot.toml"), None);
@@ -508,15 +586,15 @@ mod tests {
     #[test]
     fn the_resolved_scene_reads_back_to_the_same_settings() {
         let mut s = MorphSettings::preset(Preset::Final);
-        s.gravity = Some([0.0, -9.81, 0.0]);
-        s.ground = Some(crate::morph::settings::Ground {
+        s.world.gravity = Some([0.0, -9.81, 0.0]);
+        s.world.ground = Some(crate::morph::settings::Ground {
             height: -1.0,
             friction: 0.2,
         });
-        s.at = vec![10, 20];
-        s.fps = None;
-        s.frame_every = 4;
-        s.dt = Some(1e-3);
+        s.shot.at = vec![10, 20];
+        s.shot.fps = None;
+        s.shot.frame_every = 4;
+        s.method.dt = Some(1e-3);
         let text = SceneFile::resolved(
             &s,
             Path::new("/m/a.obj"),

@@ -45,14 +45,14 @@ pub fn size(
     source: (&LoadedMesh, &Path),
     targets: &[(&LoadedMesh, &Path)],
 ) -> Result<(CheckedSettings, Option<Sizing>), MorphError> {
-    if settings.particles.is_some() || settings.thin_across <= 0.0 {
+    if settings.body.particles.is_some() || settings.body.thin_across <= 0.0 {
         return Ok((settings.clone(), None));
     }
-    let k0 = settings.particles_per_cell;
+    let k0 = settings.body.particles_per_cell;
     let estimate = MorphGeometry::estimate(
         source,
         targets,
-        &settings.placement_options(settings.resolution),
+        &settings.placement_options(settings.body.resolution),
         k0,
     )?;
     // A shape's thin parts across, in particles at `k0` per cell: its thin-part thickness
@@ -80,7 +80,7 @@ pub fn size(
     let scale = |k: usize| k as f64 / k0 as f64;
     let most = *super::settings::limits::PARTICLES_PER_CELL.end();
     let wanted = (k0..=most)
-        .find(|&k| across_before * scale(k) >= settings.thin_across)
+        .find(|&k| across_before * scale(k) >= settings.body.thin_across)
         .unwrap_or(most);
     let particles_at = |k: usize| estimate.source_particles * scale(k).powi(3);
     let chosen = (k0..=wanted)
@@ -88,7 +88,7 @@ pub fn size(
         .find(|&k| k == k0 || particles_at(k) <= DETAIL_BUDGET as f64)
         .unwrap_or(k0);
     let mut sized = (**settings).clone();
-    sized.particles_per_cell = chosen;
+    sized.body.particles_per_cell = chosen;
     Ok((
         CheckedSettings::derived(sized),
         Some(Sizing {
@@ -146,7 +146,7 @@ mod tests {
         assert_eq!(sizing.thinnest, "table.obj");
         assert!(sizing.across_before < 2.0, "{sizing:?}");
         assert!(
-            sized.particles_per_cell > settings.particles_per_cell,
+            sized.body.particles_per_cell > settings.body.particles_per_cell,
             "{sizing:?}"
         );
         assert!(sizing.particles <= DETAIL_BUDGET as f64, "{sizing:?}");
@@ -156,7 +156,7 @@ mod tests {
             let geometry = MorphGeometry::with_keyframes(
                 (&source, sphere),
                 &[(&target, path)],
-                &sized.placement_options(sized.resolution),
+                &sized.placement_options(sized.body.resolution),
                 per_cell,
                 None,
             )
@@ -183,16 +183,14 @@ mod tests {
             };
             (distinct(0).min(distinct(2)), in_leg.len())
         };
-        let (chosen, two) = (across_leg(sized.particles_per_cell), across_leg(2));
+        let (chosen, two) = (across_leg(sized.body.particles_per_cell), across_leg(2));
         assert!(
             chosen.0 >= 2 && chosen.1 > two.1,
             "{chosen:?} against {two:?}"
         );
         // Off, nothing is sized.
-        let off_settings = MorphSettings {
-            thin_across: 0.0,
-            ..settings
-        };
+        let mut off_settings = settings.clone();
+        off_settings.body.thin_across = 0.0;
         let (_, off) = size(
             &off_settings.checked().unwrap(),
             (&source, sphere),

@@ -45,7 +45,7 @@ fn stiff_materials_substep_instead_of_failing() {
             "{name}: {m:?}"
         );
         // The shot keeps its length: 6 steps of 1/120 s, a frame every 5 (24 fps).
-        assert_eq!(m.frames, 6 / base.shot().frame_every + 1, "{name}");
+        assert_eq!(m.frames, 6 / base.timing().frame_every + 1, "{name}");
         bounds.push(m.stable_dt);
     }
     // The bound falls with the square root of the stiffness.

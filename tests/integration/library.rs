@@ -59,9 +59,9 @@ fn job() -> Job {
     let sphere = prepare_mesh(Path::new("<sphere>"), sphere, vec![]).unwrap();
     let cube = prepare_mesh(Path::new("<cube>"), assets::cube(2.0, 2), vec![]).unwrap();
     let mut s = MorphSettings::preset(Preset::Draft);
-    s.resolution = 12;
-    s.segments = 2;
-    s.optimizer.iterations = 2;
+    s.body.resolution = 12;
+    s.method.segments = 2;
+    s.method.optimizer.iterations = 2;
     Job {
         source: MeshSource::Memory {
             name: "<sphere>".into(),
@@ -116,11 +116,11 @@ fn a_memory_budget_never_changes_the_morph() {
     let tgt = mesh("lobes", assets::two_lobes(24, 32));
     for kind in Optimizer::ALL {
         let mut s = MorphSettings::preset(Preset::Draft);
-        s.resolution = 16;
-        s.segments = 2;
-        s.optimizer.kind = kind;
-        s.optimizer.iterations = 3;
-        s.optimizer.learning_rate = kind.default_learning_rate();
+        s.body.resolution = 16;
+        s.method.segments = 2;
+        s.method.optimizer.kind = kind;
+        s.method.optimizer.iterations = 3;
+        s.method.optimizer.learning_rate = kind.default_learning_rate();
         let run = |budget: usize| {
             let mut prep = morph::Prepared::from_meshes(
                 &s.clone().checked().unwrap(),
@@ -185,9 +185,9 @@ fn a_keyframed_job_matches_the_command_line_bitwise() {
     let cli = MassGrid::read(&out.join("final_mass.mgrid")).unwrap();
 
     let mut settings = MorphSettings::preset(Preset::Draft);
-    settings.resolution = 12;
-    settings.frames = Some(25);
-    settings.at = vec![10, 19];
+    settings.body.resolution = 12;
+    settings.shot.frames = Some(25);
+    settings.shot.at = vec![10, 19];
     let job = Job {
         source: MeshSource::File(asset("sphere.obj")),
         targets: vec![
@@ -211,17 +211,17 @@ fn a_keyframed_job_matches_the_command_line_bitwise() {
 #[test]
 fn the_continuity_weight_follows_the_stiffness() {
     let mut job = job();
-    job.settings.control_smoothing = 3.0e4;
-    job.settings.segments = 10;
+    job.settings.method.control_smoothing = 3.0e4;
+    job.settings.method.segments = 10;
     let soft = job.prepare().unwrap();
     assert_eq!(
-        job.settings.material.mu,
+        job.settings.body.material.mu,
         morph::settings::TUNED_SHEAR_MODULUS
     );
     assert_eq!(soft.segment_smoothing(0), 3.0e4);
-    job.settings.material.mu *= 10.0;
+    job.settings.body.material.mu *= 10.0;
     let stiff = job.prepare().unwrap();
     assert!((stiff.segment_smoothing(0) / soft.segment_smoothing(0) - 10.0).abs() < 1e-12);
-    let last = job.settings.segments - 1;
+    let last = job.settings.method.segments - 1;
     assert_eq!(stiff.segment_smoothing(last), 0.0);
 }

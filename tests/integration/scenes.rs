@@ -108,7 +108,7 @@ fn a_scene_with_an_unknown_key_fails_with_one_line() {
     assert_eq!(err.lines().count(), 1, "{err}");
     assert!(err.starts_with("morph: error: scene file '"), "{err}");
     assert!(
-        err.contains("shot.toml': line 7: unknown key `ground.fricton`"),
+        err.contains("shot.toml': line 7: unknown key `world.ground.fricton`"),
         "{err}"
     );
     assert!(!out.exists());

@@ -273,10 +273,10 @@ fn measure(case: &Case) -> Result<Measured, MorphError> {
 /// Small settings the fast cases start from: 16 cells, 2 segments of 30 steps, 3 iterations.
 pub fn quick() -> MorphSettings {
     let mut s = MorphSettings::preset(Preset::Draft);
-    s.resolution = 16;
-    s.segments = 2;
-    s.optimizer.iterations = 3;
-    s.surfaces = crate::morph::settings::Surfaces::None;
+    s.body.resolution = 16;
+    s.method.segments = 2;
+    s.method.optimizer.iterations = 3;
+    s.outputs.surfaces = crate::morph::settings::Surfaces::None;
     s
 }
 
@@ -323,13 +323,13 @@ pub fn cases(meshes: &Path) -> Result<Vec<Case>, MorphError> {
     };
     let stiff = |factor: f64| {
         with(&|s| {
-            s.resolution = 12;
-            s.segments = 1;
-            s.steps_per_segment = 6;
-            s.control_stride = 3;
-            s.optimizer.iterations = 2;
-            s.material.mu *= factor;
-            s.material.lambda *= factor;
+            s.body.resolution = 12;
+            s.method.segments = 1;
+            s.method.steps_per_segment = 6;
+            s.method.control_stride = 3;
+            s.method.optimizer.iterations = 2;
+            s.body.material.mu *= factor;
+            s.body.material.lambda *= factor;
         })
     };
     let lobes = two_lobes(24, 32);
@@ -365,8 +365,8 @@ pub fn cases(meshes: &Path) -> Result<Vec<Case>, MorphError> {
             lobes.clone(),
             {
                 let mut s = stiff(100.0);
-                s.dt = Some(0.01);
-                s.fps = None;
+                s.method.dt = Some(0.01);
+                s.shot.fps = None;
                 s
             },
             Expect::Refused("above the stable bound"),
@@ -375,28 +375,28 @@ pub fn cases(meshes: &Path) -> Result<Vec<Case>, MorphError> {
             "bunny-ears-24",
             sphere(),
             bunny.clone(),
-            with(&|s| s.resolution = 24),
+            with(&|s| s.body.resolution = 24),
             Expect::Stable,
         ),
         case(
             "bunny-ears-32",
             sphere(),
             bunny.clone(),
-            with(&|s| s.resolution = 32),
+            with(&|s| s.body.resolution = 32),
             Expect::Stable,
         ),
         case(
             "thin-rod",
             sphere(),
             scaled(&cube(2.0, 4), Vector3::new(12.0, 1.0, 1.0)),
-            with(&|s| s.resolution = 32),
+            with(&|s| s.body.resolution = 32),
             Expect::Stable,
         ),
         case(
             "far-apart-as-given",
             sphere(),
             sphere().transformed(1.0, &Vector3::new(10.0, 0.0, 0.0)),
-            with(&|s| s.target_fit = TargetFit::AsGiven),
+            with(&|s| s.body.target_fit = TargetFit::AsGiven),
             Expect::Refused("cannot move its centre of mass"),
         ),
         case(
@@ -404,7 +404,7 @@ pub fn cases(meshes: &Path) -> Result<Vec<Case>, MorphError> {
             "plate-thinner-than-two-cells",
             sphere(),
             scaled(&cube(2.0, 4), Vector3::new(10.0, 10.0, 0.5)),
-            with(&|s| s.resolution = 32),
+            with(&|s| s.body.resolution = 32),
             Expect::Stable,
         ),
         case("units-1e-4", tiny_s, tiny_t, quick(), Expect::Stable),
@@ -441,7 +441,7 @@ pub fn cases(meshes: &Path) -> Result<Vec<Case>, MorphError> {
             "learning-rate-x100",
             sphere(),
             lobes.clone(),
-            with(&|s| s.optimizer.learning_rate *= 100.0),
+            with(&|s| s.method.optimizer.learning_rate *= 100.0),
             Expect::Stable,
         ),
         case(
@@ -449,12 +449,12 @@ pub fn cases(meshes: &Path) -> Result<Vec<Case>, MorphError> {
             sphere(),
             lobes.clone(),
             with(&|s| {
-                s.resolution = 12;
-                s.segments = 40;
-                s.optimizer.iterations = 2;
+                s.body.resolution = 12;
+                s.method.segments = 40;
+                s.method.optimizer.iterations = 2;
                 // Every segment aims at the target, so the body arrives early and the chain
                 // is mostly holding: what this case checks is that holding stays bounded.
-                s.at = vec![1];
+                s.shot.at = vec![1];
             }),
             Expect::Stable,
         ),
@@ -463,12 +463,12 @@ pub fn cases(meshes: &Path) -> Result<Vec<Case>, MorphError> {
             sphere(),
             lobes.clone(),
             with(&|s| {
-                s.resolution = 12;
-                s.segments = 1;
-                s.steps_per_segment = 300;
-                s.control_stride = 30;
-                s.frame_every = 10;
-                s.fps = None;
+                s.body.resolution = 12;
+                s.method.segments = 1;
+                s.method.steps_per_segment = 300;
+                s.method.control_stride = 30;
+                s.shot.frame_every = 10;
+                s.shot.fps = None;
             }),
             Expect::Stable,
         ),
@@ -476,10 +476,10 @@ pub fn cases(meshes: &Path) -> Result<Vec<Case>, MorphError> {
     // The long ones: a 300,000-particle morph within 4 GB, and the default preset on the
     // bunny's ears.
     let mut big = MorphSettings::preset(Preset::Draft);
-    big.particles = Some(300_000);
-    big.segments = 2;
-    big.optimizer.iterations = 4;
-    big.surfaces = crate::morph::settings::Surfaces::None;
+    big.body.particles = Some(300_000);
+    big.method.segments = 2;
+    big.method.optimizer.iterations = 4;
+    big.outputs.surfaces = crate::morph::settings::Surfaces::None;
     all.push(Case {
         long: true,
         memory_limit: MemoryLimit::Bytes(4 << 30),
@@ -500,13 +500,13 @@ pub fn horizon_study(steps: &[usize]) -> Result<Vec<(usize, f64, f64)>, MorphErr
     let mut out = Vec::new();
     for &n in steps {
         let mut s = quick();
-        s.resolution = 12;
-        s.segments = 1;
-        s.steps_per_segment = n;
-        s.control_stride = 10.min(n);
-        s.frame_every = n;
-        s.fps = None;
-        s.optimizer.iterations = 2;
+        s.body.resolution = 12;
+        s.method.segments = 1;
+        s.method.steps_per_segment = n;
+        s.method.control_stride = 10.min(n);
+        s.shot.frame_every = n;
+        s.shot.fps = None;
+        s.method.optimizer.iterations = 2;
         let c = Case {
             name: "horizon",
             source: sphere(),

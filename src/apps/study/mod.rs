@@ -186,18 +186,18 @@ impl StudyConfig {
         let mut s = MorphSettings::preset(self.preset);
         // A resolution replaces the preset's particle budget (`final` has one), as it does on
         // the command line.
-        (s.resolution, s.particles) = match self.particles {
-            Some(n) => (s.resolution, Some(n)),
+        (s.body.resolution, s.body.particles) = match self.particles {
+            Some(n) => (s.body.resolution, Some(n)),
             None => (self.resolution, None),
         };
-        s.particles_per_cell = self.particles_per_cell;
-        s.reach_weight = self.reach_weight;
-        s.kernel = self.kernel;
-        s.integrator = self.integrator;
-        s.optimizer.iterations = self.iterations;
-        s.passes = self.passes;
-        s.segments = self.segments;
-        s.surfaces = crate::morph::settings::Surfaces::None;
+        s.body.particles_per_cell = self.particles_per_cell;
+        s.method.reach_weight = self.reach_weight;
+        s.method.kernel = self.kernel;
+        s.method.integrator = self.integrator;
+        s.method.optimizer.iterations = self.iterations;
+        s.method.passes = self.passes;
+        s.method.segments = self.segments;
+        s.outputs.surfaces = crate::morph::settings::Surfaces::None;
         s
     }
 }
@@ -621,12 +621,18 @@ pub fn measure(source: &Path, target: &Path, config: &StudyConfig) -> StudyRow {
             row.evaluations = result.segments.iter().map(|s| s.evaluations).sum();
             row.final_loss = Some(result.final_loss);
             row.quality = Some(prep.quality(&result.final_state));
-            row.resolution = prep.settings.resolution;
+            row.resolution = prep.settings.body.resolution;
             let n = prep.frame_count();
             if recorder.frames.len() == n {
                 let (speeds, ious): (Vec<f64>, Vec<f64>) = recorder.frames.into_iter().unzip();
-                let arrive = *prep.settings.at.last().expect("a morph has a final target");
-                row.motion = Some(prep.motion_of(&speeds, &ious, prep.settings.begin, n, arrive));
+                let arrive = *prep
+                    .settings
+                    .shot
+                    .at
+                    .last()
+                    .expect("a morph has a final target");
+                row.motion =
+                    Some(prep.motion_of(&speeds, &ious, prep.settings.shot.begin, n, arrive));
             }
         }
         Err(e) => row.error = Some(e.to_string()),
@@ -650,8 +656,12 @@ mod tests {
             for c in grid.configs() {
                 let s = c.settings();
                 match c.particles {
-                    None => assert_eq!((s.resolution, s.particles), (20, None), "{preset:?}"),
-                    Some(n) => assert_eq!(s.particles, Some(n), "{preset:?}"),
+                    None => assert_eq!(
+                        (s.body.resolution, s.body.particles),
+                        (20, None),
+                        "{preset:?}"
+                    ),
+                    Some(n) => assert_eq!(s.body.particles, Some(n), "{preset:?}"),
                 }
             }
         }

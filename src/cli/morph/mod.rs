@@ -93,16 +93,19 @@ pub(super) fn after_long_help() -> String {
         .iter()
         .map(|(p, name)| {
             let s = MorphSettings::preset(*p);
-            let detail = s.particles.map_or(format!("r{}", s.resolution), |n| {
-                format!("{}k particles", n / 1000)
-            });
+            let detail = s
+                .body
+                .particles
+                .map_or(format!("r{}", s.body.resolution), |n| {
+                    format!("{}k particles", n / 1000)
+                });
             format!(
                 "  {name:<8}{detail}, {:>2} x {}, {} pass(es), {:>2}, look-ahead {}; {}",
-                s.segments,
-                s.steps_per_segment,
-                s.passes,
-                s.optimizer.iterations,
-                s.lookahead,
+                s.method.segments,
+                s.method.steps_per_segment,
+                s.method.passes,
+                s.method.optimizer.iterations,
+                s.method.lookahead,
                 p.measured()
             )
         })
@@ -143,21 +146,21 @@ pub struct MorphArgs {
     resume: bool,
     #[arg(long, value_parser = choice(&Preset::ALL), help = format!("Effort preset; the options below override its values [default {}]", name(&Preset::default())))]
     preset: Option<Preset>,
-    #[arg(long, help = help("Grid cells across the domain's longest side", Some(limits::RESOLUTION), by_preset(|s| s.particles.map_or(s.resolution.to_string(), |_| "from the budget".into()))))]
+    #[arg(long, help = help("Grid cells across the domain's longest side", Some(limits::RESOLUTION), by_preset(|s| s.body.particles.map_or(s.body.resolution.to_string(), |_| "from the budget".into()))))]
     resolution: Option<usize>,
-    #[arg(long, conflicts_with = "resolution", help = help("Particle budget: picks the resolution so the source gets about this many particles, whatever the shapes' proportions", Some(limits::PARTICLES), by_preset(|s| s.particles.map_or("off".to_string(), |n| n.to_string()))))]
+    #[arg(long, conflicts_with = "resolution", help = help("Particle budget: picks the resolution so the source gets about this many particles, whatever the shapes' proportions", Some(limits::PARTICLES), by_preset(|s| s.body.particles.map_or("off".to_string(), |n| n.to_string()))))]
     particles: Option<usize>,
-    #[arg(long, help = help("Segments in the chain", Some(limits::SEGMENTS), by_preset(|s| s.segments)))]
+    #[arg(long, help = help("Segments in the chain", Some(limits::SEGMENTS), by_preset(|s| s.method.segments)))]
     segments: Option<usize>,
-    #[arg(long, help = help("Simulation steps per segment (dt 1/120 s at the reference resolution)", Some(limits::STEPS), defaults().steps_per_segment))]
+    #[arg(long, help = help("Simulation steps per segment (dt 1/120 s at the reference resolution)", Some(limits::STEPS), defaults().method.steps_per_segment))]
     steps: Option<usize>,
-    #[arg(long, help = format!("Steps between control layers in a segment [range 1 to --steps; default {}]", defaults().control_stride))]
+    #[arg(long, help = format!("Steps between control layers in a segment [range 1 to --steps; default {}]", defaults().method.control_stride))]
     control_stride: Option<usize>,
-    #[arg(long, help = help("Passes over the chain (later passes refine the earlier controls)", Some(limits::PASSES), by_preset(|s| s.passes)))]
+    #[arg(long, help = help("Passes over the chain (later passes refine the earlier controls)", Some(limits::PASSES), by_preset(|s| s.method.passes)))]
     passes: Option<usize>,
-    #[arg(long, help = help("Optimizer evaluations per segment (Adam) or per control layer (line search)", Some(limits::ITERATIONS), by_preset(|s| s.optimizer.iterations)))]
+    #[arg(long, help = help("Optimizer evaluations per segment (Adam) or per control layer (line search)", Some(limits::ITERATIONS), by_preset(|s| s.method.optimizer.iterations)))]
     iterations: Option<usize>,
-    #[arg(long, help = help("Coarse-to-fine levels: n > 1 solves the morph on grids 2^(n-1), ..., 2 times coarser first, each level starting from the one below (docs/morph.md)", Some(limits::LEVELS), by_preset(|s| s.levels)))]
+    #[arg(long, help = help("Coarse-to-fine levels: n > 1 solves the morph on grids 2^(n-1), ..., 2 times coarser first, each level starting from the one below (docs/morph.md)", Some(limits::LEVELS), by_preset(|s| s.method.levels)))]
     levels: Option<usize>,
     #[arg(long, help = help("Optimizer evaluations per segment on the finest level when --levels > 1 (the coarser levels take --iterations)", Some(limits::ITERATIONS), "the same as --iterations"))]
     refine_iterations: Option<usize>,
@@ -166,58 +169,58 @@ pub struct MorphArgs {
     optimizer: Option<Optimizer>,
     #[arg(long, help = help("Step size (Adam: per control entry; line search: initial normalized step), > 0", None, format!("{} (line search {})", Optimizer::Adam.default_learning_rate(), Optimizer::LineSearch.default_learning_rate())))]
     learning_rate: Option<f64>,
-    #[arg(long, value_parser = choice(&MassLossKind::ALL), help = format!("Mass loss on the grid [default {}]", name(&defaults().loss)))]
+    #[arg(long, value_parser = choice(&MassLossKind::ALL), help = format!("Mass loss on the grid [default {}]", name(&defaults().method.loss)))]
     loss: Option<MassLossKind>,
-    #[arg(long, help = help("Weight of the kinetic energy left at the end of each segment after the final target's arrival (the held shape comes to rest), >= 0", None, defaults().arrival_weight))]
+    #[arg(long, help = help("Weight of the kinetic energy left at the end of each segment after the final target's arrival (the held shape comes to rest), >= 0", None, defaults().method.arrival_weight))]
     arrival_weight: Option<f64>,
-    #[arg(long, help = help("Drag per second added once the final target is reached, eased in over six frames (the held shape comes to rest), >= 0 (0: off)", None, defaults().settle_drag))]
+    #[arg(long, help = help("Drag per second added once the final target is reached, eased in over six frames (the held shape comes to rest), >= 0 (0: off)", None, defaults().method.settle_drag))]
     settle_drag: Option<f64>,
-    #[arg(long, help = help("Weight of the volume cost (sum 1/2 (ln J)^2 per particle, and the whole body's) averaged over every step, >= 0 (keeps the body at its volume)", None, defaults().volume_weight))]
+    #[arg(long, help = help("Weight of the volume cost (sum 1/2 (ln J)^2 per particle, and the whole body's) averaged over every step, >= 0 (keeps the body at its volume)", None, defaults().method.volume_weight))]
     volume_weight: Option<f64>,
-    #[arg(long, help = help("Weight of the scheduled path: the mass loss at every frame inside a segment against where the easing curve puts the body then, >= 0 (0: each segment's end alone)", None, by_preset(|s| s.path_weight)))]
+    #[arg(long, help = help("Weight of the scheduled path: the mass loss at every frame inside a segment against where the easing curve puts the body then, >= 0 (0: each segment's end alone)", None, by_preset(|s| s.method.path_weight)))]
     path_weight: Option<f64>,
-    #[arg(long, help = help("Look-ahead: optimize each segment together with the next N, scored at each of their ends, and keep its own controls (the body answers its controls a segment late; docs/morph.md)", Some(limits::LOOKAHEAD), by_preset(|s| s.lookahead)))]
+    #[arg(long, help = help("Look-ahead: optimize each segment together with the next N, scored at each of their ends, and keep its own controls (the body answers its controls a segment late; docs/morph.md)", Some(limits::LOOKAHEAD), by_preset(|s| s.method.lookahead)))]
     lookahead: Option<usize>,
-    #[arg(long, help = help("Weight of the controls' continuity in time: each control layer against the one before it, across segment boundaries too, scaled by the material's shear modulus over the presets' material's, >= 0 (0: off)", None, by_preset(|s| s.control_smoothing)))]
+    #[arg(long, help = help("Weight of the controls' continuity in time: each control layer against the one before it, across segment boundaries too, scaled by the material's shear modulus over the presets' material's, >= 0 (0: off)", None, by_preset(|s| s.method.control_smoothing)))]
     control_smoothing: Option<f64>,
-    #[arg(long, help = help("Weight of each earlier segment end inside a look-ahead window, against that segment's target (the window's end weighs 1), >= 0", None, by_preset(|s| s.waypoint_weight)))]
+    #[arg(long, help = help("Weight of each earlier segment end inside a look-ahead window, against that segment's target (the window's end weighs 1), >= 0", None, by_preset(|s| s.method.waypoint_weight)))]
     waypoint_weight: Option<f64>,
-    #[arg(long, help = help("Where a look-ahead window's new segment starts: this share of the last control layer before it, 0..=1 (0: zeros; with --control-smoothing only)", None, by_preset(|s| s.carry_controls)))]
+    #[arg(long, help = help("Where a look-ahead window's new segment starts: this share of the last control layer before it, 0..=1 (0: zeros; with --control-smoothing only)", None, by_preset(|s| s.method.carry_controls)))]
     carry_controls: Option<f64>,
-    #[arg(long, help = help("Weight of the mass loss on a grid twice as fine as the simulation's, >= 0 (sees holes and clumps within a cell)", None, defaults().fine_weight))]
+    #[arg(long, help = help("Weight of the mass loss on a grid twice as fine as the simulation's, >= 0 (sees holes and clumps within a cell)", None, defaults().method.fine_weight))]
     fine_weight: Option<f64>,
-    #[arg(long, help = help("Weight of the reach cost: where the body should have the final target's shape, each part of the target's surface farther than 0.75 spacings from every particle pulls the nearest one, >= 0 (0: off; 10 reaches horns and ears: docs/morph.md, \"Reach\")", None, by_preset(|s| s.reach_weight)))]
+    #[arg(long, help = help("Weight of the reach cost: where the body should have the final target's shape, each part of the target's surface farther than 0.75 spacings from every particle pulls the nearest one, >= 0 (0: off; 10 reaches horns and ears: docs/morph.md, \"Reach\")", None, by_preset(|s| s.method.reach_weight)))]
     reach_weight: Option<f64>,
-    #[arg(long, value_parser = choice(&TargetFit::ALL), help = format!("How each target is placed (on-ground needs a scene's ground) [default {}]", name(&defaults().target_fit)))]
+    #[arg(long, value_parser = choice(&TargetFit::ALL), help = format!("How each target is placed (on-ground needs a scene's ground) [default {}]", name(&defaults().body.target_fit)))]
     target_fit: Option<TargetFit>,
-    #[arg(long, help = help("Particles per cell along each axis (k^3 per cell; at `default` raised to 3 or 4 where the shapes have thin parts, docs/morph.md; giving it or --resolution keeps it as given)", Some(limits::PARTICLES_PER_CELL), defaults().particles_per_cell))]
+    #[arg(long, help = help("Particles per cell along each axis (k^3 per cell; at `default` raised to 3 or 4 where the shapes have thin parts, docs/morph.md; giving it or --resolution keeps it as given)", Some(limits::PARTICLES_PER_CELL), defaults().body.particles_per_cell))]
     particles_per_cell: Option<usize>,
-    #[arg(long, help = help("Random particle offsets, in particle spacings, 0 to 1", None, defaults().jitter))]
+    #[arg(long, help = help("Random particle offsets, in particle spacings, 0 to 1", None, defaults().body.jitter))]
     jitter: Option<f64>,
-    #[arg(long, value_parser = choice(&MaterialModel::ALL), help = format!("Constitutive model of the body [default {}]", name(&defaults().material.model)))]
+    #[arg(long, value_parser = choice(&MaterialModel::ALL), help = format!("Constitutive model of the body [default {}]", name(&defaults().body.material.model)))]
     material: Option<MaterialModel>,
     #[arg(long, help = format!("Young's modulus of the body in Pa, > 0 (stiffer: more substeps) [default {:.0}]", default_young_poisson().0))]
     youngs_modulus: Option<f64>,
     #[arg(long, help = format!("Poisson's ratio of the body, 0 to 0.49 [default {:.2}]", default_young_poisson().1))]
     poisson_ratio: Option<f64>,
-    #[arg(long, help = help("Density of the body in kg per cubic simulation unit, > 0", None, defaults().material.density))]
+    #[arg(long, help = help("Density of the body in kg per cubic simulation unit, > 0", None, defaults().body.material.density))]
     density: Option<f64>,
     /// Simulation time step in seconds, one per step; refused above the material's stability
     /// bound (the error gives it) [default: steps of 1/120 s, each split into the substeps
     /// the material and grid need].
     #[arg(long)]
     dt: Option<f64>,
-    #[arg(long, value_parser = choice(&IntegratorKind::ALL), help = format!("Time integrator: euler (one transfer round trip a step) or rk4 (four, less numerical damping) [default {}]", name(&defaults().integrator)))]
+    #[arg(long, value_parser = choice(&IntegratorKind::ALL), help = format!("Time integrator: euler (one transfer round trip a step) or rk4 (four, less numerical damping) [default {}]", name(&defaults().method.integrator)))]
     integrator: Option<IntegratorKind>,
-    #[arg(long, value_parser = choice(&ControlForm::ALL), help = format!("How a control acts on a particle's deformation: plastic (a volume-preserving change of its rest shape: J stays the volume ratio) or additive (the reference paper's F + Fc, for comparison) [default {}]", name(&defaults().control)))]
+    #[arg(long, value_parser = choice(&ControlForm::ALL), help = format!("How a control acts on a particle's deformation: plastic (a volume-preserving change of its rest shape: J stays the volume ratio) or additive (the reference paper's F + Fc, for comparison) [default {}]", name(&defaults().method.control)))]
     control: Option<ControlForm>,
-    #[arg(long, value_parser = choice(&ControlResolution::ALL), help = format!("Where the optimizer's free control values live: grid (one per grid node, interpolated to the particles: smooth controls keep the body's particles in order) or particle (one per particle, the reference) [default {}]", name(&defaults().control_resolution)))]
+    #[arg(long, value_parser = choice(&ControlResolution::ALL), help = format!("Where the optimizer's free control values live: grid (one per grid node, interpolated to the particles: smooth controls keep the body's particles in order) or particle (one per particle, the reference) [default {}]", name(&defaults().method.control_resolution)))]
     control_resolution: Option<ControlResolution>,
-    #[arg(long, help = format!("Seed for the jitter [default {}]", defaults().seed))]
+    #[arg(long, help = format!("Seed for the jitter [default {}]", defaults().body.seed))]
     seed: Option<u64>,
-    #[arg(long, help = help("Export every n-th step as a frame, instead of --fps", Some(limits::FRAME_EVERY), defaults().frame_every))]
+    #[arg(long, help = help("Export every n-th step as a frame, instead of --fps", Some(limits::FRAME_EVERY), defaults().shot.frame_every))]
     frame_every: Option<usize>,
-    #[arg(long, help = help("Number of the first frame (the rest shape) in file names and USD time codes, e.g. a shot's 1001; --at still counts from 1", Some(limits::START_FRAME), defaults().start_frame))]
+    #[arg(long, help = help("Number of the first frame (the rest shape) in file names and USD time codes, e.g. a shot's 1001; --at still counts from 1", Some(limits::START_FRAME), defaults().shot.start_frame))]
     start_frame: Option<usize>,
     /// Frames per second of the sequence: frames exactly 1/FPS s apart, each the fewest equal
     /// steps of at most 1/120 s (24: 5 steps of 1/120 s; 25: 5 of 1/125 s) [default 24;
@@ -236,17 +239,17 @@ pub struct MorphArgs {
     /// target at 80% of the frames, earlier ones evenly before it].
     #[arg(long, visible_alias = "arrive", value_delimiter = ',')]
     at: Vec<usize>,
-    #[arg(long, help = help("The frame the shape change begins on (1 = the rest shape). Before it the body runs without controls: it holds still, or falls and lands under the scene's gravity; the easing curve toward the first keyframe starts here, and the motion measures count from here", None, defaults().begin))]
+    #[arg(long, help = help("The frame the shape change begins on (1 = the rest shape). Before it the body runs without controls: it holds still, or falls and lands under the scene's gravity; the easing curve toward the first keyframe starts here, and the motion measures count from here", None, defaults().shot.begin))]
     begin: Option<usize>,
-    #[arg(long, value_parser = choice(&Surfaces::ALL), help = format!("Surfaces per frame: carried (the source mesh itself, with its UVs and groups, following the body; carried/), rebuilt (a closed surface made from the particles, which follows any change of topology; meshes/), both, or none [default {}]", name(&defaults().surfaces)))]
+    #[arg(long, value_parser = choice(&Surfaces::ALL), help = format!("Surfaces per frame: carried (the source mesh itself, with its UVs and groups, following the body; carried/), rebuilt (a closed surface made from the particles, which follows any change of topology; meshes/), both, or none [default {}]", name(&defaults().outputs.surfaces)))]
     surface: Option<Surfaces>,
-    #[arg(long, value_parser = choice(&RebuiltMethod::ALL), help = format!("How the rebuilt surface is made: sharp (deformed, with its vertices moved onto the source's planes the particles carry: sharp edges and corners), deformed (each particle's kernel follows its deformation; smooth, rounds edges), lattice (0.2.0's narrow round kernels; shows the particles as bumps) or splashsurf (the fluid surfacer's pipeline, recommended settings; positions only) [default {}]", name(&defaults().rebuilt_method)))]
+    #[arg(long, value_parser = choice(&RebuiltMethod::ALL), help = format!("How the rebuilt surface is made: sharp (deformed, with its vertices moved onto the source's planes the particles carry: sharp edges and corners), deformed (each particle's kernel follows its deformation; smooth, rounds edges), lattice (0.2.0's narrow round kernels; shows the particles as bumps) or splashsurf (the fluid surfacer's pipeline, recommended settings; positions only) [default {}]", name(&defaults().outputs.rebuilt_method)))]
     rebuilt_method: Option<RebuiltMethod>,
-    #[arg(long, value_parser = choice(&Inbetween::ALL), help = format!("What a segment aims at between two keyframes: crossfade (their nodal masses faded into each other) or shape (their signed distances blended: a boundary that sweeps from one to the other) [{}]", by_preset(|s| name(&s.inbetween))))]
+    #[arg(long, value_parser = choice(&Inbetween::ALL), help = format!("What a segment aims at between two keyframes: crossfade (their nodal masses faded into each other) or shape (their signed distances blended: a boundary that sweeps from one to the other) [{}]", by_preset(|s| name(&s.method.inbetween))))]
     inbetween: Option<Inbetween>,
-    #[arg(long, help = help("How far the schedule is re-timed so the shape in-between's own progress (its IoU gain toward the next keyframe) follows the easing curve, 0..=1 (0: the easing weight as it is)", None, by_preset(|s| s.progress_timing)))]
+    #[arg(long, help = help("How far the schedule is re-timed so the shape in-between's own progress (its IoU gain toward the next keyframe) follows the easing curve, 0..=1 (0: the easing weight as it is)", None, by_preset(|s| s.method.progress_timing)))]
     progress_timing: Option<f64>,
-    #[arg(long, value_parser = choice(&UsdFormat::ALL), help = format!("The USD file of the whole sequence: usdc (binary, morph.usdc), usda (text, morph.usda; about five times larger) or none [default {}]", name(&defaults().usd)))]
+    #[arg(long, value_parser = choice(&UsdFormat::ALL), help = format!("The USD file of the whole sequence: usdc (binary, morph.usdc), usda (text, morph.usda; about five times larger) or none [default {}]", name(&defaults().outputs.usd)))]
     usd: Option<UsdFormat>,
     /// Write each frame's fill field (the field the rebuilt surface is made from; 1 inside the
     /// body, 1/2 on its surface) as an OpenVDB float grid `density` in world units,
@@ -281,7 +284,7 @@ fn parse_memory_limit(s: &str) -> Result<MemoryLimit, String> {
 
 /// The default material as Young's modulus and Poisson's ratio.
 fn default_young_poisson() -> (f64, f64) {
-    let m = defaults().material;
+    let m = defaults().body.material;
     morph::engine::material::young_poisson_from_lame(m.mu, m.lambda)
 }
 
@@ -361,91 +364,91 @@ impl MorphArgs {
     fn apply_counts(&self, s: &mut MorphSettings) {
         // A resolution replaces the preset's particle budget; a budget replaces both.
         if let Some(r) = self.resolution {
-            s.resolution = r;
-            s.particles = None;
-            s.thin_across = 0.0;
+            s.body.resolution = r;
+            s.body.particles = None;
+            s.body.thin_across = 0.0;
         }
         if self.particles.is_some() {
-            s.particles = self.particles;
+            s.body.particles = self.particles;
         }
-        set(&mut s.segments, self.segments);
-        set(&mut s.steps_per_segment, self.steps);
-        set(&mut s.control_stride, self.control_stride);
-        set(&mut s.passes, self.passes);
-        set(&mut s.optimizer.iterations, self.iterations);
-        set(&mut s.levels, self.levels);
+        set(&mut s.method.segments, self.segments);
+        set(&mut s.method.steps_per_segment, self.steps);
+        set(&mut s.method.control_stride, self.control_stride);
+        set(&mut s.method.passes, self.passes);
+        set(&mut s.method.optimizer.iterations, self.iterations);
+        set(&mut s.method.levels, self.levels);
         if self.refine_iterations.is_some() {
-            s.refine_iterations = self.refine_iterations;
+            s.method.refine_iterations = self.refine_iterations;
         }
         if let Some(k) = self.particles_per_cell {
-            s.particles_per_cell = k;
-            s.thin_across = 0.0;
+            s.body.particles_per_cell = k;
+            s.body.thin_across = 0.0;
         }
-        set(&mut s.start_frame, self.start_frame);
+        set(&mut s.shot.start_frame, self.start_frame);
         if let Some(n) = self.frame_every {
             // A frame every n steps replaces the frame rate.
-            s.frame_every = n;
-            s.fps = None;
+            s.shot.frame_every = n;
+            s.shot.fps = None;
         }
     }
 
     /// The optimizer and the objective's weights.
     fn apply_method(&self, s: &mut MorphSettings) {
         if let Some(o) = self.optimizer {
-            s.optimizer.kind = o;
-            s.optimizer.learning_rate = o.default_learning_rate();
+            s.method.optimizer.kind = o;
+            s.method.optimizer.learning_rate = o.default_learning_rate();
         }
         if let Some(lr) = self.learning_rate {
-            s.optimizer.learning_rate = lr;
+            s.method.optimizer.learning_rate = lr;
         }
         if let Some(w) = self.path_weight {
-            s.path_weight = w;
+            s.method.path_weight = w;
         }
         if let Some(w) = self.control_smoothing {
-            s.control_smoothing = w;
+            s.method.control_smoothing = w;
         }
         if let Some(w) = self.waypoint_weight {
-            s.waypoint_weight = w;
+            s.method.waypoint_weight = w;
         }
         if let Some(c) = self.carry_controls {
-            s.carry_controls = c;
+            s.method.carry_controls = c;
         }
         if let Some(n) = self.lookahead {
-            s.lookahead = n;
+            s.method.lookahead = n;
         }
         if let Some(w) = self.fine_weight {
-            s.fine_weight = w;
+            s.method.fine_weight = w;
         }
         if let Some(w) = self.reach_weight {
-            s.reach_weight = w;
+            s.method.reach_weight = w;
         }
         if let Some(w) = self.volume_weight {
-            s.volume_weight = w;
+            s.method.volume_weight = w;
         }
         if let Some(w) = self.arrival_weight {
-            s.arrival_weight = w;
+            s.method.arrival_weight = w;
         }
         if let Some(d) = self.settle_drag {
-            s.settle_drag = d;
+            s.method.settle_drag = d;
         }
         if let Some(j) = self.jitter {
-            s.jitter = j;
+            s.body.jitter = j;
         }
     }
 
     /// The material, the control and the integrator.
     fn apply_physics(&self, s: &mut MorphSettings) -> Result<(), String> {
         if let Some(m) = self.material {
-            s.material.model = m;
+            s.body.material.model = m;
         }
         if let Some(c) = self.control {
-            s.control = c;
+            s.method.control = c;
         }
         if let Some(r) = self.control_resolution {
-            s.control_resolution = r;
+            s.method.control_resolution = r;
         }
         if let Some(i) = self.integrator {
-            s.integrator = i;
+            s.method.integrator = i;
         }
         if self.youngs_modulus.is_some() || self.poisson_ratio.is_some() {
             let (e0, nu0) = default_young_poisson();
@@ -461,11 +464,11 @@ impl MorphArgs {
                     "--poisson-ratio must be between 0 and 0.49, got {nu}"
                 ));
             }
-            (s.material.mu, s.material.lambda) =
+            (s.body.material.mu, s.body.material.lambda) =
                 morph::engine::material::lame_from_young_poisson(e, nu);
         }
         if let Some(d) = self.density {
-            s.material.density = d;
+            s.body.material.density = d;
         }
         Ok(())
     }
@@ -474,30 +477,30 @@ impl MorphArgs {
     fn apply_shot(&self, s: &mut MorphSettings) -> Result<(), String> {
         if self.dt.is_some() {
             // A set dt is the step: frames come every --frame-every of them.
-            s.dt = self.dt;
-            s.fps = None;
+            s.method.dt = self.dt;
+            s.shot.fps = None;
         }
         if self.fps.is_some() {
-            s.fps = self.fps;
+            s.shot.fps = self.fps;
         }
         if self.frames.is_some() {
-            s.frames = self.frames;
+            s.shot.frames = self.frames;
         }
         if let Some(seconds) = self.seconds {
-            s.frames = Some(s.frames_for(seconds)?);
+            s.shot.frames = Some(s.frames_for(seconds)?);
         }
         if self.segments.is_some() {
             // --segments replaces a scene's frame count, as --frames replaces its segments.
-            s.frames = None;
+            s.shot.frames = None;
         }
         if !self.at.is_empty() {
-            s.at = self.at.clone();
+            s.shot.at = self.at.clone();
         }
         if let Some(b) = self.begin {
-            s.begin = b;
+            s.shot.begin = b;
         }
         if let Some(seed) = self.seed {
-            s.seed = seed;
+            s.body.seed = seed;
         }
         Ok(())
     }
@@ -505,31 +508,31 @@ impl MorphArgs {
     /// The loss, the target's fit, the in-between and the outputs.
     fn apply_choices(&self, s: &mut MorphSettings) {
         if let Some(loss) = self.loss {
-            s.loss = loss;
+            s.method.loss = loss;
         }
         if let Some(fit) = self.target_fit {
-            s.target_fit = fit;
+            s.body.target_fit = fit;
         }
         if let Some(m) = self.inbetween {
-            s.inbetween = m;
+            s.method.inbetween = m;
         }
         if let Some(t) = self.progress_timing {
-            s.progress_timing = t;
+            s.method.progress_timing = t;
         }
         if let Some(m) = self.rebuilt_method {
-            s.rebuilt_method = m;
+            s.outputs.rebuilt_method = m;
         }
         if let Some(surfaces) = self.surface {
-            s.surfaces = surfaces;
+            s.outputs.surfaces = surfaces;
         }
         if self.no_surfaces {
-            s.surfaces = Surfaces::None;
+            s.outputs.surfaces = Surfaces::None;
         }
         if let Some(usd) = self.usd {
-            s.usd = usd;
+            s.outputs.usd = usd;
         }
         if self.volume {
-            s.volume = true;
+            s.outputs.volume = true;
         }
     }
 }

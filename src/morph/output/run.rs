@@ -39,7 +39,7 @@ pub(super) fn write_run(
     std::fs::create_dir_all(&ck).map_err(|e| out_err("folder", &ck, e))?;
     let resumed_from = resume
         .as_ref()
-        .map(|p| checkpoint::describe(p, settings.passes, prep.settings.segments));
+        .map(|p| checkpoint::describe(p, settings.method.passes, prep.settings.method.segments));
     let source = Path::new(&identity.inputs[0].path);
     let sinks = sinks::for_folder(prep, dir, source)?;
     let (result, written, sinks) =
@@ -172,7 +172,7 @@ fn motion_and_keyframes(
     identity: &RunIdentity,
     written: &WrittenFrames,
 ) -> (Option<MotionMeasures>, Vec<KeyframeReport>) {
-    let at = &prep.settings.at;
+    let at = &prep.settings.shot.at;
     let n_frames = prep.frame_count();
     let speeds: Vec<f64> = written.stats.iter().map(|s| s.rms_speed).collect();
     let progress_to = |t: usize| -> Vec<f64> {
@@ -189,7 +189,7 @@ fn motion_and_keyframes(
     };
     // Measured from the frame the shape change begins on (before it the body only does what
     // its physics does).
-    let begin = prep.settings.begin;
+    let begin = prep.settings.shot.begin;
     let motion = measured(targets - 1, begin, n_frames);
     let keyframes = (0..targets)
         .map(|t| {
@@ -225,7 +225,7 @@ fn frame_time(prep: &Prepared, f: usize) -> f64 {
 
 /// The judge against the final target on the frames it saw, in order.
 fn quality_over_time(prep: &Prepared, written: &WrittenFrames) -> Vec<JudgedFrame> {
-    let last = prep.settings.at.len() - 1;
+    let last = prep.settings.shot.at.len() - 1;
     written
         .judged
         .iter()
@@ -270,7 +270,7 @@ fn write_mass_grid(prep: &Prepared, dir: &Path, last: &State) -> Result<FillMetr
 
 /// The particles' initial spacing, in simulation units.
 fn particle_spacing(prep: &Prepared) -> f64 {
-    prep.model().grid.dx / prep.settings.particles_per_cell as f64
+    prep.model().grid.dx / prep.settings.body.particles_per_cell as f64
 }
 
 /// The loss curve and the preview strip.
@@ -296,9 +296,9 @@ fn write_previews(
 /// The manifest's list of frames: each one's files and measurements.
 fn frame_entries(prep: &Prepared, stats: Vec<FrameStats>) -> Vec<FrameEntry> {
     let n_frames = prep.frame_count();
-    let surfaces = prep.settings.surfaces;
+    let surfaces = prep.settings.outputs.surfaces;
     let mut stats = stats.into_iter();
-    let start = prep.settings.start_frame;
+    let start = prep.settings.shot.start_frame;
     (0..n_frames)
         .map(|i| {
             let name = frame_name(start + i, start + n_frames - 1);

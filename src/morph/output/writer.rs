@@ -50,7 +50,7 @@ pub(super) fn run_writing_frames(
     caller: Caller,
 ) -> Result<(MorphResult, WrittenFrames, Sinks), MorphError> {
     let n_frames = prep.frame_count();
-    let spacing = prep.model().grid.dx / prep.settings.particles_per_cell as f64;
+    let spacing = prep.model().grid.dx / prep.settings.body.particles_per_cell as f64;
     let (work, queue) = sync_channel(WRITE_QUEUE);
     let (answers, done) = channel();
     let mut writer = FolderWriter {
@@ -73,7 +73,7 @@ pub(super) fn run_writing_frames(
         on_event: caller.on_event,
     };
     if let Some(p) = &resume
-        && p.pass + 1 == prep.settings.passes
+        && p.pass + 1 == prep.settings.method.passes
     {
         writer.restore_preview(p.frames)?;
         writer.restore_stats(p.frames)?;
@@ -83,7 +83,7 @@ pub(super) fn run_writing_frames(
             write_frames(
                 sinks,
                 (dir, lock),
-                (prep.settings.start_frame, n_frames),
+                (prep.settings.shot.start_frame, n_frames),
                 spacing,
                 queue,
                 answers,
@@ -114,9 +114,9 @@ pub(super) fn run_writing_frames(
 /// The frame halfway (in time) between the previous keyframe's frame (the frame the shape
 /// change begins on for the first) and target `t`'s.
 pub(super) fn halfway(prep: &Prepared, t: usize) -> usize {
-    let at = &prep.settings.at;
+    let at = &prep.settings.shot.at;
     let before = if t == 0 {
-        prep.settings.begin
+        prep.settings.shot.begin
     } else {
         at[t - 1]
     };
@@ -128,9 +128,9 @@ pub(super) fn halfway(prep: &Prepared, t: usize) -> usize {
 /// target's keyframe and the frame halfway to it against that target.
 fn judged_frames(prep: &Prepared) -> Vec<(usize, usize)> {
     let n = prep.frame_count();
-    let last = prep.settings.at.len() - 1;
+    let last = prep.settings.shot.at.len() - 1;
     let mut f: Vec<(usize, usize)> = (1..=4).map(|q| (1 + q * (n - 1) / 4, last)).collect();
-    for (t, &a) in prep.settings.at.iter().enumerate() {
+    for (t, &a) in prep.settings.shot.at.iter().enumerate() {
         f.extend([(a, t), (halfway(prep, t), t)]);
     }
     f.sort_unstable();

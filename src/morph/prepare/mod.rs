@@ -49,7 +49,7 @@ pub struct Prepared {
     /// Bytes the tape of one segment rollout may hold (`usize::MAX`: no cap); set by
     /// [`Prepared::plan_memory`].
     pub tape_budget: usize,
-    /// The same morph on a grid half as fine, solved first when `settings.levels > 1`
+    /// The same morph on a grid half as fine, solved first when `settings.method.levels > 1`
     /// (itself with its own coarser level when more remain).
     pub coarse: Option<Box<Prepared>>,
 }
@@ -84,7 +84,7 @@ pub struct KeyframeSchedule {
 }
 
 impl Prepared {
-    /// The resolution whose source fill comes nearest `settings.particles` by the shapes'
+    /// The resolution whose source fill comes nearest `settings.body.particles` by the shapes'
     /// volumes ([`MorphGeometry::estimate`]; the fill then refines it).
     pub fn resolution_for_budget(
         settings: &MorphSettings,
@@ -92,12 +92,12 @@ impl Prepared {
         targets: &[(&LoadedMesh, &Path)],
     ) -> Result<usize, MorphError> {
         const PROBE: usize = 32;
-        let budget = settings.particles.unwrap_or(0) as f64;
+        let budget = settings.body.particles.unwrap_or(0) as f64;
         let at_probe = MorphGeometry::estimate(
             source,
             targets,
             &settings.placement_options(PROBE),
-            settings.particles_per_cell,
+            settings.body.particles_per_cell,
         )?;
         let limits = settings::limits::RESOLUTION;
         let r = PROBE as f64 * (budget / at_probe.source_particles.max(1.0)).cbrt();
@@ -112,15 +112,15 @@ impl Prepared {
         source: (&LoadedMesh, &Path),
         targets: &[(&LoadedMesh, &Path)],
     ) -> Result<crate::geometry::SizeEstimate, MorphError> {
-        let resolution = match settings.particles {
-            None => settings.resolution,
+        let resolution = match settings.body.particles {
+            None => settings.body.resolution,
             Some(_) => Prepared::resolution_for_budget(settings, source, targets)?,
         };
         Ok(MorphGeometry::estimate(
             source,
             targets,
             &settings.placement_options(resolution),
-            settings.particles_per_cell,
+            settings.body.particles_per_cell,
         )?)
     }
 
@@ -157,9 +157,9 @@ impl Prepared {
         geometry.warnings.extend(overlaps);
         let mut scene = SceneConfig {
             grid: geometry.placement.grid.clone(),
-            dt: settings.dt.unwrap_or(shot.step),
-            kernel: settings.kernel,
-            material: settings.material.clone(),
+            dt: settings.method.dt.unwrap_or(shot.step),
+            kernel: settings.method.kernel,
+            material: settings.body.material.clone(),
             effects: setup::scene_effects(settings, &geometry.placement, &shot),
         };
         let substeps = setup::substeps(settings, &scene, &shot)?;
@@ -170,21 +170,23 @@ impl Prepared {
         }
         let volumes = vec![geometry.source.volume; geometry.source.positions.len()];
         let mut model = scene.model_with(volumes, &crate::geometry::MeshSolids)?;
-        model.control_form = settings.control;
-        let engine = Engine::new(model, settings.integrator)?;
+        model.control_form = settings.method.control;
+        let engine = Engine::new(model, settings.method.integrator)?;
         let (loss, fine_loss, reach) = setup::losses(settings, &geometry)?;
         let mut initial = State::at_rest(geometry.source.positions.clone());
-        let v0 = geometry.placement.world_to_sim.scale * Vector3::from(settings.initial_velocity);
+        let v0 =
+            geometry.placement.world_to_sim.scale * Vector3::from(settings.body.initial_velocity);
         initial.v.iter_mut().for_each(|v| *v = v0);
         let keyframes =
             setup::keyframe_masses(settings, &geometry, &scene.grid, fine_loss.as_ref())?;
         let steps: Vec<usize> = settings
+            .shot
             .at
             .iter()
-            .map(|f| (f - 1) * settings.frame_every)
+            .map(|f| (f - 1) * settings.shot.frame_every)
             .collect();
-        let begin = (settings.begin - 1) * settings.frame_every;
-        let moving = settings.gravity.is_some() || v0 != Vector3::zeros();
+        let begin = (settings.shot.begin - 1) * settings.shot.frame_every;
+        let moving = settings.world.gravity.is_some() || v0 != Vector3::zeros();
         let passive = match moving {
             true => {
                 let ends = setup::passive_ends(settings, &shot, steps[0], begin);

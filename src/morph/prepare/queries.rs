@@ -42,7 +42,7 @@ impl Prepared {
 
     /// Control layers of each segment.
     pub fn segment_layers(&self) -> Vec<usize> {
-        let stride = self.settings.control_stride;
+        let stride = self.settings.method.control_stride;
         self.segment_steps
             .iter()
             .map(|s| s.div_ceil(stride))
@@ -51,12 +51,12 @@ impl Prepared {
 
     /// Simulation steps between control layers.
     pub fn sim_control_stride(&self) -> usize {
-        self.settings.control_stride * self.substeps
+        self.settings.method.control_stride * self.substeps
     }
 
     /// Simulation steps between exported frames.
     pub fn sim_frame_every(&self) -> usize {
-        self.settings.frame_every * self.substeps
+        self.settings.shot.frame_every * self.substeps
     }
 
     /// What segment `k` aims at: [`Prepared::blend_at`] its last step.
@@ -105,7 +105,7 @@ impl Prepared {
     /// to finish the shape cost fill).
     pub fn segment_arrival_weight(&self, k: usize) -> f64 {
         if self.segment_holds(k) {
-            self.settings.arrival_weight * self.weight_scale().arrival
+            self.settings.method.arrival_weight * self.weight_scale().arrival
         } else {
             0.0
         }
@@ -119,7 +119,7 @@ impl Prepared {
         if self.segment_holds(k) {
             0.0
         } else {
-            self.settings.control_smoothing * self.weight_scale().smoothing
+            self.settings.method.control_smoothing * self.weight_scale().smoothing
         }
     }
 
@@ -127,15 +127,15 @@ impl Prepared {
     /// that they weigh the same at any resolution and stiffness (see [`WeightScale`]).
     pub fn weight_scale(&self) -> WeightScale {
         WeightScale::at(
-            self.settings.resolution,
-            self.settings.particles_per_cell,
-            self.settings.material.mu,
+            self.settings.body.resolution,
+            self.settings.body.particles_per_cell,
+            self.settings.body.material.mu,
         )
     }
 
     /// The volume cost's weight on this grid.
     pub fn volume_weight(&self) -> f64 {
-        self.settings.volume_weight * self.weight_scale().volume
+        self.settings.method.volume_weight * self.weight_scale().volume
     }
 
     /// Keyframe `i`'s nodal masses on the simulation grid, and on the fine grid when `fine`
@@ -189,7 +189,7 @@ impl Prepared {
         }
         // Re-timed so the in-between's own progress follows the easing curve, as far as the
         // settings ask (docs/morph.md, "Progress timing").
-        let alpha = self.settings.progress_timing;
+        let alpha = self.settings.method.progress_timing;
         let w = match (alpha > 0.0).then(|| self.section_timings()).transpose()? {
             Some(timings) => match &timings[from] {
                 Some(t) => (1.0 - alpha) * w + alpha * t.weight_for(w),
@@ -201,6 +201,7 @@ impl Prepared {
         let (b, b_fine) = self.keyframe_masses(to, step, fine)?;
         let blend = |grid: &crate::engine::mpm::grid::GridSpec, a: &[f64], b: &[f64]| match self
             .settings
+            .method
             .inbetween
         {
             settings::Inbetween::Crossfade => a
@@ -253,7 +254,7 @@ impl Prepared {
     fn full_nodal_mass(&self, dx: f64) -> f64 {
         let mass = &self.model().mass;
         let mean = mass.iter().sum::<f64>() / mass.len().max(1) as f64;
-        let spacing = self.model().grid.dx / self.settings.particles_per_cell as f64;
+        let spacing = self.model().grid.dx / self.settings.body.particles_per_cell as f64;
         mean * (dx / spacing).powi(3)
     }
 
@@ -305,12 +306,12 @@ impl Prepared {
     /// against the nodal masses the schedule puts the body at then (simulation grid only: the
     /// fine loss weighs on the segment's end).
     pub fn segment_path(&self, k: usize) -> Result<Vec<PathPoint>, SimError> {
-        if self.settings.path_weight == 0.0 {
+        if self.settings.method.path_weight == 0.0 {
             return Ok(Vec::new());
         }
         let first: usize = self.segment_steps[..k].iter().sum();
         let end = first + self.segment_steps[k];
-        let every = self.settings.frame_every;
+        let every = self.settings.shot.frame_every;
         (first + 1..end)
             .filter(|s| s.is_multiple_of(every))
             .map(|s| {
@@ -329,9 +330,9 @@ impl Prepared {
     pub fn window_end(&self, k: usize) -> usize {
         let s = &self.settings;
         let mut end = k;
-        while end < k + s.lookahead
-            && end + 1 < s.segments
-            && self.segment_steps[end].is_multiple_of(s.control_stride)
+        while end < k + s.method.lookahead
+            && end + 1 < s.method.segments
+            && self.segment_steps[end].is_multiple_of(s.method.control_stride)
         {
             end += 1;
         }
@@ -386,7 +387,7 @@ impl Prepared {
 
     /// Frames the chain exports: the initial state and every `frame_every`-th step.
     pub fn frame_count(&self) -> usize {
-        self.segment_steps.iter().sum::<usize>() / self.settings.frame_every + 1
+        self.segment_steps.iter().sum::<usize>() / self.settings.shot.frame_every + 1
     }
 
     /// The quality judge's verdict on `state` (see [`quality`]).
@@ -397,7 +398,7 @@ impl Prepared {
     /// The judge's verdict on `state` against target `t` (0-based, in keyframe order; the
     /// last is the final target).
     pub fn quality_against(&self, state: &State, t: usize) -> quality::Quality {
-        let spacing = self.model().grid.dx / self.settings.particles_per_cell as f64;
+        let spacing = self.model().grid.dx / self.settings.body.particles_per_cell as f64;
         let (mesh, positions) = match self.geometry.keyframes.get(t) {
             Some(k) => (&k.sim, &k.particles.positions),
             None => (&self.geometry.target_sim, &self.geometry.target.positions),
@@ -409,7 +410,7 @@ impl Prepared {
 
     /// A progress measure toward each target in keyframe order (see [`motion`]).
     pub fn progress_judges(&self) -> Vec<quality::Progress> {
-        let spacing = self.model().grid.dx / self.settings.particles_per_cell as f64;
+        let spacing = self.model().grid.dx / self.settings.body.particles_per_cell as f64;
         self.geometry
             .keyframes
             .iter()
@@ -429,7 +430,7 @@ impl Prepared {
         to: usize,
         arrive: usize,
     ) -> motion::MotionMeasures {
-        let every = self.settings.frame_every as f64;
+        let every = self.settings.shot.frame_every as f64;
         let mut boundaries = Vec::new();
         let mut end = 0;
         for &n in &self.segment_steps {

@@ -20,9 +20,9 @@ pub(super) fn geometry_in_budget(
     source: (&LoadedMesh, &Path),
     targets: &[(&LoadedMesh, &Path)],
 ) -> Result<(MorphSettings, MorphGeometry), MorphError> {
-    let jitter = (settings.jitter > 0.0).then_some(Jitter {
-        amount: settings.jitter,
-        seed: settings.seed,
+    let jitter = (settings.body.jitter > 0.0).then_some(Jitter {
+        amount: settings.body.jitter,
+        seed: settings.body.seed,
     });
     let geometry_at = |resolution: usize| {
         let placement = settings.placement_options(resolution);
@@ -30,13 +30,13 @@ pub(super) fn geometry_in_budget(
             source,
             targets,
             &placement,
-            settings.particles_per_cell,
+            settings.body.particles_per_cell,
             jitter,
         )
     };
     let mut settings = settings.clone();
-    let Some(budget) = settings.particles else {
-        let geometry = geometry_at(settings.resolution)?;
+    let Some(budget) = settings.body.particles else {
+        let geometry = geometry_at(settings.body.resolution)?;
         return Ok((settings, geometry));
     };
     // Start from the resolution the shapes' volumes call for, then step one resolution at a
@@ -62,7 +62,7 @@ pub(super) fn geometry_in_budget(
             break;
         }
     }
-    settings.resolution = r;
+    settings.body.resolution = r;
     Ok((settings, best))
 }
 
@@ -71,14 +71,14 @@ pub(super) fn geometry_in_budget(
 pub(super) fn timed(
     mut settings: MorphSettings,
     targets: usize,
-) -> Result<(MorphSettings, settings::Shot), MorphError> {
-    let shot = settings.shot();
-    settings.segments = shot.segment_steps.len();
-    settings.frame_every = shot.frame_every;
-    if settings.at.is_empty() {
+) -> Result<(MorphSettings, settings::Timing), MorphError> {
+    let shot = settings.timing();
+    settings.method.segments = shot.segment_steps.len();
+    settings.shot.frame_every = shot.frame_every;
+    if settings.shot.at.is_empty() {
         // The last target near the end, earlier ones evenly before it.
         let last = settings::default_arrival(shot.frame_count());
-        settings.at = (1..=targets)
+        settings.shot.at = (1..=targets)
             .map(|k| 1 + (last - 1) * k / targets)
             .collect();
     }
@@ -93,20 +93,24 @@ pub(super) fn timed(
 pub(super) fn substeps(
     settings: &MorphSettings,
     scene: &SceneConfig,
-    shot: &settings::Shot,
+    shot: &settings::Timing,
 ) -> Result<usize, MorphError> {
     let (limit, wave_speed) = scene.stable_dt();
-    let segment_seconds = settings.dt.unwrap_or(shot.step) * settings.steps_per_segment as f64;
+    let segment_seconds =
+        settings.method.dt.unwrap_or(shot.step) * settings.method.steps_per_segment as f64;
     if limit > segment_seconds {
         return Err(MorphError::Settings(format!(
             "the material is too soft for its density: its elastic waves ({wave_speed:.3e} grid units per second) cross {:.2e} grid cells in a segment of {segment_seconds:.3} s, less than one, so no control can move the body; raise --youngs-modulus or lower --density",
             segment_seconds / limit
         )));
     }
-    let frame_seconds = settings.dt.unwrap_or(shot.step) * shot.frame_every as f64;
+    let frame_seconds = settings.method.dt.unwrap_or(shot.step) * shot.frame_every as f64;
     for (name, drag) in [
-        ("drag", settings.drag),
-        ("drag and settle drag", settings.drag + settings.settle_drag),
+        ("drag", settings.world.drag),
+        (
+            "drag and settle drag",
+            settings.world.drag + settings.method.settle_drag,
+        ),
     ] {
         if drag * frame_seconds > MAX_DRAG_DAMPING {
             return Err(MorphError::Settings(format!(
@@ -118,13 +122,13 @@ pub(super) fn substeps(
     }
     // The drag's explicit form keeps a share `1 - c dt` of the momentum each step: at most
     // half of it may go in one step.
-    let most_drag = settings.drag + settings.settle_drag;
+    let most_drag = settings.world.drag + settings.method.settle_drag;
     let limit = if most_drag > 0.0 {
         limit.min(1.0 / most_drag)
     } else {
         limit
     };
-    match settings.dt {
+    match settings.method.dt {
         Some(dt) if dt > limit => Err(MorphError::Settings(format!(
             "--dt {dt} is above the stable bound {limit:.4e} s of this material on this grid (elastic wave speed {wave_speed:.4} over a cell of {:.4}); use --dt {:.4e} or less, or leave it out to substep automatically",
             scene.grid.dx,
@@ -141,22 +145,23 @@ pub(super) fn losses(
     settings: &MorphSettings,
     geometry: &MorphGeometry,
 ) -> Result<(MassLoss, Option<FineMassLoss>, Option<ReachLoss>), MorphError> {
-    let target = geometry.target_masses(settings.kernel, settings.material.density)?;
-    let loss = MassLoss::new(settings.loss, target);
-    let fine_loss = if settings.fine_weight > 0.0 {
+    let target = geometry.target_masses(settings.method.kernel, settings.body.material.density)?;
+    let loss = MassLoss::new(settings.method.loss, target);
+    let fine_loss = if settings.method.fine_weight > 0.0 {
         let grid = FineMassLoss::refine(&geometry.placement.grid, FINE_REFINE);
-        let target = geometry.target_masses_on(&grid, FINE_KERNEL, settings.material.density)?;
+        let target =
+            geometry.target_masses_on(&grid, FINE_KERNEL, settings.body.material.density)?;
         Some(FineMassLoss {
             grid,
-            loss: MassLoss::new(settings.loss, target),
-            weight: settings.fine_weight,
+            loss: MassLoss::new(settings.method.loss, target),
+            weight: settings.method.fine_weight,
         })
     } else {
         None
     };
-    let reach = (settings.reach_weight > 0.0).then(|| {
-        let spacing = geometry.placement.grid.dx / settings.particles_per_cell as f64;
-        ReachLoss::new(&geometry.target_sim, spacing, settings.reach_weight)
+    let reach = (settings.method.reach_weight > 0.0).then(|| {
+        let spacing = geometry.placement.grid.dx / settings.body.particles_per_cell as f64;
+        ReachLoss::new(&geometry.target_sim, spacing, settings.method.reach_weight)
     });
     Ok((loss, fine_loss, reach))
 }
@@ -169,10 +174,10 @@ pub(super) fn keyframe_masses(
     grid: &GridSpec,
     fine_loss: Option<&FineMassLoss>,
 ) -> Result<Vec<super::KeyframeMasses>, SimError> {
-    let density = settings.material.density;
+    let density = settings.body.material.density;
     (0..geometry.keyframes.len())
         .map(|k| {
-            let on_sim = geometry.keyframe_masses_on(k, grid, settings.kernel, density)?;
+            let on_sim = geometry.keyframe_masses_on(k, grid, settings.method.kernel, density)?;
             let on_fine = match fine_loss {
                 Some(f) => Some(geometry.keyframe_masses_on(k, &f.grid, FINE_KERNEL, density)?),
                 None => None,
@@ -187,15 +192,15 @@ pub(super) fn keyframe_masses(
 /// step the shape change begins at.
 pub(super) fn passive_ends(
     settings: &MorphSettings,
-    shot: &settings::Shot,
+    shot: &settings::Timing,
     first: usize,
     begin: usize,
 ) -> Vec<usize> {
     let mut ends = Vec::new();
     let mut end = 0;
     for &n in &shot.segment_steps {
-        if settings.path_weight > 0.0 {
-            let every = settings.frame_every;
+        if settings.method.path_weight > 0.0 {
+            let every = settings.shot.frame_every;
             ends.extend((end + 1..end + n).filter(|s| s.is_multiple_of(every)));
         }
         end += n;
@@ -239,29 +244,29 @@ pub(super) fn passive_path(
     Ok(passive)
 }
 
-/// The same morph on a grid half as fine, when `settings.levels > 1`.
+/// The same morph on a grid half as fine, when `settings.method.levels > 1`.
 pub(super) fn coarse_level(
     settings: &MorphSettings,
     source: (&LoadedMesh, &Path),
     targets: &[(&LoadedMesh, &Path)],
 ) -> Result<Option<Box<Prepared>>, MorphError> {
-    if settings.levels <= 1 {
+    if settings.method.levels <= 1 {
         return Ok(None);
     }
     let mut below = settings.clone();
-    below.resolution = settings.resolution.div_ceil(2);
-    below.particles = None;
-    below.thin_across = 0.0;
-    below.levels -= 1;
-    below.refine_iterations = None;
-    below.surfaces = settings::Surfaces::None;
+    below.body.resolution = settings.body.resolution.div_ceil(2);
+    below.body.particles = None;
+    below.body.thin_across = 0.0;
+    below.method.levels -= 1;
+    below.method.refine_iterations = None;
+    below.outputs.surfaces = settings::Surfaces::None;
     // The coarsest level, checked here so the message names the levels asked for.
-    let coarsest = (1..settings.levels).fold(settings.resolution, |r, _| r.div_ceil(2));
+    let coarsest = (1..settings.method.levels).fold(settings.body.resolution, |r, _| r.div_ceil(2));
     let min = *settings::limits::RESOLUTION.start();
     if coarsest < min {
         return Err(MorphError::Settings(format!(
             "--levels {} solves the morph on a grid of {coarsest} cells first, below the least resolution {min}: use fewer levels or a finer grid",
-            settings.levels
+            settings.method.levels
         )));
     }
     let below = CheckedSettings::derived(below);
@@ -296,30 +301,30 @@ pub const MAX_SUBSTEPS: usize = 10_000;
 pub(super) fn scene_effects(
     settings: &MorphSettings,
     placement: &crate::geometry::Placement,
-    shot: &settings::Shot,
+    shot: &settings::Timing,
 ) -> Vec<EffectConfig> {
     use crate::engine::scene::ColliderConfig;
     let to_sim = placement.world_to_sim;
     let mut effects = Vec::new();
-    if settings.drag > 0.0 {
-        effects.push(EffectConfig::drag(settings.drag));
+    if settings.world.drag > 0.0 {
+        effects.push(EffectConfig::drag(settings.world.drag));
     }
-    if settings.settle_drag > 0.0 {
+    if settings.method.settle_drag > 0.0 {
         // From the final target's arrival frame on (frame 1 at time 0).
-        let frame_seconds = settings.dt.unwrap_or(shot.step) * shot.frame_every as f64;
-        let arrival = settings.at.last().copied().unwrap_or(1);
+        let frame_seconds = settings.method.dt.unwrap_or(shot.step) * shot.frame_every as f64;
+        let arrival = settings.shot.at.last().copied().unwrap_or(1);
         effects.push(EffectConfig::Drag {
-            coefficient: settings.settle_drag,
+            coefficient: settings.method.settle_drag,
             start: (arrival - 1) as f64 * frame_seconds,
             ramp: settings::SETTLE_RAMP_FRAMES * frame_seconds,
         });
     }
-    if let Some(g) = settings.gravity {
+    if let Some(g) = settings.world.gravity {
         effects.push(EffectConfig::Gravity {
             acceleration: (to_sim.scale * Vector3::from(g)).into(),
         });
     }
-    if let Some(ground) = &settings.ground {
+    if let Some(ground) = &settings.world.ground {
         effects.push(EffectConfig::Collider {
             shape: ColliderConfig::Plane {
                 point: to_sim.apply(&Vector3::new(0.0, ground.height, 0.0)).into(),
@@ -328,7 +333,7 @@ pub(super) fn scene_effects(
             friction: ground.friction,
         });
     }
-    for c in &settings.colliders {
+    for c in &settings.world.colliders {
         effects.push(EffectConfig::Collider {
             shape: ColliderConfig::Mesh {
                 path: c.mesh.clone(),
@@ -340,8 +345,8 @@ pub(super) fn scene_effects(
     }
     // Always: a safety net, so no kernel stencil can leave the grid.
     effects.push(EffectConfig::Walls {
-        mode: settings.walls.mode,
-        thickness: settings.walls.thickness,
+        mode: settings.world.walls.mode,
+        thickness: settings.world.walls.thickness,
     });
     effects
 }
@@ -359,13 +364,13 @@ pub const LONG_RUN_SECONDS: f64 = 3600.0;
 /// step over the particles and the grid's nodes.
 pub(super) fn long_run_warning(
     settings: &MorphSettings,
-    shot: &settings::Shot,
+    shot: &settings::Timing,
     substeps: usize,
     (particles, nodes): (usize, usize),
 ) -> Option<String> {
     let steps: usize = shot.segment_steps.iter().sum();
-    let window = settings.lookahead + 1;
-    let evaluations = settings.passes * settings.optimizer.iterations.max(1) * window;
+    let window = settings.method.lookahead + 1;
+    let evaluations = settings.method.passes * settings.method.optimizer.iterations.max(1) * window;
     let work = (steps * substeps) as f64 * evaluations as f64 * (particles + nodes) as f64;
     let threads = rayon::current_num_threads() as f64;
     let seconds = work / (STEPS_PER_THREAD_SECOND * threads);
@@ -375,8 +380,8 @@ pub(super) fn long_run_warning(
             seconds / 3600.0,
             shot.frame_count(),
             shot.segment_steps.len(),
-            settings.passes,
-            settings.optimizer.iterations
+            settings.method.passes,
+            settings.method.optimizer.iterations
         )
     })
 }
@@ -391,7 +396,7 @@ pub(super) fn overlap_warnings(
     let particles = &geometry.source.positions;
     let share = |inside: usize| 100.0 * inside as f64 / particles.len().max(1) as f64;
     let mut warnings = Vec::new();
-    if let Some(ground) = &settings.ground {
+    if let Some(ground) = &settings.world.ground {
         let height = to_sim.apply(&Vector3::new(0.0, ground.height, 0.0)).y;
         let below = particles.iter().filter(|p| p.y < height).count();
         if below > 0 {
@@ -402,7 +407,7 @@ pub(super) fn overlap_warnings(
             ));
         }
     }
-    for c in &settings.colliders {
+    for c in &settings.world.colliders {
         let mesh = crate::geometry::load_mesh(&c.mesh)?;
         let winding = crate::geometry::winding::WindingNumber::new(&to_sim.apply_mesh(&mesh.mesh));
         let inside = {

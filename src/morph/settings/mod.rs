@@ -10,7 +10,10 @@ pub use crate::io::usd::UsdFormat;
 use crate::loss::MassLossKind;
 use serde::{Deserialize, Serialize};
 
+mod parts;
 mod validate;
+
+pub use parts::{Body, Method, Outputs, PARTS, Shot, World, part_of};
 
 pub use validate::CheckedSettings;
 
@@ -85,175 +88,11 @@ impl Preset {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct MorphSettings {
     pub preset: Preset,
-    /// Grid cells across the domain's longest side.
-    pub resolution: usize,
-    /// A particle budget: when set, the resolution is chosen so the source gets about this
-    /// many particles, whatever the shapes' proportions (and `resolution` is ignored).
-    #[serde(default)]
-    pub particles: Option<usize>,
-    /// Particles per cell along each axis (k; k^3 per cell).
-    pub particles_per_cell: usize,
-    /// Particles the shapes' thin parts should get across (0: off): when no budget is set,
-    /// the particles per cell are raised on the same grid until the thinnest parts of the
-    /// source and the targets get this many, within [`super::sizing::DETAIL_BUDGET`]
-    /// (docs/morph.md, "Particles for thin parts"). A resolution or particles per cell given
-    /// on the command line or in a scene file turns it off.
-    #[serde(default)]
-    pub thin_across: f64,
-    /// Random particle offsets in particle spacings (0 = regular lattice).
-    pub jitter: f64,
-    pub seed: u64,
-    pub target_fit: TargetFit,
-    pub segments: usize,
-    pub steps_per_segment: usize,
-    /// Steps between control layers within a segment.
-    pub control_stride: usize,
-    /// How a control layer's `Fc` acts on `F`: a volume-preserving rest-shape factor
-    /// (default) or the reference's `F + Fc` (docs/morph.md).
-    #[serde(default)]
-    pub control: ControlForm,
-    /// Where Adam's free control values live: one per grid node (smooth across the body,
-    /// default) or one per particle (the reference).
-    #[serde(default)]
-    pub control_resolution: ControlResolution,
-    pub passes: usize,
-    /// Coarse-to-fine levels, the morph's own grid included: 1 solves the morph on its grid
-    /// alone; `n > 1` solves it first on a grid `2^(n-1)` times coarser, then on each grid
-    /// twice as fine, every level's segments starting from the controls the level below
-    /// found (`morph::levels`, docs/morph.md).
-    #[serde(default = "one_level")]
-    pub levels: usize,
-    /// Evaluations per segment on the finest level when `levels > 1` (the coarser levels
-    /// take `optimizer.iterations`). `None`: the same as the coarser levels.
-    #[serde(default)]
-    pub refine_iterations: Option<usize>,
-    pub optimizer: OptimizerSettings,
-    pub loss: MassLossKind,
-    /// Weight of the kinetic energy at the end of each segment that ends after the final
-    /// target's arrival: the held shape comes to rest.
-    pub arrival_weight: f64,
-    /// Weight of the volume cost (`loss::volume_cost`) averaged over every step of a segment.
-    #[serde(default)]
-    pub volume_weight: f64,
-    /// Weight of the scheduled path: the mean mass loss, against where the schedule puts the
-    /// body, of the states at the frames inside each segment (0: each segment's end alone).
-    #[serde(default)]
-    pub path_weight: f64,
-    /// Look-ahead: each segment is optimized together with the next `lookahead` ones, as
-    /// one window scored at every segment end inside it, and keeps its own controls; the
-    /// next window starts from the rest (receding horizon, docs/morph.md "Motion"). 0: each
-    /// segment alone.
-    #[serde(default)]
-    pub lookahead: usize,
-    /// Weight of each earlier segment end inside a look-ahead window: its mass loss against
-    /// that segment's target, times this (the window's end weighs 1).
-    #[serde(default = "unit_weight")]
-    pub waypoint_weight: f64,
-    /// Weight of the controls' continuity in time: the mean over particles of
-    /// `1/2 |Fc_l - Fc_(l-1)|^2` summed over a segment's layers, its first against the last
-    /// layer kept before it (0: off).
-    #[serde(default)]
-    pub control_smoothing: f64,
-    /// Where a look-ahead window's new segment starts: this share of the last control layer
-    /// before it on every layer (0: zeros). Only with the continuity on, never on a held
-    /// segment, and not on a finer level of `levels`, which starts from the coarser one's.
-    #[serde(default)]
-    pub carry_controls: f64,
-    /// Weight of the mass loss on a grid twice as fine as the simulation's, which sees how
-    /// particles are arranged within a cell (0: off).
-    #[serde(default)]
-    pub fine_weight: f64,
-    /// Weight of the reach cost at the segment ends where the body should have taken the
-    /// final target's shape (`morph::reach`): the target's surface pulls its nearest particle
-    /// where that is farther than the tolerance (0: off).
-    #[serde(default)]
-    pub reach_weight: f64,
-    pub kernel: KernelKind,
-    /// The time integrator (Euler, or RK4 at four evaluations a step).
-    #[serde(default)]
-    pub integrator: IntegratorKind,
-    pub material: MaterialConfig,
-    /// Velocity damping per second (reference 0.5).
-    pub drag: f64,
-    /// Drag per second added once the final target is reached, eased in over
-    /// [`SETTLE_RAMP_FRAMES`] frames: the held shape comes to rest (0: off).
-    #[serde(default)]
-    pub settle_drag: f64,
-    /// Simulation time step in seconds, one per morph step; refused when above the elastic
-    /// stability bound. `None` (the default): morph steps of 1/120 s (the reference's; with
-    /// `fps`, see [`MorphSettings::shot`]), each simulated in the fewest equal substeps that
-    /// stay within half the bound, so a stiffer material or a finer grid costs time, never a
-    /// shorter shot.
-    pub dt: Option<f64>,
-    /// Export every n-th step as a frame (when `fps` is `None`).
-    pub frame_every: usize,
-    /// Frames per second of the sequence (default [`DEFAULT_FPS`], film's 24): frames are
-    /// exactly `1 / fps` apart, each `k` morph steps of `1 / (fps k)` s, the fewest steps no
-    /// longer than the reference's 1/120 s. `None`: a frame every `frame_every` steps of
-    /// 1/120 s (or of `dt`).
-    #[serde(default)]
-    pub fps: Option<f64>,
-    /// The number of the first frame (the rest shape) in file names and USD time codes (a
-    /// shot's 1001). Keyframes (`at`) still count from 1, the rest shape.
-    #[serde(default = "default_start_frame")]
-    pub start_frame: usize,
-    /// Frames in the sequence, the rest shape first: the chain is cut into segments of
-    /// `steps_per_segment` steps (the last one shorter when they do not divide the shot).
-    /// `None`: `segments` segments.
-    #[serde(default)]
-    pub frames: Option<usize>,
-    /// The frame (1 = the rest shape) by which each target is reached, in order (`--at`;
-    /// `--arrive` for one target). Between keyframes a segment aims at the nodal masses of
-    /// the previous keyframe blended toward the next one's along a smoothstep in time; before
-    /// the first, "the previous keyframe" is where the body would be on its own (at rest, or
-    /// falling under gravity). After the last the shape holds and settles. Empty: the last
-    /// target at [`default_arrival`] and any earlier ones evenly before it. `[1]`: aim at the
-    /// target from the first segment on.
-    #[serde(default)]
-    pub at: Vec<usize>,
-    /// The frame the shape change begins on (`--begin`; 1 = the rest shape, the default).
-    /// Before it the body is left to its physics with no controls (it holds still, or falls
-    /// and lands), and the easing curve toward the first keyframe starts here; the motion
-    /// measures count from here. A shot that should hold still or settle first says so here.
-    #[serde(default = "default_begin")]
-    pub begin: usize,
-    /// Gravity in the source mesh's units per second squared (y is up: `[0, -9.81, 0]` for a
-    /// mesh in metres). `None`: no gravity.
-    #[serde(default)]
-    pub gravity: Option<[f64; 3]>,
-    /// A ground plane the body lands on and stands on.
-    #[serde(default)]
-    pub ground: Option<Ground>,
-    /// Static mesh colliders (closed meshes), in the source mesh's coordinates.
-    #[serde(default)]
-    pub colliders: Vec<MeshCollider>,
-    /// The walls on the grid's faces that keep every particle inside it.
-    #[serde(default)]
-    pub walls: WallSettings,
-    /// The body's velocity at the first frame, in the source mesh's units per second.
-    #[serde(default)]
-    pub initial_velocity: [f64; 3],
-    /// Which surfaces each frame gets besides its points (`--surface`).
-    pub surfaces: Surfaces,
-    /// How the rebuilt surface is made from the particles (`--rebuilt-method`).
-    #[serde(default)]
-    pub rebuilt_method: RebuiltMethod,
-    /// What a segment aims at between two keyframes (`--inbetween`).
-    #[serde(default)]
-    pub inbetween: Inbetween,
-    /// How far the schedule is re-timed by the in-between's own progress, 0..=1
-    /// (`--progress-timing`): at 1 the in-between's IoU gain toward the next keyframe follows
-    /// the easing curve itself; at 0 the easing weight blends the two shapes as it is (the
-    /// distance blend's IoU then lags the curve by up to a fifth: docs/morph.md).
-    #[serde(default)]
-    pub progress_timing: f64,
-    /// The USD file of the whole sequence: binary, text or none (`--usd`).
-    #[serde(default)]
-    pub usd: UsdFormat,
-    /// Each frame's fill field (the rebuilt surface's) as an OpenVDB density grid in
-    /// `volumes/` (`--volume`), and a Volume prim in the USD file.
-    #[serde(default)]
-    pub volume: bool,
+    pub shot: Shot,
+    pub body: Body,
+    pub world: World,
+    pub outputs: Outputs,
+    pub method: Method,
 }
 
 /// The shape the schedule puts the body at between two keyframes (docs/morph.md, "Motion").
@@ -474,66 +313,76 @@ impl MorphSettings {
         let thin_across = if preset == Preset::Default { 2.5 } else { 0.0 };
         MorphSettings {
             preset,
-            resolution: 32,
-            particles,
-            particles_per_cell: TUNED_PER_CELL,
-            thin_across,
-            jitter: 0.0,
-            seed: 0,
-            target_fit: TargetFit::MatchVolume,
-            segments,
-            steps_per_segment: 30,
-            control_stride: 10,
-            control: ControlForm::default(),
-            control_resolution: ControlResolution::default(),
-            passes,
-            levels: 1,
-            refine_iterations: None,
-            optimizer: OptimizerSettings {
-                kind: Optimizer::Adam,
-                iterations,
-                learning_rate: Optimizer::Adam.default_learning_rate(),
-                line_search_tries: 15,
-                gd_tol: 1e-3,
+            shot: Shot {
+                frames: None,
+                fps: Some(DEFAULT_FPS),
+                frame_every: 3,
+                start_frame: 1,
+                at: Vec::new(),
+                begin: default_begin(),
             },
-            loss: MassLossKind::Log,
-            arrival_weight,
-            volume_weight: 400.0,
-            path_weight,
-            lookahead,
-            waypoint_weight,
-            control_smoothing,
-            carry_controls,
-            fine_weight: 1.0,
-            reach_weight,
-            kernel: KernelKind::Cubic,
-            integrator: IntegratorKind::Euler,
-            material: MaterialConfig {
-                model: Default::default(),
-                mu: TUNED_SHEAR_MODULUS,
-                lambda: 58333.0,
-                density: 40.0,
+            body: Body {
+                resolution: 32,
+                particles,
+                particles_per_cell: TUNED_PER_CELL,
+                thin_across,
+                jitter: 0.0,
+                seed: 0,
+                target_fit: TargetFit::MatchVolume,
+                material: MaterialConfig {
+                    model: Default::default(),
+                    mu: TUNED_SHEAR_MODULUS,
+                    lambda: 58333.0,
+                    density: 40.0,
+                },
+                initial_velocity: [0.0; 3],
             },
-            drag: 0.5,
-            settle_drag: 12.0,
-            dt: None,
-            frame_every: 3,
-            start_frame: 1,
-            fps: Some(DEFAULT_FPS),
-            frames: None,
-            at: Vec::new(),
-            begin: default_begin(),
-            gravity: None,
-            ground: None,
-            colliders: Vec::new(),
-            walls: WallSettings::default(),
-            initial_velocity: [0.0; 3],
-            surfaces: Surfaces::default(),
-            rebuilt_method: RebuiltMethod::default(),
-            inbetween,
-            progress_timing,
-            usd: UsdFormat::default(),
-            volume: false,
+            world: World {
+                gravity: None,
+                ground: None,
+                colliders: Vec::new(),
+                walls: WallSettings::default(),
+                drag: 0.5,
+            },
+            outputs: Outputs {
+                surfaces: Surfaces::default(),
+                rebuilt_method: RebuiltMethod::default(),
+                usd: UsdFormat::default(),
+                volume: false,
+            },
+            method: Method {
+                segments,
+                steps_per_segment: 30,
+                control_stride: 10,
+                control: ControlForm::default(),
+                control_resolution: ControlResolution::default(),
+                passes,
+                levels: 1,
+                refine_iterations: None,
+                optimizer: OptimizerSettings {
+                    kind: Optimizer::Adam,
+                    iterations,
+                    learning_rate: Optimizer::Adam.default_learning_rate(),
+                    line_search_tries: 15,
+                    gd_tol: 1e-3,
+                },
+                loss: MassLossKind::Log,
+                arrival_weight,
+                volume_weight: 400.0,
+                path_weight,
+                lookahead,
+                waypoint_weight,
+                control_smoothing,
+                carry_controls,
+                fine_weight: 1.0,
+                reach_weight,
+                kernel: KernelKind::Cubic,
+                integrator: IntegratorKind::Euler,
+                settle_drag: 12.0,
+                dt: None,
+                inbetween,
+                progress_timing,
+            },
         }
     }
 
@@ -547,17 +396,17 @@ impl MorphSettings {
                 limits::TARGETS.end()
             ));
         }
-        if !self.at.is_empty() && self.at.len() != targets {
+        if !self.shot.at.is_empty() && self.shot.at.len() != targets {
             return Err(format!(
                 "--at gives {} frame(s) for {targets} target(s): give one frame per target",
-                self.at.len()
+                self.shot.at.len()
             ));
         }
         // Spread over the shot (no --at): each target needs a frame of its own after the
         // first, up to the default arrival.
-        let frames = self.shot().frame_count();
+        let frames = self.timing().frame_count();
         let room = default_arrival(frames).saturating_sub(1);
-        if self.at.is_empty() && targets > room {
+        if self.shot.at.is_empty() && targets > room {
             return Err(format!(
                 "{targets} target meshes need a keyframe each, but a shot of {frames} frames has room for {room} (frames 2 to {}): give fewer targets, a longer shot (--frames, --seconds) or --at",
                 room + 1
@@ -572,16 +421,32 @@ impl MorphSettings {
     pub fn outsized_weights(&self) -> Vec<String> {
         let d = MorphSettings::default();
         [
-            ("volume-weight", self.volume_weight, d.volume_weight),
-            ("path-weight", self.path_weight, d.path_weight),
-            ("fine-weight", self.fine_weight, d.fine_weight),
-            ("reach-weight", self.reach_weight, d.reach_weight),
-            ("arrival-weight", self.arrival_weight, d.arrival_weight),
-            ("waypoint-weight", self.waypoint_weight, d.waypoint_weight),
+            (
+                "volume-weight",
+                self.method.volume_weight,
+                d.method.volume_weight,
+            ),
+            ("path-weight", self.method.path_weight, d.method.path_weight),
+            ("fine-weight", self.method.fine_weight, d.method.fine_weight),
+            (
+                "reach-weight",
+                self.method.reach_weight,
+                d.method.reach_weight,
+            ),
+            (
+                "arrival-weight",
+                self.method.arrival_weight,
+                d.method.arrival_weight,
+            ),
+            (
+                "waypoint-weight",
+                self.method.waypoint_weight,
+                d.method.waypoint_weight,
+            ),
             (
                 "control-smoothing",
-                self.control_smoothing,
-                d.control_smoothing,
+                self.method.control_smoothing,
+                d.method.control_smoothing,
             ),
         ]
         .into_iter()
@@ -596,8 +461,8 @@ impl MorphSettings {
     /// The frames a shot of `seconds` holds at this frame rate, the rest shape first
     /// (`--seconds`; 4 s at 24 fps: 97).
     pub fn frames_for(&self, seconds: f64) -> Result<usize, String> {
-        let shot = self.shot();
-        let interval = self.dt.unwrap_or(shot.step) * shot.frame_every as f64;
+        let shot = self.timing();
+        let interval = self.method.dt.unwrap_or(shot.step) * shot.frame_every as f64;
         let frames = (seconds / interval).round() + 1.0;
         if !(seconds.is_finite() && seconds > 0.0) || frames > *limits::FRAMES.end() as f64 {
             return Err(format!(
@@ -612,15 +477,15 @@ impl MorphSettings {
     pub fn placement_options(&self, resolution: usize) -> crate::geometry::PlacementOptions {
         crate::geometry::PlacementOptions {
             resolution,
-            target_fit: self.target_fit,
-            ground: self.ground.as_ref().map(|g| g.height),
+            target_fit: self.body.target_fit,
+            ground: self.world.ground.as_ref().map(|g| g.height),
             ..Default::default()
         }
     }
 
     /// The morph step (seconds) and the morph steps between frames.
-    fn timing(&self) -> (f64, usize) {
-        match self.fps {
+    fn step_and_frame_every(&self) -> (f64, usize) {
+        match self.shot.fps {
             Some(fps) => {
                 // The fewest steps per frame that keep each no longer than the reference's.
                 let k = ((1.0 / fps) / super::MORPH_STEP * (1.0 - 1e-12))
@@ -628,24 +493,24 @@ impl MorphSettings {
                     .max(1.0);
                 (1.0 / (fps * k), k as usize)
             }
-            None => (super::MORPH_STEP, self.frame_every),
+            None => (super::MORPH_STEP, self.shot.frame_every),
         }
     }
 
     /// The shot's timing: the morph step, the steps between frames and each segment's steps.
-    pub fn shot(&self) -> Shot {
-        let (step, frame_every) = self.timing();
-        let segment_steps = match self.frames {
+    pub fn timing(&self) -> Timing {
+        let (step, frame_every) = self.step_and_frame_every();
+        let segment_steps = match self.shot.frames {
             Some(n) => {
                 let total = n.saturating_sub(1) * frame_every;
-                let per = self.steps_per_segment.max(1);
+                let per = self.method.steps_per_segment.max(1);
                 (0..total.div_ceil(per))
                     .map(|i| (total - i * per).min(per))
                     .collect()
             }
-            None => vec![self.steps_per_segment; self.segments],
+            None => vec![self.method.steps_per_segment; self.method.segments],
         };
-        Shot {
+        Timing {
             step,
             frame_every,
             segment_steps,
@@ -653,9 +518,9 @@ impl MorphSettings {
     }
 }
 
-/// The timing of a morph's sequence (see [`MorphSettings::shot`]).
+/// The timing of a morph's sequence (see [`MorphSettings::timing`]).
 #[derive(Clone, Debug, PartialEq)]
-pub struct Shot {
+pub struct Timing {
     /// Seconds per morph step (each simulated in substeps where the material needs them).
     pub step: f64,
     /// Morph steps between frames.
@@ -664,7 +529,7 @@ pub struct Shot {
     pub segment_steps: Vec<usize>,
 }
 
-impl Shot {
+impl Timing {
     /// Frames written: the rest shape, then one every `frame_every` steps.
     pub fn frame_count(&self) -> usize {
         self.segment_steps.iter().sum::<usize>() / self.frame_every.max(1) + 1

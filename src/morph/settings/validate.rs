@@ -15,40 +15,44 @@ impl MorphSettings {
 
     /// The counts and sizes (grid, particles, segments, steps, passes...).
     fn validate_counts(&self) -> Result<(), String> {
-        range("resolution", self.resolution, limits::RESOLUTION)?;
-        if let Some(n) = self.particles {
+        range("resolution", self.body.resolution, limits::RESOLUTION)?;
+        if let Some(n) = self.body.particles {
             range("particles", n, limits::PARTICLES)?;
         }
         range(
             "particles-per-cell",
-            self.particles_per_cell,
+            self.body.particles_per_cell,
             limits::PARTICLES_PER_CELL,
         )?;
-        if !(self.thin_across.is_finite()
-            && (0.0..=limits::MAX_THIN_ACROSS).contains(&self.thin_across))
+        if !(self.body.thin_across.is_finite()
+            && (0.0..=limits::MAX_THIN_ACROSS).contains(&self.body.thin_across))
         {
             return Err(format!(
                 "thin_across must be between 0 (off) and {}, got {}",
                 limits::MAX_THIN_ACROSS,
-                self.thin_across
+                self.body.thin_across
             ));
         }
-        range("segments", self.segments, limits::SEGMENTS)?;
-        range("steps", self.steps_per_segment, limits::STEPS)?;
+        range("segments", self.method.segments, limits::SEGMENTS)?;
+        range("steps", self.method.steps_per_segment, limits::STEPS)?;
         range(
             "control-stride",
-            self.control_stride,
-            1..=self.steps_per_segment,
+            self.method.control_stride,
+            1..=self.method.steps_per_segment,
         )?;
-        range("passes", self.passes, limits::PASSES)?;
-        range("iterations", self.optimizer.iterations, limits::ITERATIONS)?;
-        range("levels", self.levels, limits::LEVELS)?;
-        range("lookahead", self.lookahead, limits::LOOKAHEAD)?;
-        if let Some(n) = self.refine_iterations {
+        range("passes", self.method.passes, limits::PASSES)?;
+        range(
+            "iterations",
+            self.method.optimizer.iterations,
+            limits::ITERATIONS,
+        )?;
+        range("levels", self.method.levels, limits::LEVELS)?;
+        range("lookahead", self.method.lookahead, limits::LOOKAHEAD)?;
+        if let Some(n) = self.method.refine_iterations {
             range("refine-iterations", n, limits::ITERATIONS)?;
         }
-        range("frame-every", self.frame_every, limits::FRAME_EVERY)?;
-        range("start-frame", self.start_frame, limits::START_FRAME)?;
+        range("frame-every", self.shot.frame_every, limits::FRAME_EVERY)?;
+        range("start-frame", self.shot.start_frame, limits::START_FRAME)?;
         Ok(())
     }
 
@@ -68,44 +72,48 @@ impl MorphSettings {
                 Err(format!("--{name} must be >= 0, got {v}"))
             }
         };
-        positive("learning-rate", self.optimizer.learning_rate)?;
-        positive("density", self.material.density)?;
-        positive("mu", self.material.mu)?;
-        non_negative("lambda", self.material.lambda)?;
-        non_negative("arrival-weight", self.arrival_weight)?;
-        non_negative("volume-weight", self.volume_weight)?;
-        non_negative("path-weight", self.path_weight)?;
-        non_negative("waypoint-weight", self.waypoint_weight)?;
-        non_negative("control-smoothing", self.control_smoothing)?;
-        non_negative("fine-weight", self.fine_weight)?;
-        non_negative("reach-weight", self.reach_weight)?;
-        non_negative("drag", self.drag)?;
-        non_negative("settle-drag", self.settle_drag)?;
-        if !(self.carry_controls.is_finite() && (0.0..=1.0).contains(&self.carry_controls)) {
+        positive("learning-rate", self.method.optimizer.learning_rate)?;
+        positive("density", self.body.material.density)?;
+        positive("mu", self.body.material.mu)?;
+        non_negative("lambda", self.body.material.lambda)?;
+        non_negative("arrival-weight", self.method.arrival_weight)?;
+        non_negative("volume-weight", self.method.volume_weight)?;
+        non_negative("path-weight", self.method.path_weight)?;
+        non_negative("waypoint-weight", self.method.waypoint_weight)?;
+        non_negative("control-smoothing", self.method.control_smoothing)?;
+        non_negative("fine-weight", self.method.fine_weight)?;
+        non_negative("reach-weight", self.method.reach_weight)?;
+        non_negative("drag", self.world.drag)?;
+        non_negative("settle-drag", self.method.settle_drag)?;
+        if !(self.method.carry_controls.is_finite()
+            && (0.0..=1.0).contains(&self.method.carry_controls))
+        {
             return Err(format!(
                 "--carry-controls must be in 0..=1, got {}",
-                self.carry_controls
+                self.method.carry_controls
             ));
         }
-        if !(self.progress_timing.is_finite() && (0.0..=1.0).contains(&self.progress_timing)) {
+        if !(self.method.progress_timing.is_finite()
+            && (0.0..=1.0).contains(&self.method.progress_timing))
+        {
             return Err(format!(
                 "--progress-timing must be in 0..=1, got {}",
-                self.progress_timing
+                self.method.progress_timing
             ));
         }
-        if !(self.jitter.is_finite() && (0.0..=1.0).contains(&self.jitter)) {
+        if !(self.body.jitter.is_finite() && (0.0..=1.0).contains(&self.body.jitter)) {
             return Err(format!(
                 "--jitter must be between 0 and 1, got {}",
-                self.jitter
+                self.body.jitter
             ));
         }
-        if let Some(dt) = self.dt {
+        if let Some(dt) = self.method.dt {
             positive("dt", dt)?;
-            if self.fps.is_some() {
+            if self.shot.fps.is_some() {
                 return Err("--dt and --fps cannot be combined: --fps chooses the step".into());
             }
         }
-        if let Some(fps) = self.fps
+        if let Some(fps) = self.shot.fps
             && !(fps.is_finite() && fps > 0.0 && fps <= limits::MAX_FPS)
         {
             return Err(format!(
@@ -119,20 +127,20 @@ impl MorphSettings {
     /// The shot: its length, frame rate, keyframes and where the shape change begins.
     fn validate_shot(&self) -> Result<(), String> {
         // The shot's length, counted before any list is sized by it.
-        let (step, frame_every) = self.timing();
-        if let Some(n) = self.frames {
+        let (step, frame_every) = self.step_and_frame_every();
+        if let Some(n) = self.shot.frames {
             range("frames", n, limits::FRAMES)?;
             let segments = ((n - 1) as u128 * frame_every as u128)
-                .div_ceil(self.steps_per_segment.max(1) as u128);
+                .div_ceil(self.method.steps_per_segment.max(1) as u128);
             if segments > *limits::SEGMENTS.end() as u128 {
                 return Err(format!(
                     "--frames {n} makes {segments} segments of {} steps, more than {}; raise --steps or lower the frame spacing",
-                    self.steps_per_segment,
+                    self.method.steps_per_segment,
                     limits::SEGMENTS.end()
                 ));
             }
         }
-        let interval = self.dt.unwrap_or(step) * frame_every as f64;
+        let interval = self.method.dt.unwrap_or(step) * frame_every as f64;
         if 1.0 / interval > limits::MAX_FPS * (1.0 + 1e-9) {
             return Err(format!(
                 "frames {interval:.3e} s apart play at {:.3e} frames per second, more than {}: raise --dt or --frame-every",
@@ -140,17 +148,17 @@ impl MorphSettings {
                 limits::MAX_FPS
             ));
         }
-        let frames = self.shot().frame_count();
+        let frames = self.timing().frame_count();
         if frames < 2 {
-            let total: usize = self.shot().segment_steps.iter().sum();
+            let total: usize = self.timing().segment_steps.iter().sum();
             return Err(format!(
                 "the shot lasts {} steps ({:.3} s) but frames are {frame_every} steps ({interval:.3} s) apart: only the rest shape would be written; lower the frame spacing (--fps, --frame-every) or lengthen the shot (--frames, --seconds, --segments)",
                 total,
-                total as f64 * self.dt.unwrap_or(step)
+                total as f64 * self.method.dt.unwrap_or(step)
             ));
         }
-        for (k, &a) in self.at.iter().enumerate() {
-            let first = if k == 0 { 1 } else { self.at[k - 1] + 1 };
+        for (k, &a) in self.shot.at.iter().enumerate() {
+            let first = if k == 0 { 1 } else { self.shot.at[k - 1] + 1 };
             if !(first..=frames).contains(&a) {
                 return Err(format!(
                     "--at: keyframe {} at frame {a} must be {}at most the last frame, {frames}",
@@ -160,7 +168,7 @@ impl MorphSettings {
                     } else {
                         format!(
                             "after the previous keyframe's frame {} and ",
-                            self.at[k - 1]
+                            self.shot.at[k - 1]
                         )
                     }
                 ));
@@ -169,14 +177,15 @@ impl MorphSettings {
         // The shape change begins before the first keyframe (the default arrival when none
         // is given), so the easing curve has frames to run over.
         let first_key = self
+            .shot
             .at
             .first()
             .copied()
             .unwrap_or_else(|| default_arrival(frames));
-        if self.begin < 1 || (self.begin > 1 && self.begin >= first_key) {
+        if self.shot.begin < 1 || (self.shot.begin > 1 && self.shot.begin >= first_key) {
             return Err(format!(
                 "--begin {} must be at least 1 and before the first keyframe, frame {first_key}",
-                self.begin
+                self.shot.begin
             ));
         }
         Ok(())
@@ -184,39 +193,47 @@ impl MorphSettings {
 
     /// The world: gravity, the start velocity, the ground, colliders and walls.
     fn validate_world(&self) -> Result<(), String> {
-        if let Some(g) = self.gravity
+        if let Some(g) = self.world.gravity
             && !g.iter().all(|v| v.is_finite())
         {
             return Err(format!("gravity must be finite, got {g:?}"));
         }
-        if !self.initial_velocity.iter().all(|v| v.is_finite()) {
+        if !self.body.initial_velocity.iter().all(|v| v.is_finite()) {
             return Err(format!(
                 "initial_velocity must be finite, got {:?}",
-                self.initial_velocity
+                self.body.initial_velocity
             ));
         }
         let frictions = self
+            .world
             .ground
             .iter()
             .map(|g| ("ground", g.friction))
-            .chain(self.colliders.iter().map(|c| ("collider", c.friction)));
+            .chain(
+                self.world
+                    .colliders
+                    .iter()
+                    .map(|c| ("collider", c.friction)),
+            );
         for (what, mu) in frictions {
             if !(mu.is_finite() && mu >= 0.0) {
                 return Err(format!("{what} friction must be >= 0, got {mu}"));
             }
         }
-        if let Some(g) = &self.ground
+        if let Some(g) = &self.world.ground
             && !g.height.is_finite()
         {
             return Err(format!("ground height must be finite, got {}", g.height));
         }
-        if self.walls.thickness < MIN_WALL_THICKNESS {
+        if self.world.walls.thickness < MIN_WALL_THICKNESS {
             return Err(format!(
                 "walls thickness must be at least {MIN_WALL_THICKNESS} cells (the kernel's reach), got {}",
-                self.walls.thickness
+                self.world.walls.thickness
             ));
         }
-        if self.target_fit == crate::geometry::TargetFit::OnGround && self.ground.is_none() {
+        if self.body.target_fit == crate::geometry::TargetFit::OnGround
+            && self.world.ground.is_none()
+        {
             return Err("--target-fit on-ground needs a ground plane (a scene's [ground])".into());
         }
         Ok(())

@@ -62,7 +62,7 @@ impl<'a> From<&'a Frame<'a>> for SinkFrame<'a> {
         SinkFrame {
             index: frame.index,
             count: frame.prep.frame_count(),
-            start: frame.prep.settings.start_frame,
+            start: frame.prep.settings.shot.start_frame,
             time: frame.time,
             world: &frame.world,
             state: frame.state,
@@ -124,12 +124,12 @@ pub fn for_folder(
 ) -> Result<Vec<Box<dyn FrameSink + Send>>, MorphError> {
     let settings = &prep.settings;
     let to_world = prep.geometry.placement.sim_to_world();
-    let spacing = prep.model().grid.dx / settings.particles_per_cell as f64;
+    let spacing = prep.model().grid.dx / settings.body.particles_per_cell as f64;
     let count = prep.frame_count();
     let edge_weights: Arc<[f64]> = prep.geometry.source_edge_weights.as_slice().into();
     let fps = 1.0 / (prep.sim_frame_every() as f64 * prep.model().dt);
     // The source as read, for the carried surface and as the first frame's reference.
-    let loaded = match settings.surfaces {
+    let loaded = match settings.outputs.surfaces {
         crate::morph::settings::Surfaces::None => None,
         _ => Some(crate::geometry::load_mesh(source)?),
     };
@@ -143,7 +143,10 @@ pub fn for_folder(
     let mut sinks: Vec<Box<dyn FrameSink + Send>> = vec![Box::new(PointsPly {
         dir: folder(dir, "frames")?,
     })];
-    if let Some(loaded) = loaded.as_ref().filter(|_| settings.surfaces.carried()) {
+    if let Some(loaded) = loaded
+        .as_ref()
+        .filter(|_| settings.outputs.surfaces.carried())
+    {
         sinks.push(carried_sink(
             prep,
             dir,
@@ -151,16 +154,16 @@ pub fn for_folder(
             references.clone(),
         )?);
     }
-    if settings.surfaces.rebuilt() {
+    if settings.outputs.surfaces.rebuilt() {
         sinks.push(Box::new(RebuiltObj {
             dir: folder(dir, "meshes")?,
-            method: settings.rebuilt_method,
+            method: settings.outputs.rebuilt_method,
             spacing,
             rest_volume: prep.geometry.source.volume,
             edge_weights: edge_weights.clone(),
             planes: loaded
                 .as_ref()
-                .filter(|_| settings.rebuilt_method == RebuiltMethod::Sharp)
+                .filter(|_| settings.outputs.rebuilt_method == RebuiltMethod::Sharp)
                 .map(|l| {
                     let source = prep.geometry.placement.world_to_sim.apply_mesh(&l.mesh);
                     Arc::new(SourcePlanes::new(&source, &prep.initial.x, spacing))
@@ -171,27 +174,27 @@ pub fn for_folder(
             target,
         }));
     }
-    if settings.volume {
+    if settings.outputs.volume {
         sinks.push(Box::new(VolumeVdb {
             dir: folder(dir, "volumes")?,
-            method: settings.rebuilt_method,
+            method: settings.outputs.rebuilt_method,
             spacing,
             rest_volume: prep.geometry.source.volume,
             edge_weights: edge_weights.clone(),
             to_world,
         }));
     }
-    let start = settings.start_frame;
-    if settings.usd != crate::io::usd::UsdFormat::None {
+    let start = settings.shot.start_frame;
+    if settings.outputs.usd != crate::io::usd::UsdFormat::None {
         sinks.push(Box::new(UsdSequence {
             dir: dir.to_path_buf(),
-            format: settings.usd,
+            format: settings.outputs.usd,
             start,
             count,
             fps,
-            carried: settings.surfaces.carried(),
-            rebuilt: settings.surfaces.rebuilt(),
-            volume: settings.volume,
+            carried: settings.outputs.surfaces.carried(),
+            rebuilt: settings.outputs.surfaces.rebuilt(),
+            volume: settings.outputs.volume,
             width: spacing * to_world.scale,
         }));
     }
@@ -212,7 +215,7 @@ fn carried_sink(
     (source, mesh): (&Path, &crate::geometry::TriMesh),
     references: Option<Arc<(Reference, Reference)>>,
 ) -> Result<Box<dyn FrameSink + Send>, MorphError> {
-    let spacing = prep.model().grid.dx / prep.settings.particles_per_cell as f64;
+    let spacing = prep.model().grid.dx / prep.settings.body.particles_per_cell as f64;
     let surface = CarriedSurface::bind(
         source,
         mesh,
