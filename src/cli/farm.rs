@@ -71,7 +71,7 @@ pub fn run(args: &FarmTemplateArgs) -> ExitCode {
     };
     let mut inputs: Vec<&std::path::Path> = vec![&source];
     inputs.extend(targets.iter().map(PathBuf::as_path));
-    inputs.extend(settings.world.colliders.iter().map(|c| c.mesh.as_path()));
+    inputs.extend(settings.world.meshes());
     if let Some(input) = inputs.into_iter().find(|p| same(p)) {
         return super::fail(
             false,

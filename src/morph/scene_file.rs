@@ -132,8 +132,8 @@ impl SceneFile {
                 .to_string()
         };
         let mut settings = settings.clone();
-        for c in &mut settings.world.colliders {
-            c.mesh = PathBuf::from(absolute(&c.mesh));
+        for mesh in settings.world.meshes_mut() {
+            *mesh = PathBuf::from(absolute(mesh));
         }
         let mut table = toml::Table::new();
         table.insert("source".into(), absolute(source).into());
@@ -462,11 +462,18 @@ fn take_inputs(
             ));
         }
     };
-    if let Some(toml::Value::Array(colliders)) = part_mut(table, "world").get_mut("colliders") {
-        for c in colliders {
-            if let Some(toml::Value::String(m)) = c.get_mut("mesh") {
-                *m = resolve(m).display().to_string();
-            }
+    // The meshes of colliders, given by the shorthand (`mesh`) or in the list (`shape.path`).
+    let world = part_mut(table, "world");
+    let shorthand = world.get_mut("colliders").and_then(|c| c.as_array_mut());
+    for c in shorthand.into_iter().flatten() {
+        if let Some(toml::Value::String(m)) = c.get_mut("mesh") {
+            *m = resolve(m).display().to_string();
+        }
+    }
+    let listed = world.get_mut("effects").and_then(|e| e.as_array_mut());
+    for e in listed.into_iter().flatten() {
+        if let Some(toml::Value::String(p)) = e.get_mut("shape").and_then(|s| s.get_mut("path")) {
+            *p = resolve(p).display().to_string();
         }
     }
     Ok((source, targets))
@@ -524,6 +531,43 @@ mod tests {
         assert!(e.contains("`shot` must be a table"), "{e}");
         let e = parse("[shot]\nresolution = 20\n").unwrap_err();
         assert!(e.contains("unknown key `shot.resolution`"), "{e}");
+    }
+
+    #[test]
+    fn the_world_is_the_engines_effect_list_in_the_files_units() {
+        use crate::engine::scene::{ColliderConfig, EffectConfig};
+        let text = "[[world.effects]]\ntype = \"gravity\"\nacceleration = [0.0, -9.81, 0.0]\n\n[[world.effects]]\ntype = \"collider\"\nshape = { kind = \"mesh\", path = \"rock.obj\", scale = 2.0 }\n\n[[world.effects]]\ntype = \"walls\"\nmode = \"slip\"\nthickness = 3\n";
+        let s = SceneFile::parse(text, Path::new("/shots/a/shot.toml"), None)
+            .unwrap()
+            .settings;
+        assert!(s.validate().is_ok());
+        assert_eq!(
+            s.world.effects.len(),
+            3,
+            "the file's list replaces the preset's"
+        );
+        assert_eq!(s.world.drag(), 0.0);
+        match &s.world.effects[1] {
+            EffectConfig::Collider {
+                shape: ColliderConfig::Mesh { path, scale, .. },
+                friction,
+            } => {
+                assert_eq!(path, Path::new("/shots/a/rock.obj"), "relative to the file");
+                assert_eq!((*scale, *friction), (2.0, 0.5));
+            }
+            other => panic!("{other:?}"),
+        }
+        // Without its walls the list is refused.
+        let e = SceneFile::parse(
+            "[[world.effects]]\ntype = \"drag\"\ncoefficient = 1.0\n",
+            Path::new("s.toml"),
+            None,
+        )
+        .unwrap()
+        .settings
+        .validate()
+        .unwrap_err();
+        assert!(e.contains("it needs one"), "{e}");
     }
 
     #[test]
@@ -586,11 +630,12 @@ mod tests {
     #[test]
     fn the_resolved_scene_reads_back_to_the_same_settings() {
         let mut s = MorphSettings::preset(Preset::Final);
-        s.world.gravity = Some([0.0, -9.81, 0.0]);
-        s.world.ground = Some(crate::morph::settings::Ground {
-            height: -1.0,
-            friction: 0.2,
-        });
+        let world = "gravity = [0.0, -9.81, 0.0]\n[ground]\nheight = -1.0\nfriction = 0.2\n";
+        s.world = SceneFile::parse(world, Path::new("w.toml"), None)
+            .unwrap()
+            .settings
+            .world;
+        assert_eq!(s.world.ground(), Some((-1.0, 0.2)));
         s.shot.at = vec![10, 20];
         s.shot.fps = None;
         s.shot.frame_every = 4;

@@ -302,9 +302,9 @@ impl RunIdentity {
             inputs.push(input(t)?);
         }
         let mut settings = settings.clone();
-        for c in &mut settings.world.colliders {
-            let file = input(&c.mesh)?;
-            c.mesh = PathBuf::from(format!("sha256:{}", file.sha256));
+        for mesh in settings.world.meshes_mut() {
+            let file = input(mesh)?;
+            *mesh = PathBuf::from(format!("sha256:{}", file.sha256));
             inputs.push(file);
         }
         Ok(RunIdentity {
@@ -348,7 +348,7 @@ impl RunIdentity {
             if a.sha256 != b.sha256 {
                 let which = match i {
                     0 => "source".to_string(),
-                    i if i < self.inputs.len() - self.settings.world.colliders.len() => {
+                    i if i < self.inputs.len() - self.settings.world.meshes().count() => {
                         format!("target {i}")
                     }
                     _ => "collider".to_string(),

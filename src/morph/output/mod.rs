@@ -161,7 +161,7 @@ pub fn morph_to_folder(
         .map_err(MorphError::Settings)?;
     let mut inputs: Vec<&Path> = vec![source];
     inputs.extend(targets.iter().map(PathBuf::as_path));
-    inputs.extend(settings.world.colliders.iter().map(|c| c.mesh.as_path()));
+    inputs.extend(settings.world.meshes());
     inputs.extend(request.scene);
     let plan = outdir::plan(
         request.out,

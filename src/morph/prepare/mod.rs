@@ -186,7 +186,7 @@ impl Prepared {
             .map(|f| (f - 1) * settings.shot.frame_every)
             .collect();
         let begin = (settings.shot.begin - 1) * settings.shot.frame_every;
-        let moving = settings.world.gravity.is_some() || v0 != Vector3::zeros();
+        let moving = settings.world.has_gravity() || v0 != Vector3::zeros();
         let passive = match moving {
             true => {
                 let ends = setup::passive_ends(settings, &shot, steps[0], begin);

@@ -6,7 +6,7 @@ use super::{CheckedSettings, MorphError, MorphSettings, Prepared, settings};
 use crate::engine::Engine;
 use crate::engine::integrator::Integrator;
 use crate::engine::mpm::{GridSpec, SimError, State};
-use crate::engine::scene::{EffectConfig, SceneConfig};
+use crate::engine::scene::{EffectConfig, SceneConfig, WorldMap};
 use crate::geometry::{Jitter, LoadedMesh, MorphGeometry};
 use crate::loss::{FINE_KERNEL, FineMassLoss, MassLoss};
 use crate::morph::reach::ReachLoss;
@@ -106,10 +106,10 @@ pub(super) fn substeps(
     }
     let frame_seconds = settings.method.dt.unwrap_or(shot.step) * shot.frame_every as f64;
     for (name, drag) in [
-        ("drag", settings.world.drag),
+        ("drag", settings.world.drag()),
         (
             "drag and settle drag",
-            settings.world.drag + settings.method.settle_drag,
+            settings.world.drag() + settings.method.settle_drag,
         ),
     ] {
         if drag * frame_seconds > MAX_DRAG_DAMPING {
@@ -122,7 +122,7 @@ pub(super) fn substeps(
     }
     // The drag's explicit form keeps a share `1 - c dt` of the momentum each step: at most
     // half of it may go in one step.
-    let most_drag = settings.world.drag + settings.method.settle_drag;
+    let most_drag = settings.world.drag() + settings.method.settle_drag;
     let limit = if most_drag > 0.0 {
         limit.min(1.0 / most_drag)
     } else {
@@ -293,61 +293,35 @@ pub const MORPH_STEP: f64 = 1.0 / 120.0;
 /// Substeps past which a morph is refused (the material is too stiff for its grid).
 pub const MAX_SUBSTEPS: usize = 10_000;
 
-/// The effects a morph's settings call for, in the order they act: drag on the particles
-/// (and the settle drag after the final arrival);
-/// then on the grid gravity, the ground and the colliders, and last the walls. Nothing else
-/// runs. World quantities (gravity, the ground's height, collider meshes) are mapped into
-/// simulation units by `placement`.
+/// The effects a morph's settings call for, in the order they act: the world's, placed on the
+/// grid by `placement` (the engine's own specs: `EffectConfig::placed`), with the settle drag
+/// after the air's drag from the final target's arrival on. Nothing else runs.
 pub(super) fn scene_effects(
     settings: &MorphSettings,
     placement: &crate::geometry::Placement,
     shot: &settings::Timing,
 ) -> Vec<EffectConfig> {
-    use crate::engine::scene::ColliderConfig;
-    let to_sim = placement.world_to_sim;
-    let mut effects = Vec::new();
-    if settings.world.drag > 0.0 {
-        effects.push(EffectConfig::drag(settings.world.drag));
-    }
+    let map = WorldMap {
+        scale: placement.world_to_sim.scale,
+        translation: placement.world_to_sim.translation,
+    };
+    let mut effects: Vec<EffectConfig> = (settings.world.effects.iter())
+        .map(|e| e.placed(&map))
+        .collect();
     if settings.method.settle_drag > 0.0 {
-        // From the final target's arrival frame on (frame 1 at time 0).
+        // From the final target's arrival frame on (frame 1 at time 0), after the air's drag.
         let frame_seconds = settings.method.dt.unwrap_or(shot.step) * shot.frame_every as f64;
         let arrival = settings.shot.at.last().copied().unwrap_or(1);
-        effects.push(EffectConfig::Drag {
+        let after_drags = (effects.iter())
+            .rposition(|e| matches!(e, EffectConfig::Drag { .. }))
+            .map_or(0, |i| i + 1);
+        let settle = EffectConfig::Drag {
             coefficient: settings.method.settle_drag,
             start: (arrival - 1) as f64 * frame_seconds,
             ramp: settings::SETTLE_RAMP_FRAMES * frame_seconds,
-        });
+        };
+        effects.insert(after_drags, settle);
     }
-    if let Some(g) = settings.world.gravity {
-        effects.push(EffectConfig::Gravity {
-            acceleration: (to_sim.scale * Vector3::from(g)).into(),
-        });
-    }
-    if let Some(ground) = &settings.world.ground {
-        effects.push(EffectConfig::Collider {
-            shape: ColliderConfig::Plane {
-                point: to_sim.apply(&Vector3::new(0.0, ground.height, 0.0)).into(),
-                normal: [0.0, 1.0, 0.0],
-            },
-            friction: ground.friction,
-        });
-    }
-    for c in &settings.world.colliders {
-        effects.push(EffectConfig::Collider {
-            shape: ColliderConfig::Mesh {
-                path: c.mesh.clone(),
-                scale: to_sim.scale,
-                translation: to_sim.translation,
-            },
-            friction: c.friction,
-        });
-    }
-    // Always: a safety net, so no kernel stencil can leave the grid.
-    effects.push(EffectConfig::Walls {
-        mode: settings.world.walls.mode,
-        thickness: settings.world.walls.thickness,
-    });
     effects
 }
 
@@ -392,32 +366,52 @@ pub(super) fn overlap_warnings(
     settings: &MorphSettings,
     geometry: &crate::geometry::MorphGeometry,
 ) -> Result<Vec<String>, MorphError> {
-    let to_sim = &geometry.placement.world_to_sim;
+    use crate::engine::scene::ColliderConfig;
+    let placement = &geometry.placement.world_to_sim;
+    let map = WorldMap {
+        scale: placement.scale,
+        translation: placement.translation,
+    };
     let particles = &geometry.source.positions;
     let share = |inside: usize| 100.0 * inside as f64 / particles.len().max(1) as f64;
     let mut warnings = Vec::new();
-    if let Some(ground) = &settings.world.ground {
-        let height = to_sim.apply(&Vector3::new(0.0, ground.height, 0.0)).y;
-        let below = particles.iter().filter(|p| p.y < height).count();
-        if below > 0 {
-            warnings.push(format!(
-                "the ground at height {} cuts the body at frame 1: {below} particles ({:.1}%) start below it and are pushed out by the first step; lower the ground or move the source",
-                ground.height,
-                share(below)
-            ));
-        }
-    }
-    for c in &settings.world.colliders {
-        let mesh = crate::geometry::load_mesh(&c.mesh)?;
-        let winding = crate::geometry::winding::WindingNumber::new(&to_sim.apply_mesh(&mesh.mesh));
-        let inside = {
-            use rayon::prelude::*;
-            particles.par_iter().filter(|p| winding.at(p) > 0.5).count()
+    for effect in &settings.world.effects {
+        let EffectConfig::Collider { shape, .. } = effect.placed(&map) else {
+            continue;
+        };
+        let (inside, what) = match &shape {
+            ColliderConfig::Plane { point, normal } => {
+                let (p, n) = (Vector3::from(*point), Vector3::from(*normal));
+                let below = particles.iter().filter(|x| (*x - p).dot(&n) < 0.0).count();
+                let what = match settings.world.ground() {
+                    Some((height, _)) if n.x == 0.0 && n.z == 0.0 => {
+                        format!("the ground at height {height} cuts the body")
+                    }
+                    _ => "a plane collider cuts the body".to_string(),
+                };
+                (below, what)
+            }
+            ColliderConfig::Mesh {
+                path,
+                scale,
+                translation,
+            } => {
+                let mesh = crate::geometry::load_mesh(path)?;
+                let placed = mesh.mesh.transformed(*scale, &Vector3::from(*translation));
+                let winding = crate::geometry::winding::WindingNumber::new(&placed);
+                let inside = {
+                    use rayon::prelude::*;
+                    particles.par_iter().filter(|p| winding.at(p) > 0.5).count()
+                };
+                (
+                    inside,
+                    format!("collider {} overlaps the body", path.display()),
+                )
+            }
         };
         if inside > 0 {
             warnings.push(format!(
-                "collider {} overlaps the body at frame 1: {inside} particles ({:.1}%) start inside it and are pushed out by the first step; move the collider or the source",
-                c.mesh.display(),
+                "{what} at frame 1: {inside} particles ({:.1}%) start inside it and are pushed out by the first step; move it or the source",
                 share(inside)
             ));
         }

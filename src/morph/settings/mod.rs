@@ -12,8 +12,10 @@ use serde::{Deserialize, Serialize};
 
 mod parts;
 mod validate;
+mod world;
 
-pub use parts::{Body, Method, Outputs, PARTS, Shot, World, part_of};
+pub use parts::{Body, Method, Outputs, PARTS, Shot, part_of};
+pub use world::{Ground, MIN_WALL_THICKNESS, MeshCollider, WallSettings, World};
 
 pub use validate::CheckedSettings;
 
@@ -187,53 +189,6 @@ fn default_begin() -> usize {
     1
 }
 
-/// Friction of a ground or collider when a scene does not give one.
-pub const DEFAULT_FRICTION: f64 = 0.5;
-
-fn default_friction() -> f64 {
-    DEFAULT_FRICTION
-}
-
-/// A ground plane: everything below `height` (the source mesh's y; y is up) is solid.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct Ground {
-    pub height: f64,
-    /// Coulomb friction coefficient (0: ice).
-    #[serde(default = "default_friction")]
-    pub friction: f64,
-}
-
-/// A closed mesh, in the source mesh's coordinates, that the body cannot enter.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct MeshCollider {
-    pub mesh: std::path::PathBuf,
-    /// Coulomb friction coefficient (0: frictionless).
-    #[serde(default = "default_friction")]
-    pub friction: f64,
-}
-
-/// The walls on the grid's faces (a safety net: no kernel stencil may leave the grid).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-pub struct WallSettings {
-    /// Slip (the body slides along a wall) or sticky (it stops there).
-    pub mode: crate::engine::effects::WallMode,
-    /// Depth in grid cells, at least [`MIN_WALL_THICKNESS`].
-    pub thickness: usize,
-}
-
-/// The cubic kernel reaches two cells from a particle: a wall a cell deeper keeps every
-/// stencil on the grid.
-pub const MIN_WALL_THICKNESS: usize = 3;
-
-impl Default for WallSettings {
-    fn default() -> Self {
-        WallSettings {
-            mode: crate::engine::effects::WallMode::Slip,
-            thickness: MIN_WALL_THICKNESS,
-        }
-    }
-}
-
 /// The resolution the objective's weights were tuned at: on other grids they are scaled to
 /// weigh the same against the mass loss ([`super::WeightScale`]).
 pub const TUNED_RESOLUTION: usize = 32;
@@ -337,13 +292,7 @@ impl MorphSettings {
                 },
                 initial_velocity: [0.0; 3],
             },
-            world: World {
-                gravity: None,
-                ground: None,
-                colliders: Vec::new(),
-                walls: WallSettings::default(),
-                drag: 0.5,
-            },
+            world: World::preset(),
             outputs: Outputs {
                 surfaces: Surfaces::default(),
                 rebuilt_method: RebuiltMethod::default(),
@@ -478,7 +427,7 @@ impl MorphSettings {
         crate::geometry::PlacementOptions {
             resolution,
             target_fit: self.body.target_fit,
-            ground: self.world.ground.as_ref().map(|g| g.height),
+            ground: self.world.ground().map(|(height, _)| height),
             ..Default::default()
         }
     }

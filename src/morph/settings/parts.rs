@@ -1,8 +1,8 @@
-//! The parts of [`super::MorphSettings`]: shot, body, world, outputs and method. Every field
+//! The parts of [`super::MorphSettings`]: shot, body, world (its own file), outputs and method. Every field
 //! name is unique across the parts, so a scene file may give a key flat (`frames = 97`) or
 //! under its part (`[shot] frames = 97`): [`super::part_of`].
 
-use super::{Ground, Inbetween, MeshCollider, RebuiltMethod, Surfaces, UsdFormat, WallSettings};
+use super::{Inbetween, RebuiltMethod, Surfaces, UsdFormat};
 use super::{default_begin, default_start_frame, one_level, unit_weight};
 use crate::engine::integrator::IntegratorKind;
 use crate::engine::mpm::{ControlForm, KernelKind};
@@ -36,7 +36,7 @@ pub const PARTS: [(&str, &[&str]); 5] = [
     ),
     (
         "world",
-        &["gravity", "ground", "colliders", "walls", "drag"],
+        &["effects", "gravity", "drag", "ground", "colliders", "walls"],
     ),
     ("outputs", &["surfaces", "rebuilt_method", "usd", "volume"]),
     (
@@ -144,27 +144,6 @@ pub struct Body {
     /// The body's velocity at the first frame, in the source mesh's units per second.
     #[serde(default)]
     pub initial_velocity: [f64; 3],
-}
-
-/// The world the body is in: gravity, the ground, colliders, the walls on the grid's faces and
-/// the air's drag, in the source mesh's units.
-#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct World {
-    /// Gravity in the source mesh's units per second squared (y is up: `[0, -9.81, 0]` for a
-    /// mesh in metres). `None`: no gravity.
-    #[serde(default)]
-    pub gravity: Option<[f64; 3]>,
-    /// A ground plane the body lands on and stands on.
-    #[serde(default)]
-    pub ground: Option<Ground>,
-    /// Static mesh colliders (closed meshes), in the source mesh's coordinates.
-    #[serde(default)]
-    pub colliders: Vec<MeshCollider>,
-    /// The walls on the grid's faces that keep every particle inside it.
-    #[serde(default)]
-    pub walls: WallSettings,
-    /// Velocity damping per second (reference 0.5).
-    pub drag: f64,
 }
 
 /// What a run writes besides each frame's points.
@@ -281,7 +260,7 @@ pub struct Method {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::morph::settings::{Ground, MorphSettings};
+    use crate::morph::settings::MorphSettings;
     use std::collections::BTreeSet;
 
     #[test]
@@ -292,20 +271,17 @@ mod tests {
         s.body.particles = Some(9000);
         s.method.refine_iterations = Some(3);
         s.method.dt = Some(1e-3);
-        s.world.gravity = Some([0.0, -9.81, 0.0]);
-        s.world.ground = Some(Ground {
-            height: 0.0,
-            friction: 0.5,
-        });
         let table = toml::Table::try_from(&s).unwrap();
         for (part, keys) in PARTS {
-            let fields: BTreeSet<&str> = table[part]
-                .as_table()
-                .unwrap()
-                .keys()
+            let fields: BTreeSet<&str> = (table[part].as_table().unwrap().keys())
                 .map(String::as_str)
                 .collect();
-            assert_eq!(fields, keys.iter().copied().collect(), "[{part}]");
+            // The world is its list; its shorthand keys are read only (settings::world).
+            let listed: BTreeSet<&str> = match part {
+                "world" => ["effects"].into(),
+                _ => keys.iter().copied().collect(),
+            };
+            assert_eq!(fields, listed, "[{part}]");
         }
         assert_eq!(table.len(), PARTS.len() + 1, "the parts and the preset");
     }

@@ -1,7 +1,7 @@
 //! [`MorphSettings::validate`]: every setting checked, in the order a message is wanted
 //! (counts before anything is sized by them), each message naming the option.
 
-use super::{MIN_WALL_THICKNESS, MorphSettings, default_arrival, limits};
+use super::{MorphSettings, default_arrival, limits};
 
 impl MorphSettings {
     /// Checks every setting; the message names the option. Counts are checked before
@@ -83,7 +83,6 @@ impl MorphSettings {
         non_negative("control-smoothing", self.method.control_smoothing)?;
         non_negative("fine-weight", self.method.fine_weight)?;
         non_negative("reach-weight", self.method.reach_weight)?;
-        non_negative("drag", self.world.drag)?;
         non_negative("settle-drag", self.method.settle_drag)?;
         if !(self.method.carry_controls.is_finite()
             && (0.0..=1.0).contains(&self.method.carry_controls))
@@ -191,48 +190,17 @@ impl MorphSettings {
         Ok(())
     }
 
-    /// The world: gravity, the start velocity, the ground, colliders and walls.
+    /// The world's effects and the start velocity.
     fn validate_world(&self) -> Result<(), String> {
-        if let Some(g) = self.world.gravity
-            && !g.iter().all(|v| v.is_finite())
-        {
-            return Err(format!("gravity must be finite, got {g:?}"));
-        }
+        self.world.validate()?;
         if !self.body.initial_velocity.iter().all(|v| v.is_finite()) {
             return Err(format!(
                 "initial_velocity must be finite, got {:?}",
                 self.body.initial_velocity
             ));
         }
-        let frictions = self
-            .world
-            .ground
-            .iter()
-            .map(|g| ("ground", g.friction))
-            .chain(
-                self.world
-                    .colliders
-                    .iter()
-                    .map(|c| ("collider", c.friction)),
-            );
-        for (what, mu) in frictions {
-            if !(mu.is_finite() && mu >= 0.0) {
-                return Err(format!("{what} friction must be >= 0, got {mu}"));
-            }
-        }
-        if let Some(g) = &self.world.ground
-            && !g.height.is_finite()
-        {
-            return Err(format!("ground height must be finite, got {}", g.height));
-        }
-        if self.world.walls.thickness < MIN_WALL_THICKNESS {
-            return Err(format!(
-                "walls thickness must be at least {MIN_WALL_THICKNESS} cells (the kernel's reach), got {}",
-                self.world.walls.thickness
-            ));
-        }
         if self.body.target_fit == crate::geometry::TargetFit::OnGround
-            && self.world.ground.is_none()
+            && self.world.ground().is_none()
         {
             return Err("--target-fit on-ground needs a ground plane (a scene's [ground])".into());
         }

@@ -33,8 +33,20 @@ pub enum EffectConfig {
     /// A static collider with Coulomb friction (see [`crate::effects::collider`]).
     Collider {
         shape: ColliderConfig,
+        #[serde(default = "default_friction")]
         friction: f64,
     },
+}
+
+/// A collider's friction when a scene does not give one.
+pub const DEFAULT_FRICTION: f64 = 0.5;
+
+fn default_friction() -> f64 {
+    DEFAULT_FRICTION
+}
+
+fn unit_scale() -> f64 {
+    1.0
 }
 
 /// A collider's solid, in simulation coordinates.
@@ -46,9 +58,31 @@ pub enum ColliderConfig {
     /// The inside of a closed mesh file, mapped by `x -> scale x + translation`.
     Mesh {
         path: std::path::PathBuf,
+        #[serde(default = "unit_scale")]
         scale: f64,
+        #[serde(default)]
         translation: [f64; 3],
     },
+}
+
+/// A similarity `x -> scale x + translation` from the units a scene's effects are given in
+/// (a morph's world: the source mesh's) to the simulation's grid coordinates.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct WorldMap {
+    pub scale: f64,
+    pub translation: [f64; 3],
+}
+
+impl WorldMap {
+    /// Effects given in the simulation's own coordinates.
+    pub const IDENTITY: WorldMap = WorldMap {
+        scale: 1.0,
+        translation: [0.0; 3],
+    };
+
+    fn point(&self, x: [f64; 3]) -> [f64; 3] {
+        (self.scale * Vector3::from(x) + Vector3::from(self.translation)).into()
+    }
 }
 
 impl EffectConfig {
@@ -61,6 +95,97 @@ impl EffectConfig {
         }
     }
 
+    /// The same effect in the simulation's coordinates, when `self` is given in the units
+    /// `map` takes to them: positions and meshes are placed, gravity scaled; drag (per second)
+    /// and walls (in cells) are the same in any units.
+    pub fn placed(&self, map: &WorldMap) -> EffectConfig {
+        let mut placed = self.clone();
+        match &mut placed {
+            EffectConfig::Gravity { acceleration } => {
+                *acceleration = (map.scale * Vector3::from(*acceleration)).into();
+            }
+            EffectConfig::Collider { shape, .. } => match shape {
+                ColliderConfig::Plane { point, .. } => *point = map.point(*point),
+                ColliderConfig::Mesh {
+                    scale, translation, ..
+                } => {
+                    *translation = map.point(*translation);
+                    *scale *= map.scale;
+                }
+            },
+            EffectConfig::Drag { .. } | EffectConfig::Walls { .. } => {}
+        }
+        placed
+    }
+
+    /// Checks the parameters a scene gives, in any units, before any grid is made.
+    pub fn check(&self) -> Result<(), String> {
+        match *self {
+            EffectConfig::Drag {
+                coefficient,
+                start,
+                ramp,
+            } => {
+                if !(coefficient.is_finite() && coefficient >= 0.0) {
+                    return Err(format!(
+                        "drag coefficient must be finite and >= 0, got {coefficient}"
+                    ));
+                }
+                if !(start.is_finite() && start >= 0.0 && ramp.is_finite() && ramp >= 0.0) {
+                    return Err(format!(
+                        "drag start and ramp must be finite and >= 0, got {start} and {ramp}"
+                    ));
+                }
+            }
+            EffectConfig::Gravity { acceleration } => {
+                if acceleration.iter().any(|a| !a.is_finite()) {
+                    return Err(format!("gravity must be finite, got {acceleration:?}"));
+                }
+            }
+            EffectConfig::Walls { thickness, .. } => {
+                if thickness == 0 {
+                    return Err("wall thickness must be at least 1 cell".into());
+                }
+            }
+            EffectConfig::Collider {
+                ref shape,
+                friction,
+            } => {
+                if !(friction.is_finite() && friction >= 0.0) {
+                    return Err(format!(
+                        "collider friction must be finite and >= 0, got {friction}"
+                    ));
+                }
+                match shape {
+                    ColliderConfig::Plane { point, normal } => {
+                        let n = Vector3::from(*normal);
+                        if !(n.norm() > 0.0 && n.iter().chain(point).all(|v| v.is_finite())) {
+                            return Err(format!(
+                                "a plane collider needs a finite point and a non-zero normal, got {point:?} and {normal:?}"
+                            ));
+                        }
+                    }
+                    ColliderConfig::Mesh {
+                        path,
+                        scale,
+                        translation,
+                    } => {
+                        if !(scale.is_finite()
+                            && *scale > 0.0
+                            && translation.iter().all(|t| t.is_finite()))
+                        {
+                            return Err(format!(
+                                "collider {} needs a finite scale above 0 and a finite translation, got {scale} and {translation:?}",
+                                path.display()
+                            ));
+                        }
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
     /// The effect on `grid` (colliders find their boundary nodes on it; `solids` loads the
     /// meshes mesh colliders name).
     pub fn build(
@@ -68,48 +193,25 @@ impl EffectConfig {
         grid: &GridSpec,
         solids: &dyn SolidLoader,
     ) -> Result<Box<dyn Effect>, SimError> {
-        let bad = |why: String| Err(SimError::InvalidScene(why));
+        self.check().map_err(SimError::InvalidScene)?;
         Ok(match *self {
             EffectConfig::Collider {
                 ref shape,
                 friction,
             } => Box::new(collider(shape, friction, grid, solids)?),
-
             EffectConfig::Drag {
                 coefficient,
                 start,
                 ramp,
-            } => {
-                if !(coefficient.is_finite() && coefficient >= 0.0) {
-                    return bad(format!(
-                        "drag coefficient must be finite and >= 0, got {coefficient}"
-                    ));
-                }
-                if !(start.is_finite() && start >= 0.0 && ramp.is_finite() && ramp >= 0.0) {
-                    return bad(format!(
-                        "drag start and ramp must be finite and >= 0, got {start} and {ramp}"
-                    ));
-                }
-                Box::new(Drag {
-                    coefficient,
-                    start,
-                    ramp,
-                })
-            }
-            EffectConfig::Gravity { acceleration } => {
-                if acceleration.iter().any(|a| !a.is_finite()) {
-                    return bad(format!("gravity must be finite, got {acceleration:?}"));
-                }
-                Box::new(Gravity {
-                    acceleration: Vector3::from(acceleration),
-                })
-            }
-            EffectConfig::Walls { mode, thickness } => {
-                if thickness == 0 {
-                    return bad("wall thickness must be at least 1 cell".into());
-                }
-                Box::new(Walls { mode, thickness })
-            }
+            } => Box::new(Drag {
+                coefficient,
+                start,
+                ramp,
+            }),
+            EffectConfig::Gravity { acceleration } => Box::new(Gravity {
+                acceleration: Vector3::from(acceleration),
+            }),
+            EffectConfig::Walls { mode, thickness } => Box::new(Walls { mode, thickness }),
         })
     }
 }
@@ -139,27 +241,16 @@ impl SolidLoader for NoSolids {
     }
 }
 
-/// A collider's boundary on `grid`.
+/// A collider's boundary on `grid` (its parameters checked).
 fn collider(
     shape: &ColliderConfig,
     friction: f64,
     grid: &GridSpec,
     solids: &dyn SolidLoader,
 ) -> Result<Collider, SimError> {
-    let bad = |why: String| Err(SimError::InvalidScene(why));
-    if !(friction.is_finite() && friction >= 0.0) {
-        return bad(format!(
-            "collider friction must be finite and >= 0, got {friction}"
-        ));
-    }
     let collider = match shape {
         ColliderConfig::Plane { point, normal } => {
             let n = Vector3::from(*normal);
-            if !(n.norm() > 0.0 && n.iter().chain(point).all(|v| v.is_finite())) {
-                return bad(format!(
-                    "a plane collider needs a finite point and a non-zero normal, got {point:?} and {normal:?}"
-                ));
-            }
             Collider::on_grid(
                 "ground".into(),
                 ColliderShape::HalfSpace {
@@ -313,6 +404,62 @@ pub fn ball_particles(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A world effect placed on the grid: positions and meshes mapped, gravity scaled, drag and
+    /// walls as they are.
+    #[test]
+    fn placing_maps_positions_and_meshes_and_scales_gravity() {
+        let map = WorldMap {
+            scale: 4.0,
+            translation: [1.0, 2.0, 3.0],
+        };
+        let gravity = EffectConfig::Gravity {
+            acceleration: [0.0, -9.81, 0.0],
+        };
+        assert_eq!(
+            gravity.placed(&map),
+            EffectConfig::Gravity {
+                acceleration: [0.0, -39.24, 0.0]
+            }
+        );
+        let plane = EffectConfig::Collider {
+            shape: ColliderConfig::Plane {
+                point: [0.0, -1.0, 0.0],
+                normal: [0.0, 1.0, 0.0],
+            },
+            friction: 0.2,
+        };
+        let EffectConfig::Collider {
+            shape: ColliderConfig::Plane { point, normal },
+            ..
+        } = plane.placed(&map)
+        else {
+            panic!()
+        };
+        assert_eq!((point, normal), ([1.0, -2.0, 3.0], [0.0, 1.0, 0.0]));
+        let mesh = EffectConfig::Collider {
+            shape: ColliderConfig::Mesh {
+                path: "rock.obj".into(),
+                scale: 0.5,
+                translation: [1.0, 0.0, 0.0],
+            },
+            friction: 0.2,
+        };
+        // x -> 4 (0.5 x + (1, 0, 0)) + (1, 2, 3) = 2 x + (5, 2, 3).
+        let EffectConfig::Collider {
+            shape: ColliderConfig::Mesh {
+                scale, translation, ..
+            },
+            ..
+        } = mesh.placed(&map)
+        else {
+            panic!()
+        };
+        assert_eq!((scale, translation), (2.0, [5.0, 2.0, 3.0]));
+        let drag = EffectConfig::drag(0.5);
+        assert_eq!(drag.placed(&map), drag);
+        assert_eq!(WorldMap::IDENTITY.point([1.0, 2.0, 3.0]), [1.0, 2.0, 3.0]);
+    }
 
     /// A mesh collider needs a loader: without one the scene is refused, naming the file.
     #[test]
