@@ -37,7 +37,7 @@ fn from_frames(out: &Path, target: &Path) -> (MotionMeasures, serde_json::Value)
         .unwrap()
         .mesh
         .transformed(num(&placement["scale"]), &Vector3::new(t[0], t[1], t[2]));
-    let ppc = num(&m["settings"]["particles_per_cell"]);
+    let ppc = num(&m["settings"]["body"]["particles_per_cell"]);
     let spacing = num(&m["dx_sim"]) * num(&m["sim_to_world"]["scale"]) / ppc;
     let progress = Progress::new(&mesh, &first.x, spacing);
     let (mut speeds, mut ious) = (Vec::new(), Vec::new());
@@ -63,9 +63,9 @@ fn from_frames(out: &Path, target: &Path) -> (MotionMeasures, serde_json::Value)
     }
     // Measured from the frame the shape change begins on; segment boundaries (the frames on
     // which each segment ends) counted from there.
-    let begin = m["settings"]["begin"].as_u64().unwrap() as usize;
-    let every = num(&m["settings"]["frame_every"]);
-    let steps = num(&m["settings"]["steps_per_segment"]);
+    let begin = m["settings"]["shot"]["begin"].as_u64().unwrap() as usize;
+    let every = num(&m["settings"]["shot"]["frame_every"]);
+    let steps = num(&m["settings"]["method"]["steps_per_segment"]);
     let per_segment = steps / every;
     let boundaries: Vec<usize> = (1..)
         .map(|k| 1 + (k as f64 * per_segment).round() as usize)
@@ -73,7 +73,7 @@ fn from_frames(out: &Path, target: &Path) -> (MotionMeasures, serde_json::Value)
         .filter(|&b| b >= begin)
         .map(|b| b + 1 - begin)
         .collect();
-    let arrive = m["settings"]["at"]
+    let arrive = m["settings"]["shot"]["at"]
         .as_array()
         .unwrap()
         .last()

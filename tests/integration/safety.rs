@@ -428,7 +428,7 @@ fn resume_with_overwrite_starts_over_when_it_cannot_continue() {
     assert_eq!(o.status.code(), Some(0), "{}", stderr(&o));
     let m: serde_json::Value =
         serde_json::from_slice(&std::fs::read(dir.join("out/manifest.json")).unwrap()).unwrap();
-    assert_eq!(m["settings"]["jitter"], 0.2);
+    assert_eq!(m["settings"]["body"]["jitter"], 0.2);
     assert!(!dir.join("out.partial").exists());
 }
 
@@ -833,7 +833,7 @@ fn resume_with_a_shorter_last_segment_is_bitwise_identical() {
     ];
     let m = interrupt_resume_and_compare("short-last", SHOT);
     assert_eq!(m["frames"].as_array().unwrap().len(), 41);
-    assert_eq!(m["settings"]["segments"].as_u64(), Some(5));
+    assert_eq!(m["settings"]["method"]["segments"].as_u64(), Some(5));
 }
 
 /// A look-ahead (`--lookahead 1`): each checkpoint holds the controls the window left for
@@ -870,7 +870,7 @@ fn resume_with_lookahead_is_bitwise_identical() {
         "--quiet",
     ];
     let m = interrupt_resume_and_compare("lookahead-resume", SHOT);
-    assert_eq!(m["settings"]["lookahead"].as_u64(), Some(1));
+    assert_eq!(m["settings"]["method"]["lookahead"].as_u64(), Some(1));
     assert_eq!(m["frames"].as_array().unwrap().len(), 41);
     // One pass: interrupted in the last pass, where a finished segment's controls are kept
     // only as long as the next segment's continuity needs them.
@@ -879,7 +879,7 @@ fn resume_with_lookahead_is_bitwise_identical() {
         .map(|a| if *a == "2" { "1" } else { *a })
         .collect();
     let m = interrupt_resume_and_compare("lookahead-resume-one-pass", &one_pass);
-    assert_eq!(m["settings"]["passes"].as_u64(), Some(1));
+    assert_eq!(m["settings"]["method"]["passes"].as_u64(), Some(1));
 }
 
 /// Coarse-to-fine (`--levels 2`): interrupted after a checkpoint of the finest level, the

@@ -144,7 +144,7 @@ fn the_resolved_scene_reproduces_the_mass_grid_bitwise() {
     ok(&morph(&args));
     let m = manifest(&first);
     assert_eq!(
-        m["settings"]["resolution"].as_u64(),
+        m["settings"]["body"]["resolution"].as_u64(),
         Some(16),
         "the command line overrides"
     );
@@ -202,7 +202,7 @@ fn the_examples_run() {
                 // The drop and the landing are left to physics: the four segments before the
                 // change begins (frame 25) run without controls, not optimized, and the body
                 // moves in them.
-                assert_eq!(m["settings"]["begin"], 25);
+                assert_eq!(m["settings"]["shot"]["begin"], 25);
                 assert_eq!(m["motion"]["first_frame"], 25);
                 let segments = m["segments"].as_array().unwrap();
                 let evaluations: Vec<u64> = segments
@@ -214,7 +214,13 @@ fn the_examples_run() {
                 assert!(m["frames"][8]["rms_speed"].as_f64().unwrap() > 0.1);
                 // The body lands and stays on the ground: on the last frame no particle is
                 // more than a particle spacing below it, and the lowest is within two cells.
-                let ground = m["settings"]["ground"]["height"].as_f64().unwrap();
+                let ground = m["settings"]["world"]["effects"]
+                    .as_array()
+                    .unwrap()
+                    .iter()
+                    .find(|e| e["shape"]["kind"] == "plane")
+                    .map(|e| e["shape"]["point"][1].as_f64().unwrap())
+                    .expect("the scene's ground in the world's effects");
                 let (lowest, spacing) = lowest_point(&out, &m);
                 assert!(lowest > ground - spacing, "lowest {lowest}");
                 assert!(
@@ -223,7 +229,7 @@ fn the_examples_run() {
                 );
             }
             "stiff-material.toml" => {
-                let d = &m["settings"]["material"];
+                let d = &m["settings"]["body"]["material"];
                 let (e, _) = morph::engine::material::young_poisson_from_lame(
                     d["mu"].as_f64().unwrap(),
                     d["lambda"].as_f64().unwrap(),
@@ -252,7 +258,7 @@ fn lowest_point(out: &Path, m: &serde_json::Value) -> (f64, f64) {
         .fold(f64::INFINITY, f64::min);
     let scale = m["sim_to_world"]["scale"].as_f64().unwrap();
     let dx = m["dx_sim"].as_f64().unwrap();
-    let per_cell = m["settings"]["particles_per_cell"].as_f64().unwrap();
+    let per_cell = m["settings"]["body"]["particles_per_cell"].as_f64().unwrap();
     (lowest, scale * dx / per_cell)
 }
 
@@ -270,7 +276,7 @@ fn bad_scene_values_fail_with_one_line() {
     );
     let teapot = root().join("../shared/meshes/teapot.obj");
     for (name, body, code, says) in [
-        ("type", "frames = \"many\"\n".to_string(), 2, "in `frames`"),
+        ("type", "frames = \"many\"\n".to_string(), 2, "in `shot.frames`"),
         (
             "open-collider",
             format!("[[colliders]]\nmesh = \"{}\"\n", teapot.display()),

@@ -82,7 +82,7 @@ fn a_thin_legged_target_gets_its_particles_and_the_summary_says_so() {
     assert_eq!(sizing["per_cell"], 3, "{line}");
     assert!(line.starts_with("particles: 3 per cell"), "{line}");
     assert!(line.contains("table.obj"), "{line}");
-    assert_eq!(m["settings"]["particles_per_cell"], 3);
+    assert_eq!(m["settings"]["body"]["particles_per_cell"], 3);
     // The count the summary names is the run's: within the estimate's few percent.
     let estimated = sizing["particles"].as_f64().unwrap();
     let particles = m["particles"].as_f64().unwrap();
@@ -99,7 +99,7 @@ fn a_thin_legged_target_gets_its_particles_and_the_summary_says_so() {
     assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
     let m = manifest(&fixed);
     assert!(m.get("sizing").is_none());
-    assert_eq!(m["settings"]["particles_per_cell"], 2);
+    assert_eq!(m["settings"]["body"]["particles_per_cell"], 2);
 }
 
 #[test]
