@@ -179,14 +179,14 @@ fn controlled_rope_bits(integrator: IntegratorKind) {
             morph::engine::with_integrator!(&rope.engine, sys => {
             let model = sys.model();
             assert!(model.num_particles() >= 2048, "{}", model.num_particles());
-            let mut params = model.controls.zero_params();
+            let mut params = model.controls().zero_params();
             let mut rng = Lcg(9);
             for knots in params.iter_mut() {
                 for k in knots.iter_mut() {
                     *k = 0.002 * Vector3::new(rng.next(), rng.next(), 0.0);
                 }
             }
-            model.controls.project(&mut params);
+            model.controls().project(&mut params);
             let mut s = rope.initial.clone();
             let mut tape = Default::default();
             let energy = Controlled::run(sys, &mut s, &params, Steps::new(0, 6), Some(&mut tape), &mut |_, _| {})

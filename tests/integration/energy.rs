@@ -103,7 +103,7 @@ fn rk4(b: &Bar, dt: f64) -> (f64, f64) {
     let mut s = State::ode_at_rest(b.x.clone());
     s.v = b.v.clone();
     let e0 = kinetic(&s.v, m) + sys.elastic_energy(&s);
-    let params = sys.controls.zero_params();
+    let params = sys.controls().zero_params();
     let t = Instant::now();
     sys.rollout(&mut s, &params, Steps::new(0, steps), None, |_, _| {})
         .unwrap();

@@ -73,7 +73,7 @@ fn setup(
             s.c[p] = 0.5 * rng.mat3();
         }
     }
-    let mut params = rope.engine.model().controls.zero_params();
+    let mut params = rope.engine.model().controls().zero_params();
     for (e, knots) in params.iter_mut().enumerate() {
         let amp = match (e, clamp_mode) {
             (0, ClampMode::Velocity) => 0.2,

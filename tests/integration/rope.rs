@@ -84,7 +84,7 @@ fn bad_control_settings_are_clear_errors() {
 fn non_finite_or_misshapen_control_knots_are_refused() {
     let settings = RopeSettings::default();
     let rope = settings.rope.build().unwrap();
-    let plan: &ControlPlan = &rope.engine.model().controls;
+    let plan: ControlPlan = rope.engine.model().controls();
     let mut p: ControlParams = plan.zero_params();
     p[0][3] = Vector3::new(f64::NAN, 0.0, 0.0);
     let err = plan.check_params(&p).unwrap_err().to_string();

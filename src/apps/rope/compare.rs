@@ -319,7 +319,7 @@ fn compare_methods<S: Controlled>(
     let every = settings.frame_every;
     let model = sys.model();
 
-    let zero = model.controls.zero_params();
+    let zero = model.controls().zero_params();
     let (mut uncontrolled, f0) = method_report(sys, rope, &zero, None, every)?;
     let mppi_run = mppi_control(sys, &rope.initial, &settings.mppi, steps, &mut *on_event)?;
     let (mut mppi, f1) = method_report(sys, rope, &mppi_run.params, Some(&mppi_run), every)?;

@@ -94,7 +94,7 @@ pub fn gradient_control<S: Controlled>(
     horizon: usize,
     mut on_event: impl FnMut(ControlEvent),
 ) -> Result<ControllerRun, SimError> {
-    let (plan, dt) = (&sys.model().controls, sys.model().dt);
+    let (plan, dt) = (sys.model().controls(), sys.model().dt);
     let (schedule, bounds) = (plan.schedule, plan.bounds());
     settings.validate(horizon, schedule.steps_per_interval)?;
     let mut run = Online::start(plan.zero_params(), init, horizon);

@@ -105,7 +105,7 @@ pub fn mppi_control<S: Controlled>(
     total: usize,
     mut on_event: impl FnMut(ControlEvent),
 ) -> Result<ControllerRun, SimError> {
-    let (plan, dt) = (&sys.model().controls, sys.model().dt);
+    let (plan, dt) = (sys.model().controls(), sys.model().dt);
     let (schedule, bounds) = (plan.schedule, plan.bounds());
     settings.validate(total, schedule.steps_per_interval)?;
     let mut run = Online::start(plan.zero_params(), init, total);

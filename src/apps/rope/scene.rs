@@ -9,7 +9,7 @@ use crate::engine::Engine;
 use crate::engine::integrator::IntegratorKind;
 use crate::engine::material::{MaterialModel, lame_from_young_poisson};
 use crate::engine::mpm::State;
-use crate::engine::mpm::{ControlEffect, ControlKind, ControlPlan, ControlSchedule, Interpolation};
+use crate::engine::mpm::{ControlEffect, ControlKind, ControlSchedule, Interpolation};
 use crate::engine::mpm::{GridSpec, KernelKind, SimError};
 use crate::engine::scene::{EffectConfig, MaterialConfig, SceneConfig};
 use nalgebra::Vector3;
@@ -215,14 +215,12 @@ impl RopeConfig {
             Actuation::Segments => (false, false),
         };
         let grid = self.grid(use_clamp);
-        let plan = ControlPlan {
-            schedule: ControlSchedule {
-                interpolation: self.interpolation,
-                steps_per_interval: self.control_interval,
-                intervals: self.steps / self.control_interval,
-            },
-            effects: self.control_effects(use_clamp, use_tip, lattice.sets),
+        let schedule = ControlSchedule {
+            interpolation: self.interpolation,
+            steps_per_interval: self.control_interval,
+            intervals: self.steps / self.control_interval,
         };
+        let controls = self.control_effects(use_clamp, use_tip, lattice.sets);
         let (mu, lambda) = lame_from_young_poisson(self.youngs_modulus, self.poisson_ratio);
         // The rope is a scene like any other: built through the one scene description.
         let scene = SceneConfig {
@@ -239,7 +237,7 @@ impl RopeConfig {
                 acceleration: [0.0, -self.gravity, 0.0],
             }],
         };
-        let model = scene.model(vec![h * h * h; n])?.with_controls(plan)?;
+        let model = scene.model(vec![h * h * h; n])?.with_controls(schedule, controls)?;
         let engine = Engine::new(model, self.integrator)?;
         Ok(Rope {
             engine,

@@ -1,9 +1,10 @@
-//! The model's boundary controls, for both integrators, as effects a scene declares: body
-//! forces on a set of particles, and a prescribed velocity of a boundary region (e.g. the
-//! clamped end of a rope moved by the controller). Each control is a 3-vector sequence over control intervals, piecewise
-//! constant or piecewise linear in time, bounded per component.
-
+//! The model's boundary controls, for both integrators: effects of the model's list
+//! ([`ControlEffect`]) that a controller drives, body forces on a set of particles and a
+//! prescribed velocity or position of a boundary region (the clamped end of a rope). Each
+//! control is a 3-vector sequence over the intervals of one schedule, piecewise constant or
+//! piecewise linear in time, bounded per component; [`ControlPlan`] reads them.
 use crate::mpm::SimError;
+use crate::mpm::effect::Effect;
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
@@ -31,6 +32,16 @@ pub struct ControlSchedule {
 }
 
 impl ControlSchedule {
+    /// One piecewise-constant interval of `steps` steps: the schedule of a model without
+    /// boundary controls.
+    pub fn whole_run(steps: usize) -> ControlSchedule {
+        ControlSchedule {
+            interpolation: Interpolation::Constant,
+            steps_per_interval: steps.max(1),
+            intervals: 1,
+        }
+    }
+
     pub fn knots(&self) -> usize {
         match self.interpolation {
             Interpolation::Constant => self.intervals,
@@ -89,7 +100,9 @@ impl ControlKind {
     }
 }
 
-/// One declared control: its kind, the particles it acts on and its per-component bound.
+/// One boundary control, an effect of the model's list like the others: its kind, the
+/// particles it acts on and its per-component bound. It has no grid hook; the pipeline reads
+/// its value at each step from the model's [`ControlPlan`].
 #[derive(Clone, Debug)]
 pub struct ControlEffect {
     pub kind: ControlKind,
@@ -99,97 +112,136 @@ pub struct ControlEffect {
     pub bound: Vector3<f64>,
 }
 
+impl Effect for ControlEffect {
+    fn name(&self) -> &'static str {
+        match self.kind {
+            ControlKind::BodyForce => "body force",
+            ControlKind::PrescribedVelocity => "prescribed velocity",
+            ControlKind::PrescribedPosition => "prescribed position",
+        }
+    }
+
+    fn as_control(&self) -> Option<&ControlEffect> {
+        Some(self)
+    }
+}
+
 /// Knot values per control: `params[e][j]` is control `e`'s value at knot `j`.
 pub type ControlParams = Vec<Vec<Vector3<f64>>>;
 
-/// The controls a scene declares and their common schedule.
-#[derive(Clone, Debug)]
-pub struct ControlPlan {
+/// The boundary controls of a model's effect list, in list order, with their common
+/// schedule: what the integrators and the controllers read ([`crate::mpm::model::Model::controls`]).
+#[derive(Clone, Copy, Debug)]
+pub struct ControlPlan<'a> {
     pub schedule: ControlSchedule,
-    pub effects: Vec<ControlEffect>,
+    effects: &'a [Box<dyn Effect>],
+    /// How many of `effects` are controls.
+    count: usize,
 }
 
-impl ControlPlan {
-    /// A plan with no controls (an uncontrolled scene) covering `steps` steps.
-    pub fn none(steps: usize) -> ControlPlan {
-        ControlPlan {
-            schedule: ControlSchedule {
-                interpolation: Interpolation::Constant,
-                steps_per_interval: steps.max(1),
-                intervals: 1,
-            },
-            effects: Vec::new(),
+/// Checks a schedule and its controls against `n` particles: each control acts on some of
+/// them, with finite bounds, and no particle is in two prescribed-motion regions.
+pub fn validate(
+    schedule: &ControlSchedule,
+    controls: &[ControlEffect],
+    n: usize,
+) -> Result<(), SimError> {
+    let bad = |m: String| Err(SimError::InvalidScene(m));
+    if schedule.steps_per_interval == 0 {
+        return bad("control interval must be at least 1 step".into());
+    }
+    if schedule.intervals == 0 {
+        return bad("control schedule needs at least one interval".into());
+    }
+    let mut clamped = vec![false; n];
+    for e in controls {
+        if e.particles.is_empty() {
+            return bad(format!("control '{}' acts on no particles", e.name));
         }
+        if let Some(&p) = e.particles.iter().find(|&&p| p >= n) {
+            return bad(format!(
+                "control '{}' names particle {p}, but the scene has {n}",
+                e.name
+            ));
+        }
+        if !e.bound.iter().all(|b| b.is_finite() && *b >= 0.0) {
+            return bad(format!(
+                "control '{}' has bound ({}, {}, {}); bounds must be finite and >= 0",
+                e.name, e.bound[0], e.bound[1], e.bound[2]
+            ));
+        }
+        if e.kind == ControlKind::PrescribedPosition
+            && schedule.interpolation != Interpolation::Linear
+        {
+            return bad(format!(
+                "control '{}' prescribes a position, which needs linear interpolation (a piecewise-constant position would jump)",
+                e.name
+            ));
+        }
+        if e.kind.is_kinematic() {
+            for &p in &e.particles {
+                if std::mem::replace(&mut clamped[p], true) {
+                    return bad(format!(
+                        "particle {p} is in two prescribed-motion regions (last '{}')",
+                        e.name
+                    ));
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
+impl<'a> ControlPlan<'a> {
+    /// The controls among `effects`, in list order, under `schedule`.
+    pub(crate) fn new(schedule: ControlSchedule, effects: &'a [Box<dyn Effect>]) -> Self {
+        let count = effects.iter().filter(|e| e.as_control().is_some()).count();
+        ControlPlan {
+            schedule,
+            effects,
+            count,
+        }
+    }
+
+    /// Number of controls.
+    pub fn len(&self) -> usize {
+        self.count
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.count == 0
+    }
+
+    /// The controls in order (the knot sequences' order).
+    pub fn iter(&self) -> impl Iterator<Item = &'a ControlEffect> + 'a {
+        self.effects.iter().filter_map(|e| e.as_control())
+    }
+
+    /// Control `e`, counted in [`ControlPlan::iter`]'s order.
+    pub fn get(&self, e: usize) -> &'a ControlEffect {
+        self.iter().nth(e).expect("a control of the plan")
     }
 
     /// Each control's per-component bound.
     pub fn bounds(&self) -> Vec<Vector3<f64>> {
-        self.effects.iter().map(|e| e.bound).collect()
-    }
-
-    /// Checks the schedule, particle sets and bounds against `n` particles.
-    pub fn validate(&self, n: usize) -> Result<(), SimError> {
-        let bad = |m: String| Err(SimError::InvalidScene(m));
-        let s = &self.schedule;
-        if s.steps_per_interval == 0 {
-            return bad("control interval must be at least 1 step".into());
-        }
-        if s.intervals == 0 {
-            return bad("control schedule needs at least one interval".into());
-        }
-        let mut clamped = vec![false; n];
-        for e in &self.effects {
-            if e.particles.is_empty() {
-                return bad(format!("control '{}' acts on no particles", e.name));
-            }
-            if let Some(&p) = e.particles.iter().find(|&&p| p >= n) {
-                return bad(format!(
-                    "control '{}' names particle {p}, but the scene has {n}",
-                    e.name
-                ));
-            }
-            if !e.bound.iter().all(|b| b.is_finite() && *b >= 0.0) {
-                return bad(format!(
-                    "control '{}' has bound ({}, {}, {}); bounds must be finite and >= 0",
-                    e.name, e.bound[0], e.bound[1], e.bound[2]
-                ));
-            }
-            if e.kind == ControlKind::PrescribedPosition && s.interpolation != Interpolation::Linear
-            {
-                return bad(format!(
-                    "control '{}' prescribes a position, which needs linear interpolation (a piecewise-constant position would jump)",
-                    e.name
-                ));
-            }
-            if e.kind.is_kinematic() {
-                for &p in &e.particles {
-                    if std::mem::replace(&mut clamped[p], true) {
-                        return bad(format!(
-                            "particle {p} is in two prescribed-motion regions (last '{}')",
-                            e.name
-                        ));
-                    }
-                }
-            }
-        }
-        Ok(())
+        self.iter().map(|e| e.bound).collect()
     }
 
     /// All-zero knot values.
     pub fn zero_params(&self) -> ControlParams {
-        vec![vec![Vector3::zeros(); self.schedule.knots()]; self.effects.len()]
+        vec![vec![Vector3::zeros(); self.schedule.knots()]; self.len()]
     }
 
     /// Checks that `params` has one finite value per knot of every control.
     pub fn check_params(&self, params: &ControlParams) -> Result<(), SimError> {
-        if params.len() != self.effects.len() {
+        if params.len() != self.len() {
             return Err(SimError::InvalidScene(format!(
                 "{} control sequences for {} controls",
                 params.len(),
-                self.effects.len()
+                self.len()
             )));
         }
-        for (e, knots) in self.effects.iter().zip(params) {
+        for (e, knots) in self.iter().zip(params) {
             if knots.len() != self.schedule.knots() {
                 return Err(SimError::InvalidScene(format!(
                     "control '{}' has {} knots, its schedule {}",
@@ -211,7 +263,7 @@ impl ControlPlan {
     /// Clamps every knot into its control's bounds (the optimizers' projection); a
     /// prescribed position's first knot stays at 0 (the region starts where it is).
     pub fn project(&self, params: &mut ControlParams) {
-        for (e, knots) in self.effects.iter().zip(params.iter_mut()) {
+        for (e, knots) in self.iter().zip(params.iter_mut()) {
             for k in knots.iter_mut() {
                 for a in 0..3 {
                     k[a] = k[a].clamp(-e.bound[a], e.bound[a]);
@@ -226,7 +278,7 @@ impl ControlPlan {
     /// Knots and weights of control `e`'s value (for a prescribed position, its velocity
     /// `(d_{j+1} - d_j) / (interval dt)` over the step's interval).
     fn weights(&self, e: usize, step: usize, theta: f64, dt: f64) -> [(usize, f64); 2] {
-        if self.effects[e].kind == ControlKind::PrescribedPosition {
+        if self.get(e).kind == ControlKind::PrescribedPosition {
             let spi = self.schedule.steps_per_interval;
             let j = (step / spi).min(self.schedule.intervals - 1);
             let rate = 1.0 / (spi as f64 * dt);
@@ -276,6 +328,45 @@ impl ControlPlan {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn controls_are_effects_of_the_model_and_a_new_set_replaces_the_old() {
+        let model = crate::scene::SceneConfig::reference()
+            .model(vec![1e-6; 4])
+            .unwrap();
+        let physics = model.effects.len();
+        let control = |kind, name: &str, particles| ControlEffect {
+            kind,
+            name: name.into(),
+            particles,
+            bound: Vector3::repeat(1.0),
+        };
+        let schedule = ControlSchedule {
+            interpolation: Interpolation::Linear,
+            steps_per_interval: 2,
+            intervals: 3,
+        };
+        let clamp = control(ControlKind::PrescribedVelocity, "clamp", vec![0, 1]);
+        let tip = control(ControlKind::BodyForce, "tip", vec![3]);
+        let model = model.with_controls(schedule, vec![clamp, tip]).unwrap();
+        assert_eq!(model.effects.len(), physics + 2);
+        let names: Vec<&str> = model.controls().iter().map(|c| c.name.as_str()).collect();
+        assert_eq!(names, ["clamp", "tip"]);
+        assert_eq!(model.effects[physics].name(), "prescribed velocity");
+        assert_eq!(model.kinematic_control(1), Some(0));
+        assert_eq!(model.kinematic_control(3), None);
+        assert_eq!(model.controls().zero_params().len(), 2);
+        let again = control(ControlKind::BodyForce, "tip", vec![2]);
+        let model = model.with_controls(schedule, vec![again]).unwrap();
+        assert_eq!(model.effects.len(), physics + 1);
+        assert!(!model.is_clamped(0));
+        let overlap = vec![
+            control(ControlKind::PrescribedVelocity, "a", vec![0, 1]),
+            control(ControlKind::PrescribedVelocity, "b", vec![1]),
+        ];
+        let err = model.with_controls(schedule, overlap).unwrap_err();
+        assert!(err.to_string().contains("two prescribed-motion regions"), "{err}");
+    }
 
     #[test]
     fn linear_schedule_is_continuous_and_constant_stays_in_its_interval() {

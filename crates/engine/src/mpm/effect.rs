@@ -87,6 +87,12 @@ pub trait Effect: Send + Sync + std::fmt::Debug {
     fn num_params(&self) -> usize {
         0
     }
+
+    /// The boundary control this effect is, if it is one (driven by a controller's knots
+    /// through [`crate::mpm::ControlPlan`] rather than by a grid hook).
+    fn as_control(&self) -> Option<&crate::mpm::ControlEffect> {
+        None
+    }
 }
 
 /// The effects that act on the grid in one form, in list order, with the layout of their

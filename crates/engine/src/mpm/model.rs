@@ -8,7 +8,8 @@ use super::transfer;
 use super::{GridSpec, KernelKind, SimError};
 use crate::lanes::SimdLevel;
 use crate::material::ConstitutiveModel;
-use crate::mpm::{ControlKind, ControlParams, ControlPlan};
+use crate::mpm::boundary;
+use crate::mpm::{ControlEffect, ControlKind, ControlParams, ControlPlan, ControlSchedule};
 use nalgebra::{Matrix3, Vector3};
 use rayon::prelude::*;
 use std::sync::Arc;
@@ -34,15 +35,15 @@ pub struct Model {
     pub dt: f64,
     pub kernel: KernelKind,
     pub material: Arc<dyn ConstitutiveModel>,
-    /// The optional physics the scene declared, in order (the `effects` module implements them).
+    /// The optional physics the scene declared, in order (the `effects` module implements
+    /// them), then the boundary controls [`Model::with_controls`] added.
     pub effects: Vec<Box<dyn Effect>>,
     pub mass: Vec<f64>,
     pub volume: Vec<f64>,
     /// Largest allowed particle displacement per step, in cells.
     pub max_cfl: f64,
-    /// Boundary controls the scene declares (body forces, prescribed velocities or
-    /// positions) and their schedule; none unless [`Model::with_controls`] set them.
-    pub controls: ControlPlan,
+    /// The boundary controls' schedule (one interval of the whole run when there are none).
+    control_schedule: ControlSchedule,
     /// How a deformation-gradient control `Fc` acts on `F` (see [`ControlForm`]).
     pub control_form: ControlForm,
     /// The vector instruction set the lane kernels run (the widest this CPU has unless set):
@@ -79,25 +80,37 @@ impl Model {
             clamp_of,
             volume,
             max_cfl: 1.0,
-            controls: ControlPlan::none(1),
+            control_schedule: ControlSchedule::whole_run(1),
             control_form: ControlForm::default(),
             simd: SimdLevel::Auto,
         })
     }
 
-    /// The model with boundary controls (validated against its particles).
-    pub fn with_controls(mut self, controls: ControlPlan) -> Result<Model, SimError> {
-        controls.validate(self.num_particles())?;
+    /// The model with boundary controls under one schedule, validated against its particles
+    /// and appended to its effects (replacing any it had).
+    pub fn with_controls(
+        mut self,
+        schedule: ControlSchedule,
+        controls: Vec<ControlEffect>,
+    ) -> Result<Model, SimError> {
+        boundary::validate(&schedule, &controls, self.num_particles())?;
+        self.effects.retain(|e| e.as_control().is_none());
         self.clamp_of = vec![FREE; self.num_particles()];
-        for (e, c) in controls.effects.iter().enumerate() {
+        for (e, c) in controls.into_iter().enumerate() {
             if c.kind.is_kinematic() {
                 for &p in &c.particles {
                     self.clamp_of[p] = e as u32;
                 }
             }
+            self.effects.push(Box::new(c));
         }
-        self.controls = controls;
+        self.control_schedule = schedule;
         Ok(self)
+    }
+
+    /// The boundary controls of the effect list and their schedule.
+    pub fn controls(&self) -> ControlPlan<'_> {
+        ControlPlan::new(self.control_schedule, &self.effects)
     }
 
     /// Whether particle `p` moves with a prescribed velocity.
@@ -127,7 +140,7 @@ impl Model {
     /// Per-particle body accelerations from the body-force controls' values.
     pub fn body_accelerations(&self, values: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
         let mut b = vec![Vector3::zeros(); self.num_particles()];
-        for (e, c) in self.controls.effects.iter().enumerate() {
+        for (e, c) in self.controls().iter().enumerate() {
             if c.kind == ControlKind::BodyForce {
                 for &p in &c.particles {
                     b[p] += values[e];
@@ -145,8 +158,7 @@ impl Model {
         grad_u: &[Vector3<f64>],
         grad_body: &[Vector3<f64>],
     ) -> Vec<Vector3<f64>> {
-        self.controls
-            .effects
+        self.controls()
             .iter()
             .map(|c| {
                 let src = if c.kind.is_kinematic() {
@@ -166,7 +178,7 @@ impl Model {
         step: usize,
         theta: f64,
     ) -> Vec<Vector3<f64>> {
-        self.controls.values(params, step, theta, self.dt)
+        self.controls().values(params, step, theta, self.dt)
     }
 
     pub fn num_particles(&self) -> usize {

@@ -349,7 +349,7 @@ pub fn hold_clamps<const N: usize, const K: usize>(
     values: Option<&[Vector3<f64>]>,
     fields: &mut [Vec<Vector3<f64>>; K],
 ) -> Vec<(usize, usize)> {
-    let kinematic = model.controls.effects.iter().any(|e| e.kind.is_kinematic());
+    let kinematic = model.controls().iter().any(|e| e.kind.is_kinematic());
     let Some(values) = values.filter(|_| kinematic) else {
         // No clamp: the ODE form's every evaluation passes here, so no scan of the particles.
         return Vec::new();
@@ -379,7 +379,7 @@ fn release_clamps<const K: usize>(
     held: &[(usize, usize)],
     grad_fields: &mut [Vec<Vector3<f64>>; K],
 ) -> Vec<Vector3<f64>> {
-    let mut grad_values = vec![Vector3::zeros(); model.controls.effects.len()];
+    let mut grad_values = vec![Vector3::zeros(); model.controls().len()];
     for &(i, e) in held {
         grad_values[e] += grad_fields[0][i];
         for field in grad_fields.iter_mut() {

@@ -110,7 +110,7 @@ impl Rk4 {
             let values = self.control_values(params, step, STAGE_THETA[i]);
             let at = stage_at(&values, step, i);
             let g = self.rhs_reverse(&stages[i], &at, &gk);
-            self.controls
+            self.controls()
                 .values_reverse(step, STAGE_THETA[i], self.dt, &g.controls, grad_params);
             for (acc, e) in grad_effects.iter_mut().zip(&g.effect_params) {
                 for (a, b) in acc.iter_mut().zip(e) {
@@ -148,7 +148,7 @@ impl Integrator for Rk4 {
         tape: Option<&mut Rk4Tape>,
         mut on_step: Option<&mut OnStep>,
     ) -> Result<(), SimError> {
-        let zero = self.controls.zero_params();
+        let zero = self.controls().zero_params();
         let params = controls.knots.unwrap_or(&zero);
         let mut s = state.ode_part();
         self.forward_driven(&mut s, controls.f, params, steps, tape, |k, st| {
@@ -190,7 +190,7 @@ impl Rk4 {
         grad_last: StateGrad,
         mut seed_after: Option<&mut SeedAfter>,
     ) -> Gradients {
-        let zero = self.controls.zero_params();
+        let zero = self.controls().zero_params();
         let params = controls.knots.unwrap_or(&zero);
         let seed = |i: usize, adj: &mut State, _: &mut ControlParams| {
             let Some(seed_after) = seed_after.as_deref_mut() else {

@@ -41,7 +41,7 @@ impl Rk4 {
         mut tape: Option<&mut Rk4Tape>,
         mut on_step: impl FnMut(usize, &State),
     ) -> Result<(), SimError> {
-        self.controls.check_params(params)?;
+        self.controls().check_params(params)?;
         self.check_state(s, steps.first)?;
         if let Some(t) = tape.as_deref_mut() {
             t.first_step = steps.first;
@@ -87,7 +87,7 @@ impl Rk4 {
         mut adj: State,
         mut seed: impl FnMut(usize, &mut State, &mut ControlParams),
     ) -> RunGradient {
-        let mut grad_params = self.controls.zero_params();
+        let mut grad_params = self.controls().zero_params();
         let mut effect_params = self.zero_effect_params();
         let mut grad_controls = vec![None; tape.steps.len()];
         for i in (0..tape.steps.len()).rev() {
@@ -190,7 +190,7 @@ impl Rk4 {
         let seed = |i: usize, adj: &mut State, grad_params: &mut ControlParams| {
             let (g, k) = (&energy_grads[i], tape.first_step + i);
             adj.axpy(1.0, &g.state);
-            self.controls
+            self.controls()
                 .values_reverse(k, 1.0, self.dt, &g.controls, grad_params);
         };
         self.backward_driven(tape, &[], params, adj, seed)

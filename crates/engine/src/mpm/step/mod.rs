@@ -241,7 +241,7 @@ impl Euler {
         }
         self.check_state(state, first_step)?;
         if let Some(params) = params {
-            self.controls.check_params(params)?;
+            self.controls().check_params(params)?;
         }
         for s in 0..n_steps {
             let k = first_step + s;
@@ -329,7 +329,7 @@ impl Euler {
         let mut grad_controls = vec![None; tape.steps.len()];
         let mut effect_params = self.zero_effect_params();
         let mut grad_params = match params {
-            Some(_) => self.controls.zero_params(),
+            Some(_) => self.controls().zero_params(),
             None => Vec::new(),
         };
         let mut rws = Workspace::default();
@@ -362,7 +362,7 @@ impl Euler {
                 grad_controls[s] = Some(g);
             }
             if values.is_some() {
-                self.controls.values_reverse(
+                self.controls().values_reverse(
                     step.step,
                     CONTROL_THETA,
                     self.dt,
