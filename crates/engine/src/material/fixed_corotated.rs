@@ -318,6 +318,10 @@ impl FixedCorotated {
 }
 
 impl ConstitutiveModel for FixedCorotated {
+    fn spec(&self) -> (super::MaterialModel, f64, f64) {
+        (super::MaterialModel::FixedCorotated, self.mu, self.lambda)
+    }
+
     fn energy_density(&self, f: &Matrix3<f64>) -> f64 {
         let s = svd3(f);
         let j = f.determinant();

@@ -87,6 +87,9 @@ pub fn young_poisson_from_lame(mu: f64, lambda: f64) -> (f64, f64) {
 /// matrices; the reverse pass relies on this and applies [`Self::stress_differential`] to the
 /// stress adjoint (tests check the symmetry `<dP[A], B> = <A, dP[B]>`).
 pub trait ConstitutiveModel: Send + Sync + std::fmt::Debug {
+    /// The model and Lamé parameters `(model, mu, lambda)` it is built from
+    /// ([`MaterialModel::build`]): plain data, from which a device builds its own copy.
+    fn spec(&self) -> (MaterialModel, f64, f64);
     /// Strain energy per unit rest volume.
     fn energy_density(&self, f: &Matrix3<f64>) -> f64;
     /// First Piola-Kirchhoff stress `P = dPsi/dF`.

@@ -34,6 +34,10 @@ impl StableNeoHookean {
 }
 
 impl ConstitutiveModel for StableNeoHookean {
+    fn spec(&self) -> (super::MaterialModel, f64, f64) {
+        (super::MaterialModel::StableNeoHookean, self.mu, self.lam - self.mu)
+    }
+
     fn energy_density(&self, f: &Matrix3<f64>) -> f64 {
         let j = f.determinant();
         0.5 * self.mu * (f.norm_squared() - 3.0) + 0.5 * self.lam * (j - self.alpha).powi(2)

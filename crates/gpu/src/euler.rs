@@ -1,0 +1,346 @@
+//! The symplectic-Euler step on a device: the model's data in device buffers, one submission a
+//! step of seven dispatches (bin, scan, place, sort, stress, P2G with the grid update, G2P;
+//! `step.wgsl`), the state read back at the end of a run.
+
+use crate::device::Device;
+use morph_engine::effects::GridForm;
+use morph_engine::integrator::StepControls;
+use morph_engine::material::MaterialModel;
+use morph_engine::mpm::model::Model;
+use morph_engine::mpm::{ControlForm, KernelKind, SimError, State};
+use nalgebra::{Matrix3, Vector3};
+use wgpu::util::DeviceExt;
+
+/// Numbers a particle's state takes in the state buffer: x, v, C, F.
+const STATE_STRIDE: usize = 24;
+/// Invocations per workgroup of the particle and node passes.
+const WG: u32 = 64;
+/// The entry points of `step.wgsl`, in the order a step dispatches them.
+const PASSES: [&str; 8] = [
+    "clear_bins",
+    "count_bins",
+    "scan_bins",
+    "place_bins",
+    "sort_bins",
+    "stress",
+    "p2g",
+    "g2p",
+];
+
+/// Why the device cannot run a model.
+pub fn unsupported(model: &Model) -> Option<String> {
+    let (material, _, _) = model.material.spec();
+    if material != MaterialModel::FixedCorotated {
+        return Some(format!(
+            "the GPU step runs the fixed-corotated material only, not {material:?}"
+        ));
+    }
+    if let Some(e) = model.effects.iter().find(|e| e.acts_on_grid(GridForm::Step)) {
+        return Some(format!(
+            "the GPU step does not run the grid effect '{}' yet",
+            e.name()
+        ));
+    }
+    if !model.controls().is_empty() {
+        return Some("the GPU step does not run boundary controls yet".into());
+    }
+    None
+}
+
+/// The model's step on a device.
+pub struct GpuEuler<'d> {
+    dev: &'d Device,
+    model: &'d Model,
+    pipelines: Vec<wgpu::ComputePipeline>,
+    bind_group: wgpu::BindGroup,
+    iparams: wgpu::Buffer,
+    fparams: wgpu::Buffer,
+    state: wgpu::Buffer,
+    ctrl: wgpu::Buffer,
+    grid: wgpu::Buffer,
+    status: wgpu::Buffer,
+    node_count: usize,
+}
+
+fn storage(dev: &Device, label: &str, bytes: usize) -> wgpu::Buffer {
+    dev.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        size: bytes.max(8) as u64,
+        usage: wgpu::BufferUsages::STORAGE
+            | wgpu::BufferUsages::COPY_DST
+            | wgpu::BufferUsages::COPY_SRC,
+        mapped_at_creation: false,
+    })
+}
+
+fn layout_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Buffer {
+            ty: wgpu::BufferBindingType::Storage { read_only },
+            has_dynamic_offset: false,
+            min_binding_size: None,
+        },
+        count: None,
+    }
+}
+
+impl<'d> GpuEuler<'d> {
+    /// The model's constant data on `dev` and the step's pipelines.
+    pub fn new(dev: &'d Device, model: &'d Model) -> Result<GpuEuler<'d>, SimError> {
+        if let Some(why) = unsupported(model) {
+            return Err(SimError::InvalidScene(why));
+        }
+        let n = model.num_particles();
+        let node_count = model.grid.node_count();
+        let d = &dev.device;
+        let module = d.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("step.wgsl"),
+            source: wgpu::ShaderSource::Wgsl(include_str!("step.wgsl").into()),
+        });
+        let read_only = [true, true, false, true, true, false, false, false, false, false, false];
+        let entries: Vec<_> = (0..read_only.len())
+            .map(|b| layout_entry(b as u32, read_only[b]))
+            .collect();
+        let bgl = d.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("step"),
+            entries: &entries,
+        });
+        let layout = d.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("step"),
+            bind_group_layouts: &[Some(&bgl)],
+            immediate_size: 0,
+        });
+        let pipelines = PASSES
+            .iter()
+            .map(|entry| {
+                d.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                    label: Some(entry),
+                    layout: Some(&layout),
+                    module: &module,
+                    entry_point: Some(entry),
+                    compilation_options: Default::default(),
+                    cache: None,
+                })
+            })
+            .collect();
+        let f64s = |k: usize| k * 8;
+        let iparams = storage(dev, "iparams", 32);
+        let fparams = storage(dev, "fparams", f64s(10));
+        let state = storage(dev, "state", f64s(STATE_STRIDE * n));
+        let pm: Vec<f64> = (0..n)
+            .flat_map(|p| [model.mass[p], model.volume[p]])
+            .collect();
+        let pm = d.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+            label: Some("mass and volume"),
+            contents: bytemuck::cast_slice(&pm),
+            usage: wgpu::BufferUsages::STORAGE,
+        });
+        let ctrl = storage(dev, "controls", f64s(9 * n));
+        let work = storage(dev, "work", f64s(18 * n));
+        let grid = storage(dev, "grid", f64s(4 * node_count));
+        let counts = storage(dev, "counts", 4 * 2 * node_count);
+        let starts = storage(dev, "starts", 4 * (node_count + 1));
+        let list = storage(dev, "list", 4 * n);
+        let status = storage(dev, "status", 16);
+        let buffers = [
+            &iparams, &fparams, &state, &pm, &ctrl, &work, &grid, &counts, &starts, &list, &status,
+        ];
+        let bind_entries: Vec<_> = buffers
+            .iter()
+            .enumerate()
+            .map(|(b, buf)| wgpu::BindGroupEntry {
+                binding: b as u32,
+                resource: buf.as_entire_binding(),
+            })
+            .collect();
+        let bind_group = d.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some("step"),
+            layout: &bgl,
+            entries: &bind_entries,
+        });
+        Ok(GpuEuler {
+            dev,
+            model,
+            pipelines,
+            bind_group,
+            iparams,
+            fparams,
+            state,
+            ctrl,
+            grid,
+            status,
+            node_count,
+        })
+    }
+
+    /// Runs `n_steps` steps from `state` (global steps `first_step..`) with per-step controls
+    /// `Fc` (as the CPU engine's `Integrator::forward`), then reads the state back.
+    pub fn forward(
+        &self,
+        state: &mut State,
+        controls: &StepControls,
+        first_step: usize,
+        n_steps: usize,
+    ) -> Result<(), SimError> {
+        let model = self.model;
+        model.check_size(state.len())?;
+        model.check_finite_and_cfl(state.first_non_finite(), &state.v, first_step)?;
+        let q = &self.dev.queue;
+        q.write_buffer(&self.state, 0, bytemuck::cast_slice(&pack(state)));
+        q.write_buffer(&self.status, 0, bytemuck::cast_slice(&[0u32, u32::MAX, 0, u32::MAX]));
+        for k in 0..n_steps {
+            let step = first_step + k;
+            let fc = controls.get(k).and_then(|c| c.as_deref());
+            model.check_control(fc, step)?;
+            let mode = self.upload_control(fc);
+            self.upload_params(step, mode);
+            self.submit_step(state.len());
+        }
+        let status: Vec<u32> = self.read(&self.status, 4);
+        let out: Vec<f64> = self.read(&self.state, STATE_STRIDE * state.len());
+        unpack(&out, state);
+        if status[0] != 0 {
+            let p = status[1] as usize;
+            return Err(SimError::OutsideGrid {
+                step: status[0] as usize - 1,
+                particle: p,
+                position: state.x[p].into(),
+            });
+        }
+        if status[2] != 0 {
+            let step = status[2] as usize - 1;
+            return model.check_finite_and_cfl(state.first_non_finite(), &state.v, step);
+        }
+        Ok(())
+    }
+
+    /// The nodal masses the last step's P2G made.
+    pub fn last_grid_mass(&self) -> Vec<f64> {
+        let grid: Vec<f64> = self.read(&self.grid, 4 * self.node_count);
+        grid.chunks(4).map(|n| n[0]).collect()
+    }
+
+    /// Writes this step's control matrices `M` (`Fe = F M`, or `F + M`); the shader's mode.
+    fn upload_control(&self, fc: Option<&[Matrix3<f64>]>) -> u32 {
+        let Some(fc) = fc else { return 0 };
+        let form = self.model.control_form;
+        let m: Vec<f64> = fc
+            .iter()
+            .flat_map(|fc| {
+                let m = match form {
+                    ControlForm::Plastic => (Matrix3::identity() + fc) * form.scale(fc),
+                    ControlForm::Additive => *fc,
+                };
+                m.as_slice().to_vec()
+            })
+            .collect();
+        self.dev
+            .queue
+            .write_buffer(&self.ctrl, 0, bytemuck::cast_slice(&m));
+        match form {
+            ControlForm::Plastic => 1,
+            ControlForm::Additive => 2,
+        }
+    }
+
+    fn upload_params(&self, step: usize, mode: u32) {
+        let m = self.model;
+        let nodes = m.grid.nodes();
+        let support = match m.kernel {
+            KernelKind::Quadratic => 3,
+            KernelKind::Cubic => 4,
+        };
+        let ip: [u32; 8] = [
+            m.num_particles() as u32,
+            nodes[0] as u32,
+            nodes[1] as u32,
+            nodes[2] as u32,
+            support,
+            mode,
+            self.node_count as u32,
+            step as u32,
+        ];
+        let time = step as f64 * m.dt;
+        let retention: f64 = m
+            .effects
+            .iter()
+            .map(|e| e.momentum_retention(m.dt, time))
+            .product();
+        let o = m.grid.origin;
+        let fp: [f64; 10] = [
+            o[0],
+            o[1],
+            o[2],
+            m.grid.dx,
+            m.dt,
+            m.inv_d(),
+            retention,
+            m.material.spec().1,
+            m.material.spec().2,
+            m.max_cfl * m.grid.dx / m.dt,
+        ];
+        let q = &self.dev.queue;
+        q.write_buffer(&self.iparams, 0, bytemuck::cast_slice(&ip));
+        q.write_buffer(&self.fparams, 0, bytemuck::cast_slice(&fp));
+    }
+
+    /// One step's dispatches in one submission.
+    fn submit_step(&self, n: usize) {
+        let groups = |k: usize| (k as u32).div_ceil(WG);
+        let (particles, nodes) = (groups(n), groups(self.node_count));
+        let sizes = [nodes, particles, 1, particles, nodes, particles, nodes, particles];
+        let mut enc = self.dev.device.create_command_encoder(&Default::default());
+        for (pipeline, &size) in self.pipelines.iter().zip(&sizes) {
+            let mut pass = enc.begin_compute_pass(&Default::default());
+            pass.set_pipeline(pipeline);
+            pass.set_bind_group(0, &self.bind_group, &[]);
+            pass.dispatch_workgroups(size, 1, 1);
+        }
+        self.dev.queue.submit([enc.finish()]);
+    }
+
+    /// Copies `count` values of `buf` back to the host.
+    fn read<T: bytemuck::Pod>(&self, buf: &wgpu::Buffer, count: usize) -> Vec<T> {
+        let bytes = (count * std::mem::size_of::<T>()) as u64;
+        let staging = self.dev.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("read back"),
+            size: bytes,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut enc = self.dev.device.create_command_encoder(&Default::default());
+        enc.copy_buffer_to_buffer(buf, 0, &staging, 0, bytes);
+        self.dev.queue.submit([enc.finish()]);
+        let slice = staging.slice(..);
+        slice.map_async(wgpu::MapMode::Read, |r| r.expect("a device buffer maps"));
+        self.dev
+            .device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .expect("the device finishes its work");
+        let view = slice.get_mapped_range().expect("a mapped buffer's range");
+        bytemuck::cast_slice(&view).to_vec()
+    }
+}
+
+/// The state as the state buffer holds it (x, v, C, F per particle, matrices column-major).
+fn pack(s: &State) -> Vec<f64> {
+    let mut out = Vec::with_capacity(STATE_STRIDE * s.len());
+    for p in 0..s.len() {
+        out.extend_from_slice(s.x[p].as_slice());
+        out.extend_from_slice(s.v[p].as_slice());
+        out.extend_from_slice(s.c[p].as_slice());
+        out.extend_from_slice(s.f[p].as_slice());
+    }
+    out
+}
+
+fn unpack(buf: &[f64], s: &mut State) {
+    for (p, row) in buf.chunks(STATE_STRIDE).enumerate() {
+        s.x[p] = Vector3::from_column_slice(&row[0..3]);
+        s.v[p] = Vector3::from_column_slice(&row[3..6]);
+        s.c[p] = Matrix3::from_column_slice(&row[6..15]);
+        s.f[p] = Matrix3::from_column_slice(&row[15..24]);
+    }
+}
