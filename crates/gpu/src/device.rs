@@ -40,8 +40,8 @@ impl fmt::Display for DeviceError {
 
 impl std::error::Error for DeviceError {}
 
-/// Storage buffers one dispatch of the step binds.
-pub const STORAGE_BUFFERS: u32 = 11;
+/// Storage buffers the step and its reverse bind.
+pub const STORAGE_BUFFERS: u32 = 16;
 
 /// An open compute device.
 pub struct Device {

@@ -1,13 +1,15 @@
 //! The symplectic-Euler step on a device: the model's data in device buffers, one submission a
-//! step of seven dispatches (bin, scan, place, sort, stress, P2G with the grid update, G2P;
-//! `step.wgsl`), the state read back at the end of a run.
+//! step of eight dispatches (clear, count, scan, place and sort the bins, stress, P2G with the
+//! grid update, G2P; `step.wgsl`), the state read back at the end of a run. A taped run keeps
+//! every state on the device; its reverse recomputes each step's bins, stress and grid from
+//! the taped state and runs three more dispatches (`reverse.wgsl`).
 
 use crate::device::Device;
 use morph_engine::effects::GridForm;
 use morph_engine::integrator::StepControls;
 use morph_engine::material::MaterialModel;
 use morph_engine::mpm::model::Model;
-use morph_engine::mpm::{ControlForm, KernelKind, SimError, State};
+use morph_engine::mpm::{ControlForm, Gradients, KernelKind, SimError, State, StateGrad};
 use nalgebra::{Matrix3, Vector3};
 use wgpu::util::DeviceExt;
 
@@ -15,8 +17,9 @@ use wgpu::util::DeviceExt;
 const STATE_STRIDE: usize = 24;
 /// Invocations per workgroup of the particle and node passes.
 const WG: u32 = 64;
-/// The entry points of `step.wgsl`, in the order a step dispatches them.
-const PASSES: [&str; 8] = [
+/// The entry points of `step.wgsl`, in the order a step dispatches them, then those of
+/// `reverse.wgsl`.
+const PASSES: [&str; 11] = [
     "clear_bins",
     "count_bins",
     "scan_bins",
@@ -25,7 +28,14 @@ const PASSES: [&str; 8] = [
     "stress",
     "p2g",
     "g2p",
+    "rev_advance",
+    "rev_grid",
+    "rev_particle",
 ];
+/// Where the forward's recomputation ends in [`PASSES`] when a step is reversed (before G2P).
+const RECOMPUTE: usize = 7;
+/// Numbers per particle of the reverse's own buffer.
+const RADJ_STRIDE: usize = 21;
 
 /// Why the device cannot run a model.
 pub fn unsupported(model: &Model) -> Option<String> {
@@ -59,7 +69,28 @@ pub struct GpuEuler<'d> {
     ctrl: wgpu::Buffer,
     grid: wgpu::Buffer,
     status: wgpu::Buffer,
+    post: wgpu::Buffer,
+    adj: wgpu::Buffer,
+    gctrl: wgpu::Buffer,
     node_count: usize,
+}
+
+/// A taped run on the device: every state it went through (the first one included), and the
+/// last one on the host.
+pub struct GpuTape {
+    pub first_step: usize,
+    states: Vec<wgpu::Buffer>,
+    pub last: State,
+}
+
+impl GpuTape {
+    pub fn len(&self) -> usize {
+        self.states.len() - 1
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
 }
 
 fn storage(dev: &Device, label: &str, bytes: usize) -> wgpu::Buffer {
@@ -97,9 +128,14 @@ impl<'d> GpuEuler<'d> {
         let d = &dev.device;
         let module = d.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("step.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(include_str!("step.wgsl").into()),
+            source: wgpu::ShaderSource::Wgsl(
+                concat!(include_str!("step.wgsl"), include_str!("reverse.wgsl")).into(),
+            ),
         });
-        let read_only = [true, true, false, true, true, false, false, false, false, false, false];
+        let read_only = [
+            true, true, false, true, true, false, false, false, false, false, false, true, false,
+            false, false, false,
+        ];
         let entries: Vec<_> = (0..read_only.len())
             .map(|b| layout_entry(b as u32, read_only[b]))
             .collect();
@@ -144,8 +180,14 @@ impl<'d> GpuEuler<'d> {
         let starts = storage(dev, "starts", 4 * (node_count + 1));
         let list = storage(dev, "list", 4 * n);
         let status = storage(dev, "status", 16);
+        let post = storage(dev, "post", f64s(STATE_STRIDE * n));
+        let adj = storage(dev, "adjoint", f64s(STATE_STRIDE * n));
+        let radj = storage(dev, "reverse", f64s(RADJ_STRIDE * n));
+        let ggrid = storage(dev, "grid adjoint", f64s(4 * node_count));
+        let gctrl = storage(dev, "control adjoint", f64s(9 * n));
         let buffers = [
             &iparams, &fparams, &state, &pm, &ctrl, &work, &grid, &counts, &starts, &list, &status,
+            &post, &adj, &radj, &ggrid, &gctrl,
         ];
         let bind_entries: Vec<_> = buffers
             .iter()
@@ -171,6 +213,9 @@ impl<'d> GpuEuler<'d> {
             ctrl,
             grid,
             status,
+            post,
+            adj,
+            gctrl,
             node_count,
         })
     }
@@ -184,23 +229,64 @@ impl<'d> GpuEuler<'d> {
         first_step: usize,
         n_steps: usize,
     ) -> Result<(), SimError> {
+        self.run(state, controls, first_step, n_steps, None)
+    }
+
+    /// [`GpuEuler::forward`], keeping every state on the device for [`GpuEuler::backward`].
+    pub fn forward_taped(
+        &self,
+        state: &mut State,
+        controls: &StepControls,
+        first_step: usize,
+        n_steps: usize,
+    ) -> Result<GpuTape, SimError> {
+        let mut states = Vec::with_capacity(n_steps + 1);
+        self.run(state, controls, first_step, n_steps, Some(&mut states))?;
+        Ok(GpuTape {
+            first_step,
+            states,
+            last: state.clone(),
+        })
+    }
+
+    fn run(
+        &self,
+        state: &mut State,
+        controls: &StepControls,
+        first_step: usize,
+        n_steps: usize,
+        mut tape: Option<&mut Vec<wgpu::Buffer>>,
+    ) -> Result<(), SimError> {
         let model = self.model;
         model.check_size(state.len())?;
         model.check_finite_and_cfl(state.first_non_finite(), &state.v, first_step)?;
         let q = &self.dev.queue;
         q.write_buffer(&self.state, 0, bytemuck::cast_slice(&pack(state)));
         q.write_buffer(&self.status, 0, bytemuck::cast_slice(&[0u32, u32::MAX, 0, u32::MAX]));
+        if let Some(t) = tape.as_deref_mut() {
+            t.push(self.copy_of(&self.state));
+        }
         for k in 0..n_steps {
             let step = first_step + k;
             let fc = controls.get(k).and_then(|c| c.as_deref());
             model.check_control(fc, step)?;
             let mode = self.upload_control(fc);
             self.upload_params(step, mode);
-            self.submit_step(state.len());
+            self.submit(0..RECOMPUTE + 1, state.len());
+            if let Some(t) = tape.as_deref_mut() {
+                t.push(self.copy_of(&self.state));
+            }
         }
         let status: Vec<u32> = self.read(&self.status, 4);
         let out: Vec<f64> = self.read(&self.state, STATE_STRIDE * state.len());
         unpack(&out, state);
+        self.status_error(&status, state)
+    }
+
+    /// The first error the steps flagged (see `status` in `step.wgsl`), as the CPU engine
+    /// names it: a stencil outside the grid in its step, or a state not finite or too fast
+    /// at the start of the next step.
+    fn status_error(&self, status: &[u32], state: &State) -> Result<(), SimError> {
         if status[0] != 0 {
             let p = status[1] as usize;
             return Err(SimError::OutsideGrid {
@@ -210,10 +296,88 @@ impl<'d> GpuEuler<'d> {
             });
         }
         if status[2] != 0 {
-            let step = status[2] as usize - 1;
-            return model.check_finite_and_cfl(state.first_non_finite(), &state.v, step);
+            let (step, particle) = (status[2] as usize, status[3] as usize);
+            if let Some((particle, field)) = state.first_non_finite() {
+                return Err(SimError::NonFinite {
+                    step,
+                    particle,
+                    field,
+                });
+            }
+            let m = self.model;
+            return Err(SimError::CflExceeded {
+                step,
+                particle,
+                cells: state.v[particle].norm() * m.dt / m.grid.dx,
+                limit: m.max_cfl,
+            });
         }
         Ok(())
+    }
+
+    /// The reverse of a taped run: `grad_last` is dL/d(the last state); `controls` are the
+    /// forward's. dL/d(the first state) and dL/dFc of every step with a control, as the CPU
+    /// engine's `Integrator::backward` gives them.
+    pub fn backward(
+        &self,
+        tape: &GpuTape,
+        controls: &StepControls,
+        grad_last: &StateGrad,
+    ) -> Gradients {
+        let n = tape.last.len();
+        let q = &self.dev.queue;
+        q.write_buffer(&self.adj, 0, bytemuck::cast_slice(&pack_grad(grad_last)));
+        let mut grad_controls = vec![None; tape.len()];
+        for k in (0..tape.len()).rev() {
+            let step = tape.first_step + k;
+            let fc = controls.get(k).and_then(|c| c.as_deref());
+            let mode = self.upload_control(fc);
+            self.upload_params(step, mode);
+            let mut enc = self.dev.device.create_command_encoder(&Default::default());
+            let bytes = self.state.size();
+            enc.copy_buffer_to_buffer(&tape.states[k], 0, &self.state, 0, bytes);
+            enc.copy_buffer_to_buffer(&tape.states[k + 1], 0, &self.post, 0, bytes);
+            q.submit([enc.finish()]);
+            self.submit(0..RECOMPUTE, n);
+            self.submit(RECOMPUTE + 1..PASSES.len(), n);
+            if let Some(fc) = fc {
+                let g_m: Vec<f64> = self.read(&self.gctrl, 9 * n);
+                grad_controls[k] = Some(self.control_gradient(fc, &g_m));
+            }
+        }
+        let out: Vec<f64> = self.read(&self.adj, STATE_STRIDE * n);
+        let mut initial = StateGrad::zeros(n);
+        unpack_grad(&out, &mut initial);
+        Gradients {
+            initial,
+            controls: grad_controls,
+            effect_params: self.model.zero_effect_params(),
+            knots: Vec::new(),
+        }
+    }
+
+    /// dL/dFc from the device's dL/dM (`F^T dL/dFe` for the plastic form, `dL/dFe` for the
+    /// additive): the control form's own reverse, given `F = I` so that it takes `dL/dM` as
+    /// it is.
+    fn control_gradient(&self, fc: &[Matrix3<f64>], g_m: &[f64]) -> Vec<Matrix3<f64>> {
+        let form = self.model.control_form;
+        fc.iter()
+            .zip(g_m.chunks(9))
+            .map(|(fc, g)| {
+                let g = Matrix3::from_column_slice(g);
+                let scale = form.scale(fc);
+                form.apply_reverse_scaled(&Matrix3::identity(), fc, scale, &g).1
+            })
+            .collect()
+    }
+
+    /// A device copy of `buf` (a taped state).
+    fn copy_of(&self, buf: &wgpu::Buffer) -> wgpu::Buffer {
+        let copy = storage(self.dev, "taped state", buf.size() as usize);
+        let mut enc = self.dev.device.create_command_encoder(&Default::default());
+        enc.copy_buffer_to_buffer(buf, 0, &copy, 0, buf.size());
+        self.dev.queue.submit([enc.finish()]);
+        copy
     }
 
     /// The nodal masses the last step's P2G made.
@@ -286,17 +450,20 @@ impl<'d> GpuEuler<'d> {
         q.write_buffer(&self.fparams, 0, bytemuck::cast_slice(&fp));
     }
 
-    /// One step's dispatches in one submission.
-    fn submit_step(&self, n: usize) {
+    /// The dispatches `passes` of [`PASSES`] in one submission.
+    fn submit(&self, passes: std::ops::Range<usize>, n: usize) {
         let groups = |k: usize| (k as u32).div_ceil(WG);
         let (particles, nodes) = (groups(n), groups(self.node_count));
-        let sizes = [nodes, particles, 1, particles, nodes, particles, nodes, particles];
+        let sizes = [
+            nodes, particles, 1, particles, nodes, particles, nodes, particles, particles, nodes,
+            particles,
+        ];
         let mut enc = self.dev.device.create_command_encoder(&Default::default());
-        for (pipeline, &size) in self.pipelines.iter().zip(&sizes) {
+        for k in passes {
             let mut pass = enc.begin_compute_pass(&Default::default());
-            pass.set_pipeline(pipeline);
+            pass.set_pipeline(&self.pipelines[k]);
             pass.set_bind_group(0, &self.bind_group, &[]);
-            pass.dispatch_workgroups(size, 1, 1);
+            pass.dispatch_workgroups(sizes[k], 1, 1);
         }
         self.dev.queue.submit([enc.finish()]);
     }
@@ -342,5 +509,25 @@ fn unpack(buf: &[f64], s: &mut State) {
         s.v[p] = Vector3::from_column_slice(&row[3..6]);
         s.c[p] = Matrix3::from_column_slice(&row[6..15]);
         s.f[p] = Matrix3::from_column_slice(&row[15..24]);
+    }
+}
+
+fn pack_grad(g: &StateGrad) -> Vec<f64> {
+    let mut out = Vec::with_capacity(STATE_STRIDE * g.x.len());
+    for p in 0..g.x.len() {
+        out.extend_from_slice(g.x[p].as_slice());
+        out.extend_from_slice(g.v[p].as_slice());
+        out.extend_from_slice(g.c[p].as_slice());
+        out.extend_from_slice(g.f[p].as_slice());
+    }
+    out
+}
+
+fn unpack_grad(buf: &[f64], g: &mut StateGrad) {
+    for (p, row) in buf.chunks(STATE_STRIDE).enumerate() {
+        g.x[p] = Vector3::from_column_slice(&row[0..3]);
+        g.v[p] = Vector3::from_column_slice(&row[3..6]);
+        g.c[p] = Matrix3::from_column_slice(&row[6..15]);
+        g.f[p] = Matrix3::from_column_slice(&row[15..24]);
     }
 }

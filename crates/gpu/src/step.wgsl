@@ -123,6 +123,21 @@ fn weight(fx: f64, k: u32) -> f64 {
     return t * t * t / 6.0lf;
 }
 
+// d(weight)/d(fx) of node `k` (the pieces' derivatives).
+fn dweight(fx: f64, k: u32) -> f64 {
+    if (support() == 3u) {
+        if (k == 0u) { return -(1.5lf - fx); }
+        if (k == 1u) { return -2.0lf * (fx - 1.0lf); }
+        return fx - 0.5lf;
+    }
+    let t = fx - 1.0lf;
+    let u = 1.0lf - t;
+    if (k == 0u) { return -0.5lf * u * u; }
+    if (k == 1u) { return (1.5lf * t - 2.0lf) * t; }
+    if (k == 2u) { return -(1.5lf * u - 2.0lf) * u; }
+    return 0.5lf * t * t;
+}
+
 fn in_grid(base: vec3<i32>) -> bool {
     let hi = vec3<i32>(nodes()) - vec3<i32>(i32(support()));
     return all(base >= vec3<i32>(0)) && all(base <= hi);
@@ -229,13 +244,17 @@ fn rotation(f: mat3x3<f64>) -> mat3x3<f64> {
     return r;
 }
 
+// The cofactor matrix `J F^-T`, column by column.
+fn cofactor(f: mat3x3<f64>) -> mat3x3<f64> {
+    return mat3x3<f64>(cross(f[1], f[2]), cross(f[2], f[0]), cross(f[0], f[1]));
+}
+
 // Fixed-corotated `P = 2 mu (F - R) + lambda (J - 1) J F^-T`.
 fn stress_of(f: mat3x3<f64>) -> mat3x3<f64> {
     let mu = fparams[7];
     let lambda = fparams[8];
     let j = determinant(f);
-    let cof = mat3x3<f64>(cross(f[1], f[2]), cross(f[2], f[0]), cross(f[0], f[1]));
-    return 2.0lf * mu * (f - rotation(f)) + (lambda * (j - 1.0lf)) * cof;
+    return 2.0lf * mu * (f - rotation(f)) + (lambda * (j - 1.0lf)) * cofactor(f);
 }
 
 @compute @workgroup_size(64)
