@@ -34,6 +34,7 @@
 
 pub mod apps;
 pub use morph_engine as engine;
+pub use morph_gpu as gpu;
 pub mod files;
 pub mod geometry;
 pub mod io;

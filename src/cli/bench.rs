@@ -4,6 +4,7 @@ use super::fail;
 use clap::Args;
 use morph::engine::integrator::IntegratorKind;
 use morph::engine::mpm::KernelKind;
+use morph::gpu::DeviceKind;
 use morph::settings::limits;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -23,6 +24,11 @@ pub struct BenchArgs {
     #[arg(long, value_delimiter = ',', value_parser = super::choice(&IntegratorKind::ALL),
           default_values = [super::name(&IntegratorKind::Euler)])]
     integrators: Vec<IntegratorKind>,
+    /// Where the engine runs: the CPU, or the GPU (the Euler step in f64; the thread counts
+    /// do not apply there).
+    #[arg(long, value_parser = super::choice(&[DeviceKind::Cpu, DeviceKind::Gpu]),
+          default_value = super::name(&DeviceKind::Cpu))]
+    device: DeviceKind,
 }
 
 /// What `morph bench` measures besides the engine.
@@ -127,6 +133,17 @@ pub fn run(a: &BenchArgs) -> ExitCode {
     let r = &a.run;
     if let Some(code) = r.invalid() {
         return code;
+    }
+    if a.device == DeviceKind::Gpu {
+        if a.integrators != [IntegratorKind::Euler] {
+            return fail(false, 2, "--device gpu runs the Euler integrator only");
+        }
+        return super::report(morph::apps::bench::run_on_device(
+            r.ball_radius,
+            r.steps,
+            r.repeats,
+            &a.kernels,
+        ));
     }
     super::report(morph::apps::bench::run(
         r.ball_radius,

@@ -992,7 +992,10 @@ fn path_term_changes_the_result_and_keeps_it_thread_independent() {
         .chain(small_runs().iter().map(|(out, _)| (out, 1.0)))
     {
         let m = manifest(out);
-        assert_eq!(m["settings"]["method"]["path_weight"].as_f64(), Some(weight));
+        assert_eq!(
+            m["settings"]["method"]["path_weight"].as_f64(),
+            Some(weight)
+        );
         assert!(m["final_loss"].as_f64().unwrap().is_finite());
         grids.push(std::fs::read(out.join("final_mass.mgrid")).unwrap());
     }
@@ -1015,7 +1018,10 @@ fn shape_inbetween_changes_the_result_and_keeps_it_thread_independent() {
         .chain(small_runs().iter().map(|(out, _)| (out, "shape")))
     {
         let m = manifest(out);
-        assert_eq!(m["settings"]["method"]["inbetween"].as_str(), Some(inbetween));
+        assert_eq!(
+            m["settings"]["method"]["inbetween"].as_str(),
+            Some(inbetween)
+        );
         assert!(m["final_loss"].as_f64().unwrap().is_finite());
         grids.push(std::fs::read(out.join("final_mass.mgrid")).unwrap());
     }

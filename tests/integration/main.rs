@@ -11,6 +11,7 @@ mod energy;
 mod errors;
 mod fuzz;
 mod geometry;
+mod gpu;
 mod gradients;
 mod hard_cases;
 mod library;

@@ -258,7 +258,9 @@ fn lowest_point(out: &Path, m: &serde_json::Value) -> (f64, f64) {
         .fold(f64::INFINITY, f64::min);
     let scale = m["sim_to_world"]["scale"].as_f64().unwrap();
     let dx = m["dx_sim"].as_f64().unwrap();
-    let per_cell = m["settings"]["body"]["particles_per_cell"].as_f64().unwrap();
+    let per_cell = m["settings"]["body"]["particles_per_cell"]
+        .as_f64()
+        .unwrap();
     (lowest, scale * dx / per_cell)
 }
 
@@ -276,7 +278,12 @@ fn bad_scene_values_fail_with_one_line() {
     );
     let teapot = root().join("../shared/meshes/teapot.obj");
     for (name, body, code, says) in [
-        ("type", "frames = \"many\"\n".to_string(), 2, "in `shot.frames`"),
+        (
+            "type",
+            "frames = \"many\"\n".to_string(),
+            2,
+            "in `shot.frames`",
+        ),
         (
             "open-collider",
             format!("[[colliders]]\nmesh = \"{}\"\n", teapot.display()),

@@ -266,7 +266,9 @@ fn rebuilt_surfaces_have_one_shell_and_no_slivers() {
 
 /// The particle spacing of a run, world units.
 fn world_spacing(m: &serde_json::Value) -> f64 {
-    let per_cell = m["settings"]["body"]["particles_per_cell"].as_f64().unwrap();
+    let per_cell = m["settings"]["body"]["particles_per_cell"]
+        .as_f64()
+        .unwrap();
     m["dx_sim"].as_f64().unwrap() / per_cell * m["sim_to_world"]["scale"].as_f64().unwrap()
 }
 

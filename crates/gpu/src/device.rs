@@ -98,11 +98,12 @@ impl Device {
             required_limits: limits.clone(),
             ..Default::default()
         };
-        let (device, queue) = pollster::block_on(adapter.request_device(&desc))
-            .map_err(|e| DeviceError::Refused {
+        let (device, queue) = pollster::block_on(adapter.request_device(&desc)).map_err(|e| {
+            DeviceError::Refused {
                 adapter: name.clone(),
                 why: e.to_string(),
-            })?;
+            }
+        })?;
         Ok(Device {
             device,
             queue,
@@ -111,4 +112,22 @@ impl Device {
             limits,
         })
     }
+}
+
+/// Where the engine runs (`--device`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum DeviceKind {
+    /// The CPU engine (`morph-engine`).
+    #[default]
+    Cpu,
+    /// A GPU (or a software Vulkan driver), or an error saying what is missing.
+    Gpu,
+    /// A GPU where one opens, else the CPU.
+    Auto,
+}
+
+impl DeviceKind {
+    /// Every value, in declaration order (the command line lists them by their serde names).
+    pub const ALL: [DeviceKind; 3] = [DeviceKind::Cpu, DeviceKind::Gpu, DeviceKind::Auto];
 }

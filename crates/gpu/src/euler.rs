@@ -45,7 +45,11 @@ pub fn unsupported(model: &Model) -> Option<String> {
             "the GPU step runs the fixed-corotated material only, not {material:?}"
         ));
     }
-    if let Some(e) = model.effects.iter().find(|e| e.acts_on_grid(GridForm::Step)) {
+    if let Some(e) = model
+        .effects
+        .iter()
+        .find(|e| e.acts_on_grid(GridForm::Step))
+    {
         return Some(format!(
             "the GPU step does not run the grid effect '{}' yet",
             e.name()
@@ -262,7 +266,11 @@ impl<'d> GpuEuler<'d> {
         model.check_finite_and_cfl(state.first_non_finite(), &state.v, first_step)?;
         let q = &self.dev.queue;
         q.write_buffer(&self.state, 0, bytemuck::cast_slice(&pack(state)));
-        q.write_buffer(&self.status, 0, bytemuck::cast_slice(&[0u32, u32::MAX, 0, u32::MAX]));
+        q.write_buffer(
+            &self.status,
+            0,
+            bytemuck::cast_slice(&[0u32, u32::MAX, 0, u32::MAX]),
+        );
         if let Some(t) = tape.as_deref_mut() {
             t.push(self.copy_of(&self.state));
         }
@@ -366,7 +374,8 @@ impl<'d> GpuEuler<'d> {
             .map(|(fc, g)| {
                 let g = Matrix3::from_column_slice(g);
                 let scale = form.scale(fc);
-                form.apply_reverse_scaled(&Matrix3::identity(), fc, scale, &g).1
+                form.apply_reverse_scaled(&Matrix3::identity(), fc, scale, &g)
+                    .1
             })
             .collect()
     }

@@ -6,5 +6,5 @@
 pub mod device;
 pub mod euler;
 
-pub use device::{Device, DeviceError};
+pub use device::{Device, DeviceError, DeviceKind};
 pub use euler::{GpuEuler, unsupported};

@@ -15,7 +15,10 @@ fn device() -> Device {
 }
 
 /// The bench's reference workload: the model, the initial state and each step's controls.
-fn workload(kernel: KernelKind, steps: usize) -> (SceneConfig, Vec<f64>, State, Vec<Option<StepControl>>) {
+fn workload(
+    kernel: KernelKind,
+    steps: usize,
+) -> (SceneConfig, Vec<f64>, State, Vec<Option<StepControl>>) {
     let mut scene = SceneConfig::reference();
     scene.kernel = kernel;
     let (x, vol) = ball_particles(&scene.grid, Vector3::zeros(), 8.0, 2);
@@ -74,8 +77,16 @@ fn agree(kernel: KernelKind) {
     let mass_cpu = m.mass_grid(&on_cpu.x).unwrap();
     let mass_gpu = m.mass_grid(&on_gpu.x).unwrap();
     let mmax = mass_cpu.iter().cloned().fold(0.0, f64::max);
-    let mass = mass_gpu.iter().zip(&mass_cpu).map(|(a, b)| (a - b).abs()).fold(0.0, f64::max) / mmax;
-    eprintln!("{kernel:?} on {}: {fields:?}, grid mass {mass:.3e}", dev.name);
+    let mass = mass_gpu
+        .iter()
+        .zip(&mass_cpu)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max)
+        / mmax;
+    eprintln!(
+        "{kernel:?} on {}: {fields:?}, grid mass {mass:.3e}",
+        dev.name
+    );
     for (name, e) in fields {
         assert!(e < 1e-10, "{name}: relative difference {e:.3e}");
     }
@@ -119,7 +130,11 @@ struct Loss {
 
 impl Loss {
     fn new(m: &Model, initial: &State, shift: f64) -> Loss {
-        let moved: Vec<_> = initial.x.iter().map(|x| x + Vector3::new(shift, 0.0, 0.0)).collect();
+        let moved: Vec<_> = initial
+            .x
+            .iter()
+            .map(|x| x + Vector3::new(shift, 0.0, 0.0))
+            .collect();
         Loss {
             target: m.mass_grid(&moved).unwrap(),
         }
@@ -131,7 +146,11 @@ impl Loss {
 
     fn value(&self, m: &Model, s: &State) -> f64 {
         let mass = m.mass_grid(&s.x).unwrap();
-        let grid: f64 = mass.iter().zip(&self.target).map(|(a, b)| 0.5 * (a - b) * (a - b)).sum();
+        let grid: f64 = mass
+            .iter()
+            .zip(&self.target)
+            .map(|(a, b)| 0.5 * (a - b) * (a - b))
+            .sum();
         let mut extra = 0.0;
         for p in 0..s.len() {
             for k in 0..3 {
@@ -164,11 +183,16 @@ impl Loss {
 /// Largest relative difference of two lists of gradients, each against the largest of `b`.
 fn rel_all(a: &[f64], b: &[f64]) -> f64 {
     let scale = b.iter().fold(0.0f64, |s, v| s.max(v.abs()));
-    a.iter().zip(b).fold(0.0f64, |e, (a, b)| e.max((a - b).abs())) / scale
+    a.iter()
+        .zip(b)
+        .fold(0.0f64, |e, (a, b)| e.max((a - b).abs()))
+        / scale
 }
 
 fn flat<const R: usize, const C: usize>(v: &[nalgebra::SMatrix<f64, R, C>]) -> Vec<f64> {
-    v.iter().flat_map(|m| m.iter().cloned().collect::<Vec<_>>()).collect()
+    v.iter()
+        .flat_map(|m| m.iter().cloned().collect::<Vec<_>>())
+        .collect()
 }
 
 #[test]
@@ -180,7 +204,8 @@ fn the_reverse_pass_agrees_with_the_cpu_engine() {
     let cpu = Euler::from(model(&scene, &vol));
     let mut s = initial.clone();
     let mut tape = Default::default();
-    cpu.forward(&mut s, &controls, 0, steps, Some(&mut tape)).unwrap();
+    cpu.forward(&mut s, &controls, 0, steps, Some(&mut tape))
+        .unwrap();
     let want = cpu.backward(&tape, &controls, loss.seed(&m, &s));
     let dev = device();
     let gpu = GpuEuler::new(&dev, &m).unwrap();
@@ -204,7 +229,10 @@ fn the_reverse_pass_agrees_with_the_cpu_engine() {
     for (name, e) in fields {
         assert!(e < 1e-8, "dL/d{name}: relative difference {e:.3e}");
     }
-    assert!(worst_fc < 1e-8, "dL/dFc: relative difference {worst_fc:.3e}");
+    assert!(
+        worst_fc < 1e-8,
+        "dL/dFc: relative difference {worst_fc:.3e}"
+    );
 }
 
 #[test]
@@ -254,7 +282,10 @@ fn the_reverse_pass_matches_central_differences_on_the_device() {
             let fd = (shifted(1.0) - shifted(-1.0)) / (2.0 * h);
             let err = (fd - analytic).abs() / fd.abs().max(analytic.abs()).max(1e-6);
             eprintln!("particle {p} d/d{name}: device {analytic:.9e}, central difference {fd:.9e}");
-            assert!(err < 1e-5, "particle {p} d/d{name}: {analytic:e} against {fd:e}");
+            assert!(
+                err < 1e-5,
+                "particle {p} d/d{name}: {analytic:e} against {fd:e}"
+            );
         }
     }
 }

@@ -241,7 +241,7 @@ pub fn run(
                     "{}",
                     json!({
                         "bench": mode, "particles": n, "kernel": kernel.name(),
-                        "integrator": integrator, "threads": t,
+                        "integrator": integrator, "device": "cpu", "threads": t,
                         "steps": steps, "seconds": secs,
                         "particle_steps_per_s": (n * steps) as f64 / secs,
                         "ms_per_step": secs / steps as f64 * 1e3,
@@ -255,6 +255,57 @@ pub fn run(
         .num_threads(threads)
         .build()?;
     pool.install(|| effect_costs(steps, repeats))
+}
+
+/// The reference workload on the GPU device (Euler, f64), the lines of [`run`] for each
+/// kernel, with the adapter's name; the loss and its seed on the host, as [`run`]'s.
+pub fn run_on_device(
+    radius: f64,
+    steps: usize,
+    repeats: usize,
+    kernels: &[KernelKind],
+) -> anyhow::Result<()> {
+    let dev = crate::gpu::Device::open()?;
+    if dev.software {
+        eprintln!(
+            "morph: warning: {} is a software driver, not a GPU",
+            dev.name
+        );
+    }
+    for &kernel in kernels {
+        let w = ball_workload(radius, kernel, IntegratorKind::Euler, steps)?;
+        let model = w.engine.model();
+        let gpu = crate::gpu::GpuEuler::new(&dev, model)?;
+        let (mut best_f, mut best_fr) = (f64::INFINITY, f64::INFINITY);
+        for _ in 0..repeats.max(1) {
+            let t0 = Instant::now();
+            let mut s = w.initial.clone();
+            gpu.forward(&mut s, &w.controls, 0, steps)?;
+            best_f = best_f.min(t0.elapsed().as_secs_f64());
+            let t0 = Instant::now();
+            let mut s = w.initial.clone();
+            let tape = gpu.forward_taped(&mut s, &w.controls, 0, steps)?;
+            let (_, gm) = w.loss.value_and_grad(&model.mass_grid(&s.x)?);
+            let mut seed = StateGrad::zeros(s.len());
+            seed.x = model.mass_grid_reverse(&s.x, &gm);
+            std::hint::black_box(gpu.backward(&tape, &w.controls, &seed));
+            best_fr = best_fr.min(t0.elapsed().as_secs_f64());
+        }
+        let n = model.num_particles();
+        for (mode, secs) in [("forward", best_f), ("forward_reverse", best_fr)] {
+            println!(
+                "{}",
+                json!({
+                    "bench": mode, "particles": n, "kernel": kernel.name(),
+                    "integrator": IntegratorKind::Euler, "device": "gpu", "adapter": dev.name,
+                    "steps": steps, "seconds": secs,
+                    "particle_steps_per_s": (n * steps) as f64 / secs,
+                    "ms_per_step": secs / steps as f64 * 1e3,
+                })
+            );
+        }
+    }
+    Ok(())
 }
 
 /// A scene pays only for what it declares: ms per step of the cubic reference ball, forward

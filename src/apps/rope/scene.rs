@@ -237,7 +237,9 @@ impl RopeConfig {
                 acceleration: [0.0, -self.gravity, 0.0],
             }],
         };
-        let model = scene.model(vec![h * h * h; n])?.with_controls(schedule, controls)?;
+        let model = scene
+            .model(vec![h * h * h; n])?
+            .with_controls(schedule, controls)?;
         let engine = Engine::new(model, self.integrator)?;
         Ok(Rope {
             engine,

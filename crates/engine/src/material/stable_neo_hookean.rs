@@ -35,7 +35,11 @@ impl StableNeoHookean {
 
 impl ConstitutiveModel for StableNeoHookean {
     fn spec(&self) -> (super::MaterialModel, f64, f64) {
-        (super::MaterialModel::StableNeoHookean, self.mu, self.lam - self.mu)
+        (
+            super::MaterialModel::StableNeoHookean,
+            self.mu,
+            self.lam - self.mu,
+        )
     }
 
     fn energy_density(&self, f: &Matrix3<f64>) -> f64 {

@@ -365,7 +365,10 @@ mod tests {
             control(ControlKind::PrescribedVelocity, "b", vec![1]),
         ];
         let err = model.with_controls(schedule, overlap).unwrap_err();
-        assert!(err.to_string().contains("two prescribed-motion regions"), "{err}");
+        assert!(
+            err.to_string().contains("two prescribed-motion regions"),
+            "{err}"
+        );
     }
 
     #[test]
