@@ -41,6 +41,14 @@ impl Engine {
         self
     }
 
+    /// The model, given back by its integrator.
+    pub fn into_model(self) -> Model {
+        match self {
+            Engine::Euler(s) => s.model,
+            Engine::Rk4(s) => s.model,
+        }
+    }
+
     pub fn model(&self) -> &Model {
         match self {
             Engine::Euler(s) => &s.model,

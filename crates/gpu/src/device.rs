@@ -3,6 +3,7 @@
 //! such as Mesa's lavapipe, which counts as a device but is not a GPU).
 
 use std::fmt;
+use std::sync::{Arc, OnceLock};
 
 /// Why no device could be opened: one line each, naming what is missing.
 #[derive(Clone, Debug, PartialEq)]
@@ -55,6 +56,13 @@ pub struct Device {
 }
 
 impl Device {
+    /// The process's device, opened on first use (an adapter is opened once: later calls get
+    /// the same device, or the same error).
+    pub fn shared() -> Result<Arc<Device>, DeviceError> {
+        static SHARED: OnceLock<Result<Arc<Device>, DeviceError>> = OnceLock::new();
+        SHARED.get_or_init(|| Device::open().map(Arc::new)).clone()
+    }
+
     /// The first high-performance adapter with f64 shaders.
     pub fn open() -> Result<Device, DeviceError> {
         let instance = wgpu::Instance::new(wgpu::InstanceDescriptor {
@@ -111,6 +119,29 @@ impl Device {
             software: info.device_type == wgpu::DeviceType::Cpu,
             limits,
         })
+    }
+}
+
+impl Device {
+    /// Copies `count` values of `buf` back to the host.
+    pub fn read<T: bytemuck::Pod>(&self, buf: &wgpu::Buffer, count: usize) -> Vec<T> {
+        let bytes = (count * std::mem::size_of::<T>()) as u64;
+        let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("read back"),
+            size: bytes,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let mut enc = self.device.create_command_encoder(&Default::default());
+        enc.copy_buffer_to_buffer(buf, 0, &staging, 0, bytes);
+        self.queue.submit([enc.finish()]);
+        let slice = staging.slice(..);
+        slice.map_async(wgpu::MapMode::Read, |r| r.expect("a device buffer maps"));
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .expect("the device finishes its work");
+        let view = slice.get_mapped_range().expect("a mapped buffer's range");
+        bytemuck::cast_slice(&view).to_vec()
     }
 }
 

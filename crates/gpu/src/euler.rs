@@ -5,16 +5,20 @@
 //! the taped state and runs three more dispatches (`reverse.wgsl`).
 
 use crate::device::Device;
+use crate::tape::GpuTape;
 use morph_engine::effects::GridForm;
-use morph_engine::integrator::StepControls;
+use morph_engine::integrator::{RunTape, StepControls};
 use morph_engine::material::MaterialModel;
 use morph_engine::mpm::model::Model;
 use morph_engine::mpm::{ControlForm, Gradients, KernelKind, SimError, State, StateGrad};
 use nalgebra::{Matrix3, Vector3};
+use std::sync::Arc;
 use wgpu::util::DeviceExt;
 
 /// Numbers a particle's state takes in the state buffer: x, v, C, F.
-const STATE_STRIDE: usize = 24;
+pub(crate) const STATE_STRIDE: usize = 24;
+/// Bytes of one particle's state on the device.
+pub(crate) const STATE_BYTES: usize = STATE_STRIDE * 8;
 /// Invocations per workgroup of the particle and node passes.
 const WG: u32 = 64;
 /// The entry points of `step.wgsl`, in the order a step dispatches them, then those of
@@ -62,9 +66,9 @@ pub fn unsupported(model: &Model) -> Option<String> {
 }
 
 /// The model's step on a device.
-pub struct GpuEuler<'d> {
-    dev: &'d Device,
-    model: &'d Model,
+pub struct GpuEuler {
+    pub(crate) dev: Arc<Device>,
+    pub model: Model,
     pipelines: Vec<wgpu::ComputePipeline>,
     bind_group: wgpu::BindGroup,
     iparams: wgpu::Buffer,
@@ -77,24 +81,6 @@ pub struct GpuEuler<'d> {
     adj: wgpu::Buffer,
     gctrl: wgpu::Buffer,
     node_count: usize,
-}
-
-/// A taped run on the device: every state it went through (the first one included), and the
-/// last one on the host.
-pub struct GpuTape {
-    pub first_step: usize,
-    states: Vec<wgpu::Buffer>,
-    pub last: State,
-}
-
-impl GpuTape {
-    pub fn len(&self) -> usize {
-        self.states.len() - 1
-    }
-
-    pub fn is_empty(&self) -> bool {
-        self.len() == 0
-    }
 }
 
 fn storage(dev: &Device, label: &str, bytes: usize) -> wgpu::Buffer {
@@ -121,10 +107,23 @@ fn layout_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
     }
 }
 
-impl<'d> GpuEuler<'d> {
+impl std::ops::Deref for GpuEuler {
+    type Target = Model;
+    fn deref(&self) -> &Model {
+        &self.model
+    }
+}
+
+impl std::fmt::Debug for GpuEuler {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "GpuEuler on {}", self.dev.name)
+    }
+}
+
+impl GpuEuler {
     /// The model's constant data on `dev` and the step's pipelines.
-    pub fn new(dev: &'d Device, model: &'d Model) -> Result<GpuEuler<'d>, SimError> {
-        if let Some(why) = unsupported(model) {
+    pub fn new(dev: Arc<Device>, model: Model) -> Result<GpuEuler, SimError> {
+        if let Some(why) = unsupported(&model) {
             return Err(SimError::InvalidScene(why));
         }
         let n = model.num_particles();
@@ -166,9 +165,11 @@ impl<'d> GpuEuler<'d> {
             })
             .collect();
         let f64s = |k: usize| k * 8;
-        let iparams = storage(dev, "iparams", 32);
-        let fparams = storage(dev, "fparams", f64s(10));
-        let state = storage(dev, "state", f64s(STATE_STRIDE * n));
+        let dev_ref = &*dev;
+        let storage = |label: &str, bytes: usize| storage(dev_ref, label, bytes);
+        let iparams = storage("iparams", 32);
+        let fparams = storage("fparams", f64s(10));
+        let state = storage("state", f64s(STATE_STRIDE * n));
         let pm: Vec<f64> = (0..n)
             .flat_map(|p| [model.mass[p], model.volume[p]])
             .collect();
@@ -177,18 +178,18 @@ impl<'d> GpuEuler<'d> {
             contents: bytemuck::cast_slice(&pm),
             usage: wgpu::BufferUsages::STORAGE,
         });
-        let ctrl = storage(dev, "controls", f64s(9 * n));
-        let work = storage(dev, "work", f64s(18 * n));
-        let grid = storage(dev, "grid", f64s(4 * node_count));
-        let counts = storage(dev, "counts", 4 * 2 * node_count);
-        let starts = storage(dev, "starts", 4 * (node_count + 1));
-        let list = storage(dev, "list", 4 * n);
-        let status = storage(dev, "status", 16);
-        let post = storage(dev, "post", f64s(STATE_STRIDE * n));
-        let adj = storage(dev, "adjoint", f64s(STATE_STRIDE * n));
-        let radj = storage(dev, "reverse", f64s(RADJ_STRIDE * n));
-        let ggrid = storage(dev, "grid adjoint", f64s(4 * node_count));
-        let gctrl = storage(dev, "control adjoint", f64s(9 * n));
+        let ctrl = storage("controls", f64s(9 * n));
+        let work = storage("work", f64s(18 * n));
+        let grid = storage("grid", f64s(4 * node_count));
+        let counts = storage("counts", 4 * 2 * node_count);
+        let starts = storage("starts", 4 * (node_count + 1));
+        let list = storage("list", 4 * n);
+        let status = storage("status", 16);
+        let post = storage("post", f64s(STATE_STRIDE * n));
+        let adj = storage("adjoint", f64s(STATE_STRIDE * n));
+        let radj = storage("reverse", f64s(RADJ_STRIDE * n));
+        let ggrid = storage("grid adjoint", f64s(4 * node_count));
+        let gctrl = storage("control adjoint", f64s(9 * n));
         let buffers = [
             &iparams, &fparams, &state, &pm, &ctrl, &work, &grid, &counts, &starts, &list, &status,
             &post, &adj, &radj, &ggrid, &gctrl,
@@ -233,7 +234,7 @@ impl<'d> GpuEuler<'d> {
         first_step: usize,
         n_steps: usize,
     ) -> Result<(), SimError> {
-        self.run(state, controls, first_step, n_steps, None)
+        self.run(state, controls, first_step, n_steps, None, None)
     }
 
     /// [`GpuEuler::forward`], keeping every state on the device for [`GpuEuler::backward`].
@@ -244,24 +245,23 @@ impl<'d> GpuEuler<'d> {
         first_step: usize,
         n_steps: usize,
     ) -> Result<GpuTape, SimError> {
-        let mut states = Vec::with_capacity(n_steps + 1);
-        self.run(state, controls, first_step, n_steps, Some(&mut states))?;
-        Ok(GpuTape {
-            first_step,
-            states,
-            last: state.clone(),
-        })
+        let mut tape = GpuTape::default();
+        self.run(state, controls, first_step, n_steps, Some(&mut tape), None)?;
+        Ok(tape)
     }
 
-    fn run(
+    /// The run behind both: with a tape, every state on the device; with `on_step`, the
+    /// state read back after every step and shown to it.
+    pub(crate) fn run(
         &self,
         state: &mut State,
         controls: &StepControls,
         first_step: usize,
         n_steps: usize,
-        mut tape: Option<&mut Vec<wgpu::Buffer>>,
+        mut tape: Option<&mut GpuTape>,
+        mut on_step: Option<&mut dyn FnMut(usize, &State)>,
     ) -> Result<(), SimError> {
-        let model = self.model;
+        let model = &self.model;
         model.check_size(state.len())?;
         model.check_finite_and_cfl(state.first_non_finite(), &state.v, first_step)?;
         let q = &self.dev.queue;
@@ -272,7 +272,7 @@ impl<'d> GpuEuler<'d> {
             bytemuck::cast_slice(&[0u32, u32::MAX, 0, u32::MAX]),
         );
         if let Some(t) = tape.as_deref_mut() {
-            t.push(self.copy_of(&self.state));
+            t.start(&self.dev, first_step, self.copy_of(&self.state));
         }
         for k in 0..n_steps {
             let step = first_step + k;
@@ -284,7 +284,20 @@ impl<'d> GpuEuler<'d> {
             if let Some(t) = tape.as_deref_mut() {
                 t.push(self.copy_of(&self.state));
             }
+            if let Some(f) = on_step.as_deref_mut() {
+                self.read_state(state)?;
+                f(step, state);
+            }
         }
+        self.read_state(state)?;
+        if let Some(t) = tape {
+            t.last = state.clone();
+        }
+        Ok(())
+    }
+
+    /// The device's state into `state`, and the first error its steps flagged.
+    fn read_state(&self, state: &mut State) -> Result<(), SimError> {
         let status: Vec<u32> = self.read(&self.status, 4);
         let out: Vec<f64> = self.read(&self.state, STATE_STRIDE * state.len());
         unpack(&out, state);
@@ -312,7 +325,7 @@ impl<'d> GpuEuler<'d> {
                     field,
                 });
             }
-            let m = self.model;
+            let m = &self.model;
             return Err(SimError::CflExceeded {
                 step,
                 particle,
@@ -332,19 +345,45 @@ impl<'d> GpuEuler<'d> {
         controls: &StepControls,
         grad_last: &StateGrad,
     ) -> Gradients {
+        self.backward_with(tape, controls, grad_last.clone(), None)
+    }
+
+    /// [`GpuEuler::backward`] with a cost on every state along the run: `seed_after(k,
+    /// state, adj)` adds to `adj` the adjoint of the cost on the state after global step `k`
+    /// before that step is reversed (the adjoint and the state then pass through the host).
+    pub(crate) fn backward_with(
+        &self,
+        tape: &GpuTape,
+        controls: &StepControls,
+        grad_last: StateGrad,
+        mut seed_after: Option<&mut dyn FnMut(usize, &State, &mut StateGrad)>,
+    ) -> Gradients {
         let n = tape.last.len();
         let q = &self.dev.queue;
-        q.write_buffer(&self.adj, 0, bytemuck::cast_slice(&pack_grad(grad_last)));
+        let mut adj = grad_last;
         let mut grad_controls = vec![None; tape.len()];
+        let mut on_device = false;
         for k in (0..tape.len()).rev() {
             let step = tape.first_step + k;
+            if let Some(seed) = seed_after.as_deref_mut() {
+                if on_device {
+                    unpack_grad(&self.read(&self.adj, STATE_STRIDE * n), &mut adj);
+                }
+                let post = tape.state_on_host(k + 1);
+                seed(step, &post, &mut adj);
+                on_device = false;
+            }
+            if !on_device {
+                q.write_buffer(&self.adj, 0, bytemuck::cast_slice(&pack_grad(&adj)));
+                on_device = true;
+            }
             let fc = controls.get(k).and_then(|c| c.as_deref());
             let mode = self.upload_control(fc);
             self.upload_params(step, mode);
             let mut enc = self.dev.device.create_command_encoder(&Default::default());
             let bytes = self.state.size();
-            enc.copy_buffer_to_buffer(&tape.states[k], 0, &self.state, 0, bytes);
-            enc.copy_buffer_to_buffer(&tape.states[k + 1], 0, &self.post, 0, bytes);
+            enc.copy_buffer_to_buffer(tape.state(k), 0, &self.state, 0, bytes);
+            enc.copy_buffer_to_buffer(tape.state(k + 1), 0, &self.post, 0, bytes);
             q.submit([enc.finish()]);
             self.submit(0..RECOMPUTE, n);
             self.submit(RECOMPUTE + 1..PASSES.len(), n);
@@ -353,11 +392,11 @@ impl<'d> GpuEuler<'d> {
                 grad_controls[k] = Some(self.control_gradient(fc, &g_m));
             }
         }
-        let out: Vec<f64> = self.read(&self.adj, STATE_STRIDE * n);
-        let mut initial = StateGrad::zeros(n);
-        unpack_grad(&out, &mut initial);
+        if on_device {
+            unpack_grad(&self.read(&self.adj, STATE_STRIDE * n), &mut adj);
+        }
         Gradients {
-            initial,
+            initial: adj,
             controls: grad_controls,
             effect_params: self.model.zero_effect_params(),
             knots: Vec::new(),
@@ -382,7 +421,7 @@ impl<'d> GpuEuler<'d> {
 
     /// A device copy of `buf` (a taped state).
     fn copy_of(&self, buf: &wgpu::Buffer) -> wgpu::Buffer {
-        let copy = storage(self.dev, "taped state", buf.size() as usize);
+        let copy = storage(&self.dev, "taped state", buf.size() as usize);
         let mut enc = self.dev.device.create_command_encoder(&Default::default());
         enc.copy_buffer_to_buffer(buf, 0, &copy, 0, buf.size());
         self.dev.queue.submit([enc.finish()]);
@@ -419,7 +458,7 @@ impl<'d> GpuEuler<'d> {
     }
 
     fn upload_params(&self, step: usize, mode: u32) {
-        let m = self.model;
+        let m = &self.model;
         let nodes = m.grid.nodes();
         let support = match m.kernel {
             KernelKind::Quadratic => 3,
@@ -477,26 +516,8 @@ impl<'d> GpuEuler<'d> {
         self.dev.queue.submit([enc.finish()]);
     }
 
-    /// Copies `count` values of `buf` back to the host.
-    fn read<T: bytemuck::Pod>(&self, buf: &wgpu::Buffer, count: usize) -> Vec<T> {
-        let bytes = (count * std::mem::size_of::<T>()) as u64;
-        let staging = self.dev.device.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("read back"),
-            size: bytes,
-            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
-        let mut enc = self.dev.device.create_command_encoder(&Default::default());
-        enc.copy_buffer_to_buffer(buf, 0, &staging, 0, bytes);
-        self.dev.queue.submit([enc.finish()]);
-        let slice = staging.slice(..);
-        slice.map_async(wgpu::MapMode::Read, |r| r.expect("a device buffer maps"));
-        self.dev
-            .device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .expect("the device finishes its work");
-        let view = slice.get_mapped_range().expect("a mapped buffer's range");
-        bytemuck::cast_slice(&view).to_vec()
+    pub(crate) fn read<T: bytemuck::Pod>(&self, buf: &wgpu::Buffer, count: usize) -> Vec<T> {
+        self.dev.read(buf, count)
     }
 }
 
@@ -512,7 +533,7 @@ fn pack(s: &State) -> Vec<f64> {
     out
 }
 
-fn unpack(buf: &[f64], s: &mut State) {
+pub(crate) fn unpack(buf: &[f64], s: &mut State) {
     for (p, row) in buf.chunks(STATE_STRIDE).enumerate() {
         s.x[p] = Vector3::from_column_slice(&row[0..3]);
         s.v[p] = Vector3::from_column_slice(&row[3..6]);

@@ -7,9 +7,10 @@ use morph_engine::mpm::{Euler, KernelKind, State, StateGrad};
 use morph_engine::scene::{SceneConfig, ball_particles};
 use morph_gpu::{Device, GpuEuler};
 use nalgebra::{Matrix3, Vector3};
+use std::sync::Arc;
 
-fn device() -> Device {
-    Device::open().unwrap_or_else(|e| {
+fn device() -> Arc<Device> {
+    Device::shared().unwrap_or_else(|e| {
         panic!("{e} (the GPU tests need a device; Mesa's lavapipe is one: apt-get install mesa-vulkan-drivers)")
     })
 }
@@ -65,7 +66,7 @@ fn agree(kernel: KernelKind) {
     cpu.forward(&mut on_cpu, &controls, 0, steps, None).unwrap();
     let dev = device();
     let m = model(&scene, &vol);
-    let gpu = GpuEuler::new(&dev, &m).unwrap();
+    let gpu = GpuEuler::new(dev.clone(), model(&scene, &vol)).unwrap();
     let mut on_gpu = initial.clone();
     gpu.forward(&mut on_gpu, &controls, 0, steps).unwrap();
     let fields = [
@@ -107,9 +108,7 @@ fn thirty_quadratic_steps_agree_with_the_cpu_engine() {
 fn two_runs_give_the_same_bits() {
     let steps = 12;
     let (scene, vol, initial, controls) = workload(KernelKind::Cubic, steps);
-    let dev = device();
-    let m = model(&scene, &vol);
-    let gpu = GpuEuler::new(&dev, &m).unwrap();
+    let gpu = GpuEuler::new(device(), model(&scene, &vol)).unwrap();
     let run = || {
         let mut s = initial.clone();
         gpu.forward(&mut s, &controls, 0, steps).unwrap();
@@ -208,7 +207,7 @@ fn the_reverse_pass_agrees_with_the_cpu_engine() {
         .unwrap();
     let want = cpu.backward(&tape, &controls, loss.seed(&m, &s));
     let dev = device();
-    let gpu = GpuEuler::new(&dev, &m).unwrap();
+    let gpu = GpuEuler::new(dev.clone(), model(&scene, &vol)).unwrap();
     let mut s = initial.clone();
     let gtape = gpu.forward_taped(&mut s, &controls, 0, steps).unwrap();
     let got = gpu.backward(&gtape, &controls, &loss.seed(&m, &s));
@@ -244,7 +243,7 @@ fn the_reverse_pass_matches_central_differences_on_the_device() {
     // (machine epsilon times the loss over h) stays below their truncation error.
     let loss = Loss::new(&m, &initial, 0.1);
     let dev = device();
-    let gpu = GpuEuler::new(&dev, &m).unwrap();
+    let gpu = GpuEuler::new(dev.clone(), model(&scene, &vol)).unwrap();
     let mut s = initial.clone();
     let tape = gpu.forward_taped(&mut s, &controls, 0, steps).unwrap();
     let g = gpu.backward(&tape, &controls, &loss.seed(&m, &s));
@@ -288,4 +287,76 @@ fn the_reverse_pass_matches_central_differences_on_the_device() {
             );
         }
     }
+}
+
+/// Through the engine's `Integrator` trait, as the morph calls it: a run observed step by
+/// step, and a reverse with a cost on every state along the run (a velocity term after each
+/// step), against the CPU engine's.
+#[test]
+fn as_an_integrator_it_matches_the_cpu_engine_with_per_step_costs() {
+    use morph_engine::integrator::{Controls, Integrator, RunTape, Steps};
+    let steps = 6;
+    let (scene, vol, initial, controls) = workload(KernelKind::Quadratic, steps);
+    let m = model(&scene, &vol);
+    let loss = Loss::new(&m, &initial, 2.0);
+    let cpu = Euler::from(model(&scene, &vol));
+    let gpu = GpuEuler::new(device(), model(&scene, &vol)).unwrap();
+    let seed = |k: usize, s: &State, adj: &mut StateGrad| {
+        for p in 0..s.len() {
+            adj.v[p] += (1e-3 * k as f64) * s.v[p];
+        }
+    };
+    let (mut seen_cpu, mut seen_gpu) = (Vec::new(), Vec::new());
+    let run = Steps::new(5, steps);
+    let mut s = initial.clone();
+    let mut tape = Default::default();
+    let mut on = |k: usize, s: &State| seen_cpu.push((k, s.x[7]));
+    cpu.forward_observed(
+        &mut s,
+        Controls::of_f(&controls),
+        run,
+        Some(&mut tape),
+        Some(&mut on),
+    )
+    .unwrap();
+    let want = cpu.backward_seeded(&tape, Controls::of_f(&controls), loss.seed(&m, &s), &mut {
+        seed
+    });
+    let mut s = initial.clone();
+    let mut gtape = Default::default();
+    let mut on = |k: usize, s: &State| seen_gpu.push((k, s.x[7]));
+    gpu.forward_observed(
+        &mut s,
+        Controls::of_f(&controls),
+        run,
+        Some(&mut gtape),
+        Some(&mut on),
+    )
+    .unwrap();
+    assert_eq!(gtape.len(), steps);
+    let got = gpu.backward_seeded(&gtape, Controls::of_f(&controls), loss.seed(&m, &s), &mut {
+        seed
+    });
+    assert_eq!(seen_cpu.len(), seen_gpu.len());
+    for ((kc, xc), (kg, xg)) in seen_cpu.iter().zip(&seen_gpu) {
+        assert_eq!(kc, kg);
+        assert!(
+            (xc - xg).amax() < 1e-12 * xc.amax(),
+            "step {kc}: {xc} against {xg}"
+        );
+    }
+    let e = rel_all(&flat(&got.initial.v), &flat(&want.initial.v))
+        .max(rel_all(&flat(&got.initial.x), &flat(&want.initial.x)))
+        .max(rel_all(&flat(&got.initial.f), &flat(&want.initial.f)));
+    assert!(e < 1e-8, "dL/d(initial state): relative difference {e:.3e}");
+    // The tape splits and joins again as the morph's look-ahead does.
+    let mut head = gtape.clone();
+    let tail = head.split_off(2);
+    assert_eq!((head.len(), tail.len()), (2, steps - 2));
+    assert_eq!(head.last().x, gtape.state_at(2).x);
+    head.append(tail);
+    let again = gpu.backward_seeded(&head, Controls::of_f(&controls), loss.seed(&m, &s), &mut {
+        seed
+    });
+    assert_eq!(flat(&again.initial.v), flat(&got.initial.v));
 }

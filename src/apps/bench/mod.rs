@@ -265,7 +265,7 @@ pub fn run_on_device(
     repeats: usize,
     kernels: &[KernelKind],
 ) -> anyhow::Result<()> {
-    let dev = crate::gpu::Device::open()?;
+    let dev = crate::gpu::Device::shared()?;
     if dev.software {
         eprintln!(
             "morph: warning: {} is a software driver, not a GPU",
@@ -274,8 +274,8 @@ pub fn run_on_device(
     }
     for &kernel in kernels {
         let w = ball_workload(radius, kernel, IntegratorKind::Euler, steps)?;
-        let model = w.engine.model();
-        let gpu = crate::gpu::GpuEuler::new(&dev, model)?;
+        let gpu = crate::gpu::GpuEuler::new(dev.clone(), w.engine.into_model())?;
+        let model = &gpu.model;
         let (mut best_f, mut best_fr) = (f64::INFINITY, f64::INFINITY);
         for _ in 0..repeats.max(1) {
             let t0 = Instant::now();
