@@ -135,6 +135,10 @@ pub enum MorphError {
     /// what to change. Nothing of the run is kept.
     #[error("{0}")]
     Optimization(String),
+    /// The device asked for (`--device gpu`) cannot run the morph: no adapter, or a scene
+    /// it does not run; the message says what is missing.
+    #[error("{0}")]
+    Device(String),
 }
 
 /// One exported frame: which, when, and the particles in world units.

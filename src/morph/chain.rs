@@ -108,7 +108,7 @@ fn warm_start(
     let clock = Instant::now();
     let progress = RunProgress::start(coarse);
     let mut quiet = LevelObserver { inner: observer };
-    let (result, controls) = crate::engine::with_integrator!(&coarse.engine, sim => {
+    let (result, controls) = crate::morph::prepare::sim::with_sim!(&coarse.engine, sim => {
         chain(coarse, sim, progress, clock, &mut quiet, below.as_ref(), true)
     })?;
     records.push(LevelRecord {
@@ -198,7 +198,7 @@ pub fn run_prepared(
     if s.method.levels > 1 {
         observer.event(&prep.level_event(s.method.levels));
     }
-    let (mut result, _) = crate::engine::with_integrator!(&prep.engine, sim => {
+    let (mut result, _) = crate::morph::prepare::sim::with_sim!(&prep.engine, sim => {
         chain(prep, sim, progress, clock, observer, warm.as_ref(), false)
     })?;
     result.levels = levels;

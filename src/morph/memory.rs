@@ -431,7 +431,7 @@ impl Prepared {
     pub fn plan_memory(&mut self, limit: MemoryLimit) -> Result<MemoryPlan, MorphError> {
         let n = self.initial.len();
         let state = State::bytes_for(n);
-        let step = crate::engine::with_integrator!(&self.engine, sim => super::segment::step_bytes(sim, n));
+        let step = crate::morph::prepare::sim::with_sim!(&self.engine, sim => super::segment::step_bytes(sim, n));
         let steps = self.max_sim_segment_steps();
         let fixed = fixed_bytes(
             &self.settings,
@@ -488,7 +488,7 @@ impl Prepared {
 
     fn chunk_plan_within(&self, budget: usize) -> ChunkPlan {
         let n = self.initial.len();
-        let step = crate::engine::with_integrator!(&self.engine, sim => super::segment::step_bytes(sim, n));
+        let step = crate::morph::prepare::sim::with_sim!(&self.engine, sim => super::segment::step_bytes(sim, n));
         ChunkPlan::within(
             budget,
             self.max_sim_segment_steps(),

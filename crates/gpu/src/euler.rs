@@ -6,7 +6,7 @@
 
 use crate::device::Device;
 use crate::tape::GpuTape;
-use morph_engine::effects::GridForm;
+use morph_engine::effects::{Effect, GridForm, GridRule};
 use morph_engine::integrator::{RunTape, StepControls};
 use morph_engine::material::MaterialModel;
 use morph_engine::mpm::model::Model;
@@ -49,20 +49,37 @@ pub fn unsupported(model: &Model) -> Option<String> {
             "the GPU step runs the fixed-corotated material only, not {material:?}"
         ));
     }
-    if let Some(e) = model
-        .effects
-        .iter()
-        .find(|e| e.acts_on_grid(GridForm::Step))
-    {
+    let on_grid: Vec<_> = grid_effects(model).collect();
+    if let Some(e) = on_grid.iter().find(|e| e.grid_rule().is_none()) {
         return Some(format!(
             "the GPU step does not run the grid effect '{}' yet",
             e.name()
+        ));
+    }
+    if on_grid.len() > RULES {
+        return Some(format!(
+            "the GPU step runs at most {RULES} grid effects, the scene has {}",
+            on_grid.len()
         ));
     }
     if !model.controls().is_empty() {
         return Some("the GPU step does not run boundary controls yet".into());
     }
     None
+}
+
+/// Grid effects the step applies, in the list's order (`step.wgsl`'s `RULES`).
+const RULES: usize = 4;
+/// Numbers a node takes in the grid buffer: mass, velocity after the effects and before.
+const GRID_STRIDE: usize = 7;
+
+/// The effects that act on the Euler step's grid, in list order.
+fn grid_effects(model: &Model) -> impl Iterator<Item = &dyn Effect> {
+    model
+        .effects
+        .iter()
+        .map(|e| e.as_ref())
+        .filter(|e| e.acts_on_grid(GridForm::Step))
 }
 
 /// The model's step on a device.
@@ -121,6 +138,11 @@ impl std::fmt::Debug for GpuEuler {
 }
 
 impl GpuEuler {
+    /// The device the steps run on.
+    pub fn device(&self) -> &Device {
+        &self.dev
+    }
+
     /// The model's constant data on `dev` and the step's pipelines.
     pub fn new(dev: Arc<Device>, model: Model) -> Result<GpuEuler, SimError> {
         if let Some(why) = unsupported(&model) {
@@ -168,7 +190,7 @@ impl GpuEuler {
         let dev_ref = &*dev;
         let storage = |label: &str, bytes: usize| storage(dev_ref, label, bytes);
         let iparams = storage("iparams", 32);
-        let fparams = storage("fparams", f64s(10));
+        let fparams = storage("fparams", f64s(10 + 4 * RULES));
         let state = storage("state", f64s(STATE_STRIDE * n));
         let pm: Vec<f64> = (0..n)
             .flat_map(|p| [model.mass[p], model.volume[p]])
@@ -180,7 +202,7 @@ impl GpuEuler {
         });
         let ctrl = storage("controls", f64s(9 * n));
         let work = storage("work", f64s(18 * n));
-        let grid = storage("grid", f64s(4 * node_count));
+        let grid = storage("grid", f64s(GRID_STRIDE * node_count));
         let counts = storage("counts", 4 * 2 * node_count);
         let starts = storage("starts", 4 * (node_count + 1));
         let list = storage("list", 4 * n);
@@ -430,8 +452,8 @@ impl GpuEuler {
 
     /// The nodal masses the last step's P2G made.
     pub fn last_grid_mass(&self) -> Vec<f64> {
-        let grid: Vec<f64> = self.read(&self.grid, 4 * self.node_count);
-        grid.chunks(4).map(|n| n[0]).collect()
+        let grid: Vec<f64> = self.read(&self.grid, GRID_STRIDE * self.node_count);
+        grid.chunks(GRID_STRIDE).map(|n| n[0]).collect()
     }
 
     /// Writes this step's control matrices `M` (`Fe = F M`, or `F + M`); the shader's mode.
@@ -481,7 +503,7 @@ impl GpuEuler {
             .map(|e| e.momentum_retention(m.dt, time))
             .product();
         let o = m.grid.origin;
-        let fp: [f64; 10] = [
+        let mut fp: Vec<f64> = vec![
             o[0],
             o[1],
             o[2],
@@ -493,6 +515,17 @@ impl GpuEuler {
             m.material.spec().2,
             m.max_cfl * m.grid.dx / m.dt,
         ];
+        fp.resize(10 + 4 * RULES, 0.0);
+        for (r, e) in grid_effects(m).enumerate() {
+            let rule = &mut fp[10 + 4 * r..14 + 4 * r];
+            match e.grid_rule().expect("checked by `unsupported`") {
+                GridRule::Gravity(g) => rule.copy_from_slice(&[1.0, g[0], g[1], g[2]]),
+                GridRule::Walls { sticky, thickness } => {
+                    rule[0] = if sticky { 2.0 } else { 3.0 };
+                    rule[1] = thickness as f64;
+                }
+            }
+        }
         let q = &self.dev.queue;
         q.write_buffer(&self.iparams, 0, bytemuck::cast_slice(&ip));
         q.write_buffer(&self.fparams, 0, bytemuck::cast_slice(&fp));

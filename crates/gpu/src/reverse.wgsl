@@ -129,13 +129,21 @@ fn rev_grid(@builtin(global_invocation_id) id: vec3<u32>) {
             }
         }
     }
-    let m = grid[4u * i];
+    let o = GRID_STRIDE * i;
+    let m = grid[o];
     var gm = 0.0lf;
     var gp = vec3<f64>(0.0lf);
     if (m > 0.0lf) {
-        let v = vec3<f64>(grid[4u * i + 1u], grid[4u * i + 2u], grid[4u * i + 3u]);
+        // The rules backwards: gravity passes the adjoint on, walls remove the components
+        // they removed (each one's mask from the velocity it received, replayed).
+        let vq = vec3<f64>(grid[o + 4u], grid[o + 5u], grid[o + 6u]);
+        var v = vq;
+        for (var r = 0u; r < RULES; r++) {
+            gvi = gvi * rule_keeps(r, node, v);
+            v = apply_rule(r, node, v);
+        }
         gp = gvi / m;
-        gm = -dot(gvi, v) / m;
+        gm = -dot(gvi, vq) / m;
     }
     ggrid[4u * i] = gm;
     ggrid[4u * i + 1u] = gp.x; ggrid[4u * i + 2u] = gp.y; ggrid[4u * i + 3u] = gp.z;
@@ -174,7 +182,7 @@ fn rev_particle(@builtin(global_invocation_id) id: vec3<u32>) {
                 let grad_w = vec3<f64>(da.x * wa.y * wa.z, wa.x * da.y * wa.z, wa.x * wa.y * da.z);
                 let d = (vec3<f64>(f64(a), f64(b), f64(c)) - pl.fx) * dx;
                 let i = node_index(base + vec3<u32>(a, b, c));
-                let vi = vec3<f64>(grid[4u * i + 1u], grid[4u * i + 2u], grid[4u * i + 3u]);
+                let vi = vec3<f64>(grid[GRID_STRIDE * i + 1u], grid[GRID_STRIDE * i + 2u], grid[GRID_STRIDE * i + 3u]);
                 let gm = ggrid[4u * i];
                 let gp = vec3<f64>(ggrid[4u * i + 1u], ggrid[4u * i + 2u], ggrid[4u * i + 3u]);
                 // G2P: vel = sum w v_i, C = D^-1 sum w v_i d^T.

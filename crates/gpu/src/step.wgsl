@@ -7,8 +7,10 @@
 // iparams: particle count, nodes per axis (3), kernel support N, control mode (0 none,
 // 1 `Fe = F M`, 2 `Fe = F + M`), node count, the global step.
 @group(0) @binding(0) var<storage, read> iparams: array<u32, 8>;
-// fparams: origin (3), dx, dt, D^-1, momentum retention, mu, lambda, CFL speed limit.
-@group(0) @binding(1) var<storage, read> fparams: array<f64, 10>;
+// fparams: origin (3), dx, dt, D^-1, momentum retention, mu, lambda, CFL speed limit; then
+// the grid rules in the effect list's order, four numbers each: kind (0 none, 1 gravity,
+// 2 sticky walls, 3 slip walls) and its parameters (g; the walls' thickness in cells).
+@group(0) @binding(1) var<storage, read> fparams: array<f64, 26>;
 // Per particle, 24 numbers: x (3), v (3), C (9, column-major), F (9).
 @group(0) @binding(2) var<storage, read_write> state: array<f64>;
 // Per particle: mass, rest volume.
@@ -17,7 +19,7 @@
 @group(0) @binding(4) var<storage, read> ctrl: array<f64>;
 // Per particle, 18 numbers: Fe (9), the affine momentum A = m C + k P Fe^T (9).
 @group(0) @binding(5) var<storage, read_write> work: array<f64>;
-// Per node: mass, velocity (3).
+// Per node: mass, velocity after the grid rules (3), velocity `p / m` before them (3).
 @group(0) @binding(6) var<storage, read_write> grid: array<f64>;
 // Per node: the bin's count, then (second half) how many are placed.
 @group(0) @binding(7) var<storage, read_write> counts: array<atomic<u32>>;
@@ -306,10 +308,51 @@ fn p2g(@builtin(global_invocation_id) id: vec3<u32>) {
             }
         }
     }
+    var vq = vec3<f64>(0.0lf);
     var v = vec3<f64>(0.0lf);
-    if (mass > 0.0lf) { v = mom / mass; }
-    grid[4u * i] = mass;
-    grid[4u * i + 1u] = v.x; grid[4u * i + 2u] = v.y; grid[4u * i + 3u] = v.z;
+    if (mass > 0.0lf) {
+        vq = mom / mass;
+        v = vq;
+        for (var r = 0u; r < RULES; r++) {
+            v = apply_rule(r, node, v);
+        }
+    }
+    let o = GRID_STRIDE * i;
+    grid[o] = mass;
+    grid[o + 1u] = v.x; grid[o + 2u] = v.y; grid[o + 3u] = v.z;
+    grid[o + 4u] = vq.x; grid[o + 5u] = vq.y; grid[o + 6u] = vq.z;
+}
+
+const RULES: u32 = 4u;
+const GRID_STRIDE: u32 = 7u;
+
+// Which velocity components rule `r` keeps at `node` for velocity `v` (1: kept).
+fn rule_keeps(r: u32, node: vec3<i32>, v: vec3<f64>) -> vec3<f64> {
+    let kind = u32(fparams[10u + 4u * r]);
+    if (kind < 2u) { return vec3<f64>(1.0lf); }
+    let t = i32(fparams[11u + 4u * r]);
+    let n = vec3<i32>(nodes());
+    let low = node < vec3<i32>(t);
+    let high = node + vec3<i32>(t) >= n;
+    if (!any(low) && !any(high)) { return vec3<f64>(1.0lf); }
+    if (kind == 2u) { return vec3<f64>(0.0lf); }
+    // Slip: the component into a wall (v . outward normal > 0) goes.
+    var keep = vec3<f64>(1.0lf);
+    for (var a = 0; a < 3; a++) {
+        if ((low[a] && v[a] < 0.0lf) || (high[a] && !low[a] && v[a] > 0.0lf)) { keep[a] = 0.0lf; }
+    }
+    return keep;
+}
+
+// Rule `r` applied to a node's velocity (the CPU's effects' `apply_grid` in the Euler step).
+fn apply_rule(r: u32, node: vec3<i32>, v: vec3<f64>) -> vec3<f64> {
+    let kind = u32(fparams[10u + 4u * r]);
+    if (kind == 1u) {
+        let g = vec3<f64>(fparams[11u + 4u * r], fparams[12u + 4u * r], fparams[13u + 4u * r]);
+        return v + fparams[4] * g;
+    }
+    let keep = rule_keeps(r, node, v);
+    return select(vec3<f64>(0.0lf), v, keep > vec3<f64>(0.5lf));
 }
 
 fn is_finite(x: f64) -> bool {
@@ -336,7 +379,7 @@ fn g2p(@builtin(global_invocation_id) id: vec3<u32>) {
                 let w = weight(pl.fx.x, a) * weight(pl.fx.y, b) * weight(pl.fx.z, c);
                 let d = (vec3<f64>(f64(a), f64(b), f64(c)) - pl.fx) * dx;
                 let i = node_index(base + vec3<u32>(a, b, c));
-                let vi = vec3<f64>(grid[4u * i + 1u], grid[4u * i + 2u], grid[4u * i + 3u]);
+                let vi = vec3<f64>(grid[GRID_STRIDE * i + 1u], grid[GRID_STRIDE * i + 2u], grid[GRID_STRIDE * i + 3u]);
                 vel += w * vi;
                 b_mat += mat3x3<f64>(w * d.x * vi, w * d.y * vi, w * d.z * vi);
             }

@@ -1,10 +1,11 @@
 //! The device's step against the CPU engine's on the reference workload (a deforming ball of
 //! about 17,000 particles under drag and `Fc` controls every 10 steps), in f64.
 
+use morph_engine::effects::WallMode;
 use morph_engine::integrator::StepControl;
 use morph_engine::mpm::model::Model;
 use morph_engine::mpm::{Euler, KernelKind, State, StateGrad};
-use morph_engine::scene::{SceneConfig, ball_particles};
+use morph_engine::scene::{EffectConfig, SceneConfig, ball_particles};
 use morph_gpu::{Device, GpuEuler};
 use nalgebra::{Matrix3, Vector3};
 use std::sync::Arc;
@@ -59,8 +60,12 @@ fn rel<'a, const R: usize, const C: usize>(
 }
 
 fn agree(kernel: KernelKind) {
-    let steps = 30;
-    let (scene, vol, initial, controls) = workload(kernel, steps);
+    agree_with(kernel, SceneConfig::reference().effects, 30);
+}
+
+fn agree_with(kernel: KernelKind, effects: Vec<EffectConfig>, steps: usize) {
+    let (mut scene, vol, initial, controls) = workload(kernel, steps);
+    scene.effects = effects;
     let cpu = Euler::from(model(&scene, &vol));
     let mut on_cpu = initial.clone();
     cpu.forward(&mut on_cpu, &controls, 0, steps, None).unwrap();
@@ -359,4 +364,52 @@ fn as_an_integrator_it_matches_the_cpu_engine_with_per_step_costs() {
         seed
     });
     assert_eq!(flat(&again.initial.v), flat(&got.initial.v));
+}
+
+/// Gravity and walls, the grid effects the device runs: slip walls thick enough that the
+/// ball, falling and swirling, reaches them, and sticky ones.
+fn walls_and_gravity(mode: WallMode) -> Vec<EffectConfig> {
+    vec![
+        EffectConfig::drag(0.5),
+        EffectConfig::Gravity {
+            acceleration: [0.0, -300.0, 0.0],
+        },
+        EffectConfig::Walls { mode, thickness: 9 },
+    ]
+}
+
+#[test]
+fn grid_effects_agree_with_the_cpu_engine() {
+    agree_with(KernelKind::Cubic, walls_and_gravity(WallMode::Slip), 20);
+    agree_with(
+        KernelKind::Quadratic,
+        walls_and_gravity(WallMode::Sticky),
+        20,
+    );
+}
+
+#[test]
+fn the_reverse_through_grid_effects_agrees_with_the_cpu_engine() {
+    for mode in [WallMode::Slip, WallMode::Sticky] {
+        let steps = 10;
+        let (mut scene, vol, initial, controls) = workload(KernelKind::Cubic, steps);
+        scene.effects = walls_and_gravity(mode);
+        let m = model(&scene, &vol);
+        let loss = Loss::new(&m, &initial, 2.0);
+        let cpu = Euler::from(model(&scene, &vol));
+        let mut s = initial.clone();
+        let mut tape = Default::default();
+        cpu.forward(&mut s, &controls, 0, steps, Some(&mut tape))
+            .unwrap();
+        let want = cpu.backward(&tape, &controls, loss.seed(&m, &s));
+        let gpu = GpuEuler::new(device(), model(&scene, &vol)).unwrap();
+        let mut s = initial.clone();
+        let gtape = gpu.forward_taped(&mut s, &controls, 0, steps).unwrap();
+        let got = gpu.backward(&gtape, &controls, &loss.seed(&m, &s));
+        let e = rel_all(&flat(&got.initial.x), &flat(&want.initial.x))
+            .max(rel_all(&flat(&got.initial.v), &flat(&want.initial.v)))
+            .max(rel_all(&flat(&got.initial.f), &flat(&want.initial.f)));
+        eprintln!("{mode:?} walls and gravity, reverse: {e:.3e}");
+        assert!(e < 1e-8, "{mode:?}: relative difference {e:.3e}");
+    }
 }

@@ -10,6 +10,7 @@ use super::{
 
 mod queries;
 mod setup;
+pub mod sim;
 
 pub use setup::{
     FINE_REFINE, LONG_RUN_SECONDS, MAX_DRAG_DAMPING, MAX_SUBSTEPS, MORPH_STEP,
@@ -17,7 +18,6 @@ pub use setup::{
 };
 
 use super::reach::ReachLoss;
-use crate::engine::Engine;
 use crate::engine::mpm::model::Model;
 use crate::engine::mpm::{SimError, State};
 use crate::engine::scene::SceneConfig;
@@ -25,6 +25,7 @@ use crate::geometry::{LoadedMesh, MorphGeometry};
 use crate::loss::{FINE_KERNEL, FineMassLoss, MassLoss};
 use nalgebra::Vector3;
 use segment::PathPoint;
+use sim::Sim;
 use std::path::Path;
 
 /// Everything set up for a morph: particles, the model and its integrator, loss.
@@ -33,7 +34,7 @@ pub struct Prepared {
     /// What the thin parts' rule chose ([`super::sizing`]; `None` when it was off).
     pub sizing: Option<super::sizing::Sizing>,
     pub geometry: MorphGeometry,
-    pub engine: Engine,
+    pub engine: Sim,
     pub loss: MassLoss,
     /// The mass loss on the finer grid, when its weight is positive.
     pub fine_loss: Option<FineMassLoss>,
@@ -171,7 +172,7 @@ impl Prepared {
         let volumes = vec![geometry.source.volume; geometry.source.positions.len()];
         let mut model = scene.model_with(volumes, &crate::geometry::MeshSolids)?;
         model.control_form = settings.method.control;
-        let engine = Engine::new(model, settings.method.integrator)?;
+        let engine = Sim::new(model, settings.method.integrator, settings.method.device)?;
         let (loss, fine_loss, reach) = setup::losses(settings, &geometry)?;
         let mut initial = State::at_rest(geometry.source.positions.clone());
         let v0 =

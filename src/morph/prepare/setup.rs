@@ -2,8 +2,8 @@
 //! budget, the shot's timing, the effects, the substeps, the losses, the keyframes' masses,
 //! the body's own path before the first keyframe, the coarser level.
 
+use super::sim::{Sim, with_sim};
 use super::{CheckedSettings, MorphError, MorphSettings, Prepared, settings};
-use crate::engine::Engine;
 use crate::engine::integrator::Integrator;
 use crate::engine::mpm::{GridSpec, SimError, State};
 use crate::engine::scene::{EffectConfig, SceneConfig, WorldMap};
@@ -221,7 +221,7 @@ pub(super) fn passive_ends(
 /// Where the body goes on its own (a run without controls from `initial`): its positions at
 /// each of the morph steps `ends`.
 pub(super) fn passive_path(
-    engine: &Engine,
+    engine: &Sim,
     initial: &State,
     ends: &[usize],
     substeps: usize,
@@ -236,7 +236,7 @@ pub(super) fn passive_path(
             passive.push(((k + 1) / substeps, st.x.clone()));
         }
     };
-    crate::engine::with_integrator!(engine, sim => {
+    with_sim!(engine, sim => {
         let steps = crate::engine::integrator::Steps::new(0, last * substeps);
         let none = crate::engine::integrator::Controls::of_f(&[]);
         sim.forward_observed(&mut state, none, steps, None, Some(&mut on_step))

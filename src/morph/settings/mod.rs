@@ -327,6 +327,7 @@ impl MorphSettings {
                 reach_weight,
                 kernel: KernelKind::Cubic,
                 integrator: IntegratorKind::Euler,
+                device: crate::gpu::DeviceKind::Cpu,
                 settle_drag: 12.0,
                 dt: None,
                 inbetween,

@@ -8,6 +8,7 @@ use crate::engine::integrator::IntegratorKind;
 use crate::engine::mpm::{ControlForm, KernelKind};
 use crate::engine::scene::MaterialConfig;
 use crate::geometry::TargetFit;
+use crate::gpu::DeviceKind;
 use crate::loss::MassLossKind;
 use crate::morph::basis::ControlResolution;
 use crate::morph::segment::OptimizerSettings;
@@ -63,6 +64,7 @@ pub const PARTS: [(&str, &[&str]); 5] = [
             "reach_weight",
             "kernel",
             "integrator",
+            "device",
             "settle_drag",
             "dt",
             "inbetween",
@@ -236,6 +238,10 @@ pub struct Method {
     /// The time integrator (Euler, or RK4 at four evaluations a step).
     #[serde(default)]
     pub integrator: IntegratorKind,
+    /// Where the engine runs: the CPU, a GPU (the Euler step in f64, `morph_gpu`), or a GPU
+    /// where one opens and the scene is one it runs (`--device`).
+    #[serde(default)]
+    pub device: DeviceKind,
     /// Drag per second added once the final target is reached, eased in over
     /// [`SETTLE_RAMP_FRAMES`] frames: the held shape comes to rest (0: off).
     #[serde(default)]

@@ -10,7 +10,22 @@ impl MorphSettings {
         self.validate_counts()?;
         self.validate_numbers()?;
         self.validate_shot()?;
-        self.validate_world()
+        self.validate_world()?;
+        self.validate_device()
+    }
+
+    /// The GPU device runs the Euler step.
+    fn validate_device(&self) -> Result<(), String> {
+        use crate::engine::integrator::IntegratorKind;
+        if self.method.device == crate::gpu::DeviceKind::Gpu
+            && self.method.integrator != IntegratorKind::Euler
+        {
+            return Err(
+                "--device gpu runs the Euler integrator; use --integrator euler or --device cpu"
+                    .into(),
+            );
+        }
+        Ok(())
     }
 
     /// The counts and sizes (grid, particles, segments, steps, passes...).

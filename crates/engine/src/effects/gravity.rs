@@ -1,7 +1,7 @@
 //! Constant external acceleration (gravity): `v_i += dt g` on every node with mass (Euler),
 //! `a_i += g` (ODE form).
 
-use super::{Effect, GridContext, GridForm, NodeMotion};
+use super::{Effect, GridContext, GridForm, GridRule, NodeMotion};
 use nalgebra::Vector3;
 
 #[derive(Clone, Copy, Debug)]
@@ -16,6 +16,10 @@ impl Effect for Gravity {
 
     fn acts_on_grid(&self, _: GridForm) -> bool {
         true
+    }
+
+    fn grid_rule(&self) -> Option<GridRule> {
+        Some(GridRule::Gravity(self.acceleration.into()))
     }
 
     fn apply_grid(&self, ctx: &GridContext, _: usize, m: &mut NodeMotion) {

@@ -27,7 +27,7 @@ pub use gravity::Gravity;
 pub use walls::{WallMode, Walls};
 
 /// The interface, filed with the engine that calls it.
-pub use crate::mpm::effect::{Effect, GridContext, GridForm, NodeMotion};
+pub use crate::mpm::effect::{Effect, GridContext, GridForm, GridRule, NodeMotion};
 
 /// The check every effect's hook pair must pass, in both forms: at grid nodes where it acts
 /// (in a wall layer, inside a collider) and where it does not, `reverse_grid` is the

@@ -3,7 +3,7 @@
 //! motion along the wall and away from it is kept). In the ODE form the same components of
 //! the node's velocity and acceleration are removed: one rule for both forms.
 
-use super::{Effect, GridContext, GridForm, NodeMotion};
+use super::{Effect, GridContext, GridForm, GridRule, NodeMotion};
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
@@ -59,6 +59,13 @@ impl Effect for Walls {
     /// from the acceleration too (zero in the Euler step).
     fn acts_on_grid(&self, _: GridForm) -> bool {
         true
+    }
+
+    fn grid_rule(&self) -> Option<GridRule> {
+        Some(GridRule::Walls {
+            sticky: self.mode == WallMode::Sticky,
+            thickness: self.thickness,
+        })
     }
 
     fn apply_grid(&self, ctx: &GridContext, node: usize, m: &mut NodeMotion) {

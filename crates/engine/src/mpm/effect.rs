@@ -88,11 +88,28 @@ pub trait Effect: Send + Sync + std::fmt::Debug {
         0
     }
 
+    /// What this effect does to the Euler step's grid as plain data a device runs (none: the
+    /// effect has no such description, and a device refuses a scene that has it on its grid).
+    fn grid_rule(&self) -> Option<GridRule> {
+        None
+    }
+
     /// The boundary control this effect is, if it is one (driven by a controller's knots
     /// through [`crate::mpm::ControlPlan`] rather than by a grid hook).
     fn as_control(&self) -> Option<&crate::mpm::ControlEffect> {
         None
     }
+}
+
+/// A grid effect of the Euler step as plain data ([`Effect::grid_rule`]): what a device
+/// applies to each node with mass, in the list's order.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum GridRule {
+    /// `v += dt g`.
+    Gravity([f64; 3]),
+    /// Nodes within `thickness` cells of a face: every velocity component removed
+    /// (`sticky`), or the one into the wall.
+    Walls { sticky: bool, thickness: usize },
 }
 
 /// The effects that act on the grid in one form, in list order, with the layout of their
