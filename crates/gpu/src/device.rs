@@ -154,7 +154,7 @@ pub enum DeviceKind {
     Cpu,
     /// A GPU (or a software Vulkan driver), or an error saying what is missing.
     Gpu,
-    /// A GPU where one opens, else the CPU.
+    /// A GPU (not a software driver) where one opens, else the CPU.
     Auto,
 }
 

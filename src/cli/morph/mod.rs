@@ -213,7 +213,7 @@ pub struct MorphArgs {
     dt: Option<f64>,
     #[arg(long, value_parser = choice(&IntegratorKind::ALL), help = format!("Time integrator: euler (one transfer round trip a step) or rk4 (four, less numerical damping) [default {}]", name(&defaults().method.integrator)))]
     integrator: Option<IntegratorKind>,
-    #[arg(long, value_parser = choice(&DeviceKind::ALL), help = format!("Where the engine runs: cpu, gpu (the Euler step in f64 through Vulkan, Metal or DX12; an error says what is missing) or auto (a GPU where one opens and runs the scene, else the CPU) [default {}]", name(&defaults().method.device)))]
+    #[arg(long, value_parser = choice(&DeviceKind::ALL), help = format!("Where the engine runs: cpu, gpu (the Euler step in f64 through Vulkan, Metal or DX12; an error says what is missing) or auto (a GPU, not a software driver, where one opens and runs the scene, else the CPU) [default {}]", name(&defaults().method.device)))]
     device: Option<DeviceKind>,
     #[arg(long, value_parser = choice(&ControlForm::ALL), help = format!("How a control acts on a particle's deformation: plastic (a volume-preserving change of its rest shape: J stays the volume ratio) or additive (the reference paper's F + Fc, for comparison) [default {}]", name(&defaults().method.control)))]
     control: Option<ControlForm>,

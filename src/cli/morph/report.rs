@@ -61,6 +61,9 @@ fn summary_lines(summary: &Summary) -> Vec<String> {
         summary.seconds
     ));
     lines.extend(summary.sizing.as_ref().map(sizing_line));
+    if summary.device != "cpu" {
+        lines.push(format!("device: {}", summary.device));
+    }
     lines.extend(summary.optimization.as_ref().map(|o| {
         format!(
             "optimization: {} evaluations, {} steps undone (they raised the objective or blew the simulation up), {} of {} segments moved (loss down by {}% or more)",

@@ -483,6 +483,11 @@ pub struct KeyframeReport {
     pub motion: Option<MotionMeasures>,
 }
 
+/// The device of a manifest written before it was recorded.
+fn cpu() -> String {
+    "cpu".into()
+}
+
 #[derive(Clone, Serialize, Deserialize)]
 pub struct Timings {
     pub setup_s: f64,
@@ -501,6 +506,9 @@ pub struct Timings {
     pub threads: usize,
     #[serde(default)]
     pub simd: String,
+    /// The device the steps ran on: `cpu`, or the GPU adapter's name (`--device`).
+    #[serde(default = "cpu")]
+    pub device: String,
     /// The most resident memory the process held, in MB, when the manifest was written (the
     /// kernel's high-water mark of this process's own pages: Linux; absent elsewhere, and in
     /// manifests written before it was recorded). A library call counts its host's memory too.

@@ -75,6 +75,8 @@ pub struct Summary {
     /// How the optimization went (absent when `--resume` found an older complete folder
     /// without it).
     pub optimization: Option<super::OptimizationReport>,
+    /// The device the steps ran on (`cpu`, or the GPU adapter's name).
+    pub device: String,
 }
 
 impl Summary {
@@ -97,6 +99,7 @@ impl Summary {
             already_complete: false,
             warnings: Vec::new(),
             optimization: m.optimization,
+            device: m.timings.device.clone(),
         }
     }
 }

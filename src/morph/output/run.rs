@@ -101,6 +101,7 @@ pub(super) fn write_run(
             previews_s,
             threads: rayon::current_num_threads(),
             simd: prep.model().simd.resolved().name().into(),
+            device: prep.engine.device_name().unwrap_or("cpu").into(),
             peak_resident_mb: crate::morph::usage::peak_mb(),
         },
         frames: frame_entries(prep, written.stats),

@@ -173,6 +173,14 @@ impl Prepared {
         let mut model = scene.model_with(volumes, &crate::geometry::MeshSolids)?;
         model.control_form = settings.method.control;
         let engine = Sim::new(model, settings.method.integrator, settings.method.device)?;
+        if let Sim::Gpu(g) = &engine
+            && g.device().software
+        {
+            geometry.warnings.push(format!(
+                "the device {} is a software Vulkan driver on the CPU, not a GPU: expect the CPU engine to be faster",
+                g.device().name
+            ));
+        }
         let (loss, fine_loss, reach) = setup::losses(settings, &geometry)?;
         let mut initial = State::at_rest(geometry.source.positions.clone());
         let v0 =

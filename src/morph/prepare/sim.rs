@@ -17,7 +17,7 @@ pub enum Sim {
 
 impl Sim {
     /// `model` on `device` (see [`DeviceKind`]): `Gpu` fails saying what is missing, `Auto`
-    /// takes the GPU where one opens and runs this scene, else the CPU.
+    /// takes a GPU (not a software driver) where one opens and runs this scene, else the CPU.
     pub fn new(
         model: Model,
         integrator: IntegratorKind,
@@ -33,10 +33,12 @@ impl Sim {
                 }
                 true
             }
+            // A software driver counts as a device when asked for, not as a GPU: the CPU
+            // engine is faster than it.
             DeviceKind::Auto => {
                 integrator == IntegratorKind::Euler
                     && crate::gpu::unsupported(&model).is_none()
-                    && Device::shared().is_ok()
+                    && Device::shared().is_ok_and(|d| !d.software)
             }
         };
         if on_gpu {
