@@ -1688,3 +1688,29 @@ fn killed_while_a_finished_run_tidies_up_then_resume_moves_it_into_place() {
         );
     }
 }
+
+/// On the GPU device (lavapipe in CI): interrupted after a checkpoint, `--resume` finishes
+/// bitwise like an uninterrupted run, the device giving the same bits every time.
+#[test]
+fn resume_on_the_gpu_device_is_bitwise_identical() {
+    const SHOT: &[&str] = &[
+        "--preset",
+        "draft",
+        "--resolution",
+        "16",
+        "--frames",
+        "25",
+        "--frame-every",
+        "3",
+        "--steps",
+        "24",
+        "--iterations",
+        "3",
+        "--device",
+        "gpu",
+        "--quiet",
+    ];
+    let m = interrupt_resume_and_compare("gpu-resume", SHOT);
+    assert_ne!(m["timings"]["device"], "cpu");
+    assert_eq!(m["settings"]["method"]["segments"].as_u64(), Some(3));
+}
