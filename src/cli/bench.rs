@@ -4,7 +4,7 @@ use super::fail;
 use clap::Args;
 use morph::engine::integrator::IntegratorKind;
 use morph::engine::mpm::KernelKind;
-use morph::gpu::DeviceKind;
+use morph::gpu::{DeviceKind, Precision};
 use morph::settings::limits;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -29,6 +29,10 @@ pub struct BenchArgs {
     #[arg(long, value_parser = super::choice(&[DeviceKind::Cpu, DeviceKind::Gpu]),
           default_value = super::name(&DeviceKind::Cpu))]
     device: DeviceKind,
+    /// The GPU device's precision (f64, or f32 for consumer GPUs).
+    #[arg(long, value_parser = super::choice(&Precision::ALL),
+          default_value = super::name(&Precision::F64))]
+    precision: Precision,
 }
 
 /// What `morph bench` measures besides the engine.
@@ -143,7 +147,15 @@ pub fn run(a: &BenchArgs) -> ExitCode {
             r.steps,
             r.repeats,
             &a.kernels,
+            a.precision,
         ));
+    }
+    if a.precision != Precision::F64 {
+        return fail(
+            false,
+            2,
+            "--precision f32 is the GPU device's: add --device gpu",
+        );
     }
     super::report(morph::apps::bench::run(
         r.ball_radius,

@@ -127,6 +127,21 @@ fn a_morph_on_the_device_writes_the_cpu_runs_files_and_its_judge_agrees() {
         assert!((c - g).abs() < 0.005, "{key}: cpu {c}, gpu {g}");
     }
     assert_eq!(mg["frames_summary"]["frames_inverted"], 0);
+    // In f32 the judge stays within 0.01 of f64's.
+    let narrow = scratch_in("gpu", "gpu-f32");
+    ok(&small_morph(
+        narrow.as_ref(),
+        &["--device", "gpu", "--precision", "f32"],
+    ));
+    let mf = manifest(narrow.as_ref());
+    assert_eq!(mf["settings"]["method"]["precision"], "f32");
+    for key in ["iou", "fill"] {
+        let (g, f) = (
+            mg["quality"][key].as_f64().unwrap(),
+            mf["quality"][key].as_f64().unwrap(),
+        );
+        assert!((g - f).abs() < 0.01, "{key}: f64 {g}, f32 {f}");
+    }
 }
 
 #[test]
@@ -163,4 +178,8 @@ fn a_morph_without_an_adapter_stops_before_any_output() {
         err.contains("--device gpu runs the Euler integrator"),
         "{err}"
     );
+    let r = small_morph(p, &["--precision", "f32"]);
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert_eq!(r.status.code(), Some(2), "{err}");
+    assert!(err.contains("the CPU engine runs in f64"), "{err}");
 }

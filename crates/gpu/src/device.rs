@@ -27,7 +27,7 @@ impl fmt::Display for DeviceError {
             ),
             DeviceError::NoF64 { adapter } => write!(
                 f,
-                "the GPU adapter '{adapter}' has no 64-bit floats in shaders (SHADER_F64), which the engine's f64 step needs"
+                "the GPU adapter '{adapter}' has no 64-bit floats in shaders (SHADER_F64), which the f64 step needs; use --precision f32"
             ),
             DeviceError::Limits { adapter, what } => {
                 write!(f, "the GPU adapter '{adapter}' is too small: {what}")
@@ -52,6 +52,8 @@ pub struct Device {
     pub name: String,
     /// Whether the adapter is a software driver on the CPU (lavapipe, WARP, SwiftShader).
     pub software: bool,
+    /// Whether its shaders have 64-bit floats (`SHADER_F64`).
+    pub has_f64: bool,
     pub limits: wgpu::Limits,
 }
 
@@ -63,7 +65,7 @@ impl Device {
         SHARED.get_or_init(|| Device::open().map(Arc::new)).clone()
     }
 
-    /// The first high-performance adapter with f64 shaders.
+    /// The first high-performance adapter.
     pub fn open() -> Result<Device, DeviceError> {
         let instance = wgpu::Instance::new(wgpu::InstanceDescriptor {
             backends: wgpu::Backends::PRIMARY,
@@ -79,9 +81,7 @@ impl Device {
             .map_err(|e| DeviceError::NoAdapter(e.to_string()))?;
         let info = adapter.get_info();
         let name = format!("{} ({:?}, {})", info.name, info.backend, info.driver);
-        if !adapter.features().contains(wgpu::Features::SHADER_F64) {
-            return Err(DeviceError::NoF64 { adapter: name });
-        }
+        let has_f64 = adapter.features().contains(wgpu::Features::SHADER_F64);
         let have = adapter.limits();
         if have.max_storage_buffers_per_shader_stage < STORAGE_BUFFERS {
             return Err(DeviceError::Limits {
@@ -102,7 +102,10 @@ impl Device {
         };
         let desc = wgpu::DeviceDescriptor {
             label: Some("morph"),
-            required_features: wgpu::Features::SHADER_F64,
+            required_features: match has_f64 {
+                true => wgpu::Features::SHADER_F64,
+                false => wgpu::Features::empty(),
+            },
             required_limits: limits.clone(),
             ..Default::default()
         };
@@ -117,6 +120,7 @@ impl Device {
             queue,
             name,
             software: info.device_type == wgpu::DeviceType::Cpu,
+            has_f64,
             limits,
         })
     }
@@ -125,7 +129,12 @@ impl Device {
 impl Device {
     /// Copies `count` values of `buf` back to the host.
     pub fn read<T: bytemuck::Pod>(&self, buf: &wgpu::Buffer, count: usize) -> Vec<T> {
-        let bytes = (count * std::mem::size_of::<T>()) as u64;
+        bytemuck::pod_collect_to_vec(&self.read_bytes(buf, count * std::mem::size_of::<T>()))
+    }
+
+    /// Copies the first `bytes` bytes of `buf` back to the host.
+    pub fn read_bytes(&self, buf: &wgpu::Buffer, bytes: usize) -> Vec<u8> {
+        let bytes = bytes as u64;
         let staging = self.device.create_buffer(&wgpu::BufferDescriptor {
             label: Some("read back"),
             size: bytes,
@@ -141,7 +150,7 @@ impl Device {
             .poll(wgpu::PollType::wait_indefinitely())
             .expect("the device finishes its work");
         let view = slice.get_mapped_range().expect("a mapped buffer's range");
-        bytemuck::cast_slice(&view).to_vec()
+        view.to_vec()
     }
 }
 

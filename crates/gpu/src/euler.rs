@@ -4,7 +4,8 @@
 //! every state on the device; its reverse recomputes each step's bins, stress and grid from
 //! the taped state and runs three more dispatches (`reverse.wgsl`).
 
-use crate::device::Device;
+use crate::device::{Device, DeviceError};
+use crate::precision::Precision;
 use crate::tape::GpuTape;
 use morph_engine::effects::{Effect, GridForm, GridRule};
 use morph_engine::integrator::{RunTape, StepControls};
@@ -17,8 +18,6 @@ use wgpu::util::DeviceExt;
 
 /// Numbers a particle's state takes in the state buffer: x, v, C, F.
 pub(crate) const STATE_STRIDE: usize = 24;
-/// Bytes of one particle's state on the device.
-pub(crate) const STATE_BYTES: usize = STATE_STRIDE * 8;
 /// Invocations per workgroup of the particle and node passes.
 const WG: u32 = 64;
 /// The entry points of `step.wgsl`, in the order a step dispatches them, then those of
@@ -86,6 +85,7 @@ fn grid_effects(model: &Model) -> impl Iterator<Item = &dyn Effect> {
 pub struct GpuEuler {
     pub(crate) dev: Arc<Device>,
     pub model: Model,
+    pub precision: Precision,
     pipelines: Vec<wgpu::ComputePipeline>,
     bind_group: wgpu::BindGroup,
     iparams: wgpu::Buffer,
@@ -145,6 +145,21 @@ impl GpuEuler {
 
     /// The model's constant data on `dev` and the step's pipelines.
     pub fn new(dev: Arc<Device>, model: Model) -> Result<GpuEuler, SimError> {
+        GpuEuler::with_precision(dev, model, Precision::F64)
+    }
+
+    /// [`GpuEuler::new`] in `precision` (f64 needs the adapter's `SHADER_F64`).
+    pub fn with_precision(
+        dev: Arc<Device>,
+        model: Model,
+        precision: Precision,
+    ) -> Result<GpuEuler, SimError> {
+        if precision == Precision::F64 && !dev.has_f64 {
+            let adapter = dev.name.clone();
+            return Err(SimError::InvalidScene(
+                DeviceError::NoF64 { adapter }.to_string(),
+            ));
+        }
         if let Some(why) = unsupported(&model) {
             return Err(SimError::InvalidScene(why));
         }
@@ -153,9 +168,7 @@ impl GpuEuler {
         let d = &dev.device;
         let module = d.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some("step.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(
-                concat!(include_str!("step.wgsl"), include_str!("reverse.wgsl")).into(),
-            ),
+            source: wgpu::ShaderSource::Wgsl(precision.shader().into()),
         });
         let read_only = [
             true, true, false, true, true, false, false, false, false, false, false, true, false,
@@ -186,7 +199,7 @@ impl GpuEuler {
                 })
             })
             .collect();
-        let f64s = |k: usize| k * 8;
+        let f64s = |k: usize| k * precision.bytes();
         let dev_ref = &*dev;
         let storage = |label: &str, bytes: usize| storage(dev_ref, label, bytes);
         let iparams = storage("iparams", 32);
@@ -197,7 +210,7 @@ impl GpuEuler {
             .collect();
         let pm = d.create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: Some("mass and volume"),
-            contents: bytemuck::cast_slice(&pm),
+            contents: &precision.encode(&pm),
             usage: wgpu::BufferUsages::STORAGE,
         });
         let ctrl = storage("controls", f64s(9 * n));
@@ -232,6 +245,7 @@ impl GpuEuler {
         Ok(GpuEuler {
             dev,
             model,
+            precision,
             pipelines,
             bind_group,
             iparams,
@@ -287,14 +301,19 @@ impl GpuEuler {
         model.check_size(state.len())?;
         model.check_finite_and_cfl(state.first_non_finite(), &state.v, first_step)?;
         let q = &self.dev.queue;
-        q.write_buffer(&self.state, 0, bytemuck::cast_slice(&pack(state)));
+        q.write_buffer(&self.state, 0, &self.precision.encode(&pack(state)));
         q.write_buffer(
             &self.status,
             0,
             bytemuck::cast_slice(&[0u32, u32::MAX, 0, u32::MAX]),
         );
         if let Some(t) = tape.as_deref_mut() {
-            t.start(&self.dev, first_step, self.copy_of(&self.state));
+            t.start(
+                &self.dev,
+                self.precision,
+                first_step,
+                self.copy_of(&self.state),
+            );
         }
         for k in 0..n_steps {
             let step = first_step + k;
@@ -321,7 +340,7 @@ impl GpuEuler {
     /// The device's state into `state`, and the first error its steps flagged.
     fn read_state(&self, state: &mut State) -> Result<(), SimError> {
         let status: Vec<u32> = self.read(&self.status, 4);
-        let out: Vec<f64> = self.read(&self.state, STATE_STRIDE * state.len());
+        let out = self.read_reals(&self.state, STATE_STRIDE * state.len());
         unpack(&out, state);
         self.status_error(&status, state)
     }
@@ -389,14 +408,14 @@ impl GpuEuler {
             let step = tape.first_step + k;
             if let Some(seed) = seed_after.as_deref_mut() {
                 if on_device {
-                    unpack_grad(&self.read(&self.adj, STATE_STRIDE * n), &mut adj);
+                    unpack_grad(&self.read_reals(&self.adj, STATE_STRIDE * n), &mut adj);
                 }
                 let post = tape.state_on_host(k + 1);
                 seed(step, &post, &mut adj);
                 on_device = false;
             }
             if !on_device {
-                q.write_buffer(&self.adj, 0, bytemuck::cast_slice(&pack_grad(&adj)));
+                q.write_buffer(&self.adj, 0, &self.precision.encode(&pack_grad(&adj)));
                 on_device = true;
             }
             let fc = controls.get(k).and_then(|c| c.as_deref());
@@ -410,12 +429,12 @@ impl GpuEuler {
             self.submit(0..RECOMPUTE, n);
             self.submit(RECOMPUTE + 1..PASSES.len(), n);
             if let Some(fc) = fc {
-                let g_m: Vec<f64> = self.read(&self.gctrl, 9 * n);
+                let g_m = self.read_reals(&self.gctrl, 9 * n);
                 grad_controls[k] = Some(self.control_gradient(fc, &g_m));
             }
         }
         if on_device {
-            unpack_grad(&self.read(&self.adj, STATE_STRIDE * n), &mut adj);
+            unpack_grad(&self.read_reals(&self.adj, STATE_STRIDE * n), &mut adj);
         }
         Gradients {
             initial: adj,
@@ -452,7 +471,7 @@ impl GpuEuler {
 
     /// The nodal masses the last step's P2G made.
     pub fn last_grid_mass(&self) -> Vec<f64> {
-        let grid: Vec<f64> = self.read(&self.grid, GRID_STRIDE * self.node_count);
+        let grid = self.read_reals(&self.grid, GRID_STRIDE * self.node_count);
         grid.chunks(GRID_STRIDE).map(|n| n[0]).collect()
     }
 
@@ -472,7 +491,7 @@ impl GpuEuler {
             .collect();
         self.dev
             .queue
-            .write_buffer(&self.ctrl, 0, bytemuck::cast_slice(&m));
+            .write_buffer(&self.ctrl, 0, &self.precision.encode(&m));
         match form {
             ControlForm::Plastic => 1,
             ControlForm::Additive => 2,
@@ -528,7 +547,7 @@ impl GpuEuler {
         }
         let q = &self.dev.queue;
         q.write_buffer(&self.iparams, 0, bytemuck::cast_slice(&ip));
-        q.write_buffer(&self.fparams, 0, bytemuck::cast_slice(&fp));
+        q.write_buffer(&self.fparams, 0, &self.precision.encode(&fp));
     }
 
     /// The dispatches `passes` of [`PASSES`] in one submission.
@@ -551,6 +570,17 @@ impl GpuEuler {
 
     pub(crate) fn read<T: bytemuck::Pod>(&self, buf: &wgpu::Buffer, count: usize) -> Vec<T> {
         self.dev.read(buf, count)
+    }
+
+    /// `count` reals of `buf`, in f64 whatever the device's precision.
+    fn read_reals(&self, buf: &wgpu::Buffer, count: usize) -> Vec<f64> {
+        let bytes = self.dev.read_bytes(buf, count * self.precision.bytes());
+        self.precision.decode(&bytes)
+    }
+
+    /// Bytes of one particle's taped state on the device.
+    pub(crate) fn state_bytes(&self) -> usize {
+        STATE_STRIDE * self.precision.bytes()
     }
 }
 

@@ -28,7 +28,7 @@ impl Integrator for GpuEuler {
     }
 
     fn tape_bytes_per_step(&self, particles: usize) -> usize {
-        crate::euler::STATE_BYTES * particles
+        self.state_bytes() * particles
     }
 
     fn backward_seeded(

@@ -6,8 +6,10 @@
 pub mod device;
 pub mod euler;
 mod integrator;
+pub mod precision;
 pub mod tape;
 
 pub use device::{Device, DeviceError, DeviceKind};
 pub use euler::{GpuEuler, unsupported};
+pub use precision::Precision;
 pub use tape::GpuTape;

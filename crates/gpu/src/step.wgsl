@@ -232,6 +232,9 @@ fn inverse3(m: mat3x3<f64>) -> mat3x3<f64> {
     return transpose(mat3x3<f64>(r0, r1, r2)) * (1.0lf / det);
 }
 
+// Where Newton's polar iteration stops: the largest change of a column.
+const POLAR_TOL: f64 = 1e-15lf;
+
 // The rotation of the polar decomposition `F = R S` (det F > 0), by Newton's iteration
 // `R <- (R + R^-T) / 2`, to convergence.
 fn rotation(f: mat3x3<f64>) -> mat3x3<f64> {
@@ -241,7 +244,7 @@ fn rotation(f: mat3x3<f64>) -> mat3x3<f64> {
         let d = next - r;
         r = next;
         let e = max(max(length(d[0]), length(d[1])), length(d[2]));
-        if (e < 1e-15lf) { break; }
+        if (e < POLAR_TOL) { break; }
     }
     return r;
 }

@@ -2,7 +2,7 @@
 //! written once and then only read, so tapes share them), the last one also on the host.
 
 use crate::device::Device;
-use crate::euler::STATE_BYTES;
+use crate::precision::Precision;
 use morph_engine::integrator::RunTape;
 use morph_engine::mpm::State;
 use nalgebra::Vector3;
@@ -12,6 +12,7 @@ use std::sync::Arc;
 #[derive(Clone, Default)]
 pub struct GpuTape {
     dev: Option<Arc<Device>>,
+    precision: Precision,
     /// The global step the run started at.
     pub first_step: usize,
     /// The states, the first one included (`len() + 1` of them once started).
@@ -21,8 +22,15 @@ pub struct GpuTape {
 
 impl GpuTape {
     /// A new record from `first`, the state at global step `first_step`.
-    pub(crate) fn start(&mut self, dev: &Arc<Device>, first_step: usize, first: wgpu::Buffer) {
+    pub(crate) fn start(
+        &mut self,
+        dev: &Arc<Device>,
+        precision: Precision,
+        first_step: usize,
+        first: wgpu::Buffer,
+    ) {
         self.dev = Some(dev.clone());
+        self.precision = precision;
         self.first_step = first_step;
         self.states = vec![Arc::new(first)];
     }
@@ -43,7 +51,9 @@ impl GpuTape {
         }
         let dev = self.dev.as_ref().expect("a started tape has its device");
         let n = self.last.len();
-        let raw: Vec<f64> = dev.read(&self.states[k], crate::euler::STATE_STRIDE * n);
+        let stride = crate::euler::STATE_STRIDE;
+        let bytes = dev.read_bytes(&self.states[k], stride * n * self.precision.bytes());
+        let raw = self.precision.decode(&bytes);
         let mut s = State::at_rest(vec![Vector3::zeros(); n]);
         crate::euler::unpack(&raw, &mut s);
         s
@@ -69,6 +79,7 @@ impl RunTape for GpuTape {
     fn split_off(&mut self, k: usize) -> Self {
         let tail = GpuTape {
             dev: self.dev.clone(),
+            precision: self.precision,
             first_step: self.first_step + k,
             states: self.states[k..].to_vec(),
             last: std::mem::take(&mut self.last),
@@ -87,6 +98,7 @@ impl RunTape for GpuTape {
     /// Device bytes (the states) and the last state's on the host.
     fn bytes(&self) -> usize {
         let n = self.last.len();
-        self.states.len() * STATE_BYTES * n + self.last.bytes()
+        let per_particle = crate::euler::STATE_STRIDE * self.precision.bytes();
+        self.states.len() * per_particle * n + self.last.bytes()
     }
 }

@@ -413,3 +413,57 @@ fn the_reverse_through_grid_effects_agrees_with_the_cpu_engine() {
         assert!(e < 1e-8, "{mode:?}: relative difference {e:.3e}");
     }
 }
+
+/// In f32 (`--precision f32`): 30 steps and the gradients of 12 follow the CPU engine's f64 to
+/// within f32's rounding, grown over the steps, and a run still gives the same bits twice.
+#[test]
+fn in_f32_the_steps_and_gradients_follow_the_cpu_engine() {
+    use morph_gpu::Precision;
+    let steps = 30;
+    let (scene, vol, initial, controls) = workload(KernelKind::Cubic, steps);
+    let cpu = Euler::from(model(&scene, &vol));
+    let mut on_cpu = initial.clone();
+    cpu.forward(&mut on_cpu, &controls, 0, steps, None).unwrap();
+    let gpu = GpuEuler::with_precision(device(), model(&scene, &vol), Precision::F32).unwrap();
+    let run = || {
+        let mut s = initial.clone();
+        gpu.forward(&mut s, &controls, 0, steps).unwrap();
+        s
+    };
+    let (a, b) = (run(), run());
+    assert!(a.x == b.x && a.f == b.f, "two f32 runs differ");
+    let fields = [
+        ("x", rel(a.x.iter(), on_cpu.x.iter())),
+        ("v", rel(a.v.iter(), on_cpu.v.iter())),
+        ("F", rel(a.f.iter(), on_cpu.f.iter())),
+    ];
+    let steps = 12;
+    let m = model(&scene, &vol);
+    let loss = Loss::new(&m, &initial, 2.0);
+    let mut s = initial.clone();
+    let mut tape = Default::default();
+    cpu.forward(&mut s, &controls, 0, steps, Some(&mut tape))
+        .unwrap();
+    let want = cpu.backward(&tape, &controls, loss.seed(&m, &s));
+    let mut s = initial.clone();
+    let gtape = gpu.forward_taped(&mut s, &controls, 0, steps).unwrap();
+    let got = gpu.backward(&gtape, &controls, &loss.seed(&m, &s));
+    let grads = [
+        (
+            "dL/dx",
+            rel_all(&flat(&got.initial.x), &flat(&want.initial.x)),
+        ),
+        (
+            "dL/dv",
+            rel_all(&flat(&got.initial.v), &flat(&want.initial.v)),
+        ),
+        (
+            "dL/dF",
+            rel_all(&flat(&got.initial.f), &flat(&want.initial.f)),
+        ),
+    ];
+    eprintln!("f32: {fields:?} {grads:?}");
+    for (name, e) in fields.iter().chain(&grads) {
+        assert!(*e < 1e-4, "{name}: relative difference {e:.3e} in f32");
+    }
+}

@@ -257,13 +257,14 @@ pub fn run(
     pool.install(|| effect_costs(steps, repeats))
 }
 
-/// The reference workload on the GPU device (Euler, f64), the lines of [`run`] for each
+/// The reference workload on the GPU device (Euler, in `precision`), the lines of [`run`] for each
 /// kernel, with the adapter's name; the loss and its seed on the host, as [`run`]'s.
 pub fn run_on_device(
     radius: f64,
     steps: usize,
     repeats: usize,
     kernels: &[KernelKind],
+    precision: crate::gpu::Precision,
 ) -> anyhow::Result<()> {
     let dev = crate::gpu::Device::shared()?;
     if dev.software {
@@ -274,7 +275,8 @@ pub fn run_on_device(
     }
     for &kernel in kernels {
         let w = ball_workload(radius, kernel, IntegratorKind::Euler, steps)?;
-        let gpu = crate::gpu::GpuEuler::new(dev.clone(), w.engine.into_model())?;
+        let model = w.engine.into_model();
+        let gpu = crate::gpu::GpuEuler::with_precision(dev.clone(), model, precision)?;
         let model = &gpu.model;
         let (mut best_f, mut best_fr) = (f64::INFINITY, f64::INFINITY);
         for _ in 0..repeats.max(1) {
@@ -298,6 +300,7 @@ pub fn run_on_device(
                 json!({
                     "bench": mode, "particles": n, "kernel": kernel.name(),
                     "integrator": IntegratorKind::Euler, "device": "gpu", "adapter": dev.name,
+                    "precision": precision,
                     "steps": steps, "seconds": secs,
                     "particle_steps_per_s": (n * steps) as f64 / secs,
                     "ms_per_step": secs / steps as f64 * 1e3,

@@ -9,7 +9,7 @@ use morph::engine::integrator::IntegratorKind;
 use morph::engine::material::MaterialModel;
 use morph::engine::mpm::ControlForm;
 use morph::geometry::TargetFit;
-use morph::gpu::DeviceKind;
+use morph::gpu::{DeviceKind, Precision};
 use morph::loss::MassLossKind;
 use morph::memory::MemoryLimit;
 use morph::scene_file::SceneFile;
@@ -215,6 +215,8 @@ pub struct MorphArgs {
     integrator: Option<IntegratorKind>,
     #[arg(long, value_parser = choice(&DeviceKind::ALL), help = format!("Where the engine runs: cpu, gpu (the Euler step in f64 through Vulkan, Metal or DX12; an error says what is missing) or auto (a GPU, not a software driver, where one opens and runs the scene, else the CPU) [default {}]", name(&defaults().method.device)))]
     device: Option<DeviceKind>,
+    #[arg(long, value_parser = choice(&Precision::ALL), help = format!("The GPU device's precision: f64 (the CPU engine's, where the adapter has 64-bit floats) or f32 (consumer GPUs run f64 at 1/32-1/64 of the rate) [default {}]", name(&defaults().method.precision)))]
+    precision: Option<Precision>,
     #[arg(long, value_parser = choice(&ControlForm::ALL), help = format!("How a control acts on a particle's deformation: plastic (a volume-preserving change of its rest shape: J stays the volume ratio) or additive (the reference paper's F + Fc, for comparison) [default {}]", name(&defaults().method.control)))]
     control: Option<ControlForm>,
     #[arg(long, value_parser = choice(&ControlResolution::ALL), help = format!("Where the optimizer's free control values live: grid (one per grid node, interpolated to the particles: smooth controls keep the body's particles in order) or particle (one per particle, the reference) [default {}]", name(&defaults().method.control_resolution)))]
@@ -455,6 +457,9 @@ impl MorphArgs {
         }
         if let Some(d) = self.device {
             s.method.device = d;
+        }
+        if let Some(p) = self.precision {
+            s.method.precision = p;
         }
         if self.youngs_modulus.is_some() || self.poisson_ratio.is_some() {
             let (e0, nu0) = default_young_poisson();

@@ -172,7 +172,8 @@ impl Prepared {
         let volumes = vec![geometry.source.volume; geometry.source.positions.len()];
         let mut model = scene.model_with(volumes, &crate::geometry::MeshSolids)?;
         model.control_form = settings.method.control;
-        let engine = Sim::new(model, settings.method.integrator, settings.method.device)?;
+        let m = &settings.method;
+        let engine = Sim::new(model, m.integrator, m.device, m.precision)?;
         if let Sim::Gpu(g) = &engine
             && g.device().software
         {

@@ -5,7 +5,7 @@
 use crate::engine::Engine;
 use crate::engine::integrator::IntegratorKind;
 use crate::engine::mpm::model::Model;
-use crate::gpu::{Device, DeviceKind, GpuEuler};
+use crate::gpu::{Device, DeviceKind, GpuEuler, Precision};
 use crate::morph::api::MorphError;
 
 /// Where a morph's steps run.
@@ -22,6 +22,7 @@ impl Sim {
         model: Model,
         integrator: IntegratorKind,
         device: DeviceKind,
+        precision: Precision,
     ) -> Result<Sim, MorphError> {
         let on_gpu = match device {
             DeviceKind::Cpu => false,
@@ -43,7 +44,9 @@ impl Sim {
         };
         if on_gpu {
             let dev = Device::shared().map_err(|e| MorphError::Device(e.to_string()))?;
-            return Ok(Sim::Gpu(GpuEuler::new(dev, model)?));
+            let gpu = GpuEuler::with_precision(dev, model, precision)
+                .map_err(|e| MorphError::Device(format!("--device gpu: {e}")))?;
+            return Ok(Sim::Gpu(gpu));
         }
         Ok(Sim::Cpu(Engine::new(model, integrator)?))
     }

@@ -328,6 +328,7 @@ impl MorphSettings {
                 kernel: KernelKind::Cubic,
                 integrator: IntegratorKind::Euler,
                 device: crate::gpu::DeviceKind::Cpu,
+                precision: crate::gpu::Precision::F64,
                 settle_drag: 12.0,
                 dt: None,
                 inbetween,

@@ -8,7 +8,7 @@ use crate::engine::integrator::IntegratorKind;
 use crate::engine::mpm::{ControlForm, KernelKind};
 use crate::engine::scene::MaterialConfig;
 use crate::geometry::TargetFit;
-use crate::gpu::DeviceKind;
+use crate::gpu::{DeviceKind, Precision};
 use crate::loss::MassLossKind;
 use crate::morph::basis::ControlResolution;
 use crate::morph::segment::OptimizerSettings;
@@ -65,6 +65,7 @@ pub const PARTS: [(&str, &[&str]); 5] = [
             "kernel",
             "integrator",
             "device",
+            "precision",
             "settle_drag",
             "dt",
             "inbetween",
@@ -242,6 +243,10 @@ pub struct Method {
     /// where one opens and the scene is one it runs (`--device`).
     #[serde(default)]
     pub device: DeviceKind,
+    /// The GPU device's floating-point precision: f64 (the CPU engine's), or f32 for consumer
+    /// GPUs (`--precision`; the CPU engine runs in f64).
+    #[serde(default)]
+    pub precision: Precision,
     /// Drag per second added once the final target is reached, eased in over
     /// [`SETTLE_RAMP_FRAMES`] frames: the held shape comes to rest (0: off).
     #[serde(default)]

@@ -25,6 +25,14 @@ impl MorphSettings {
                     .into(),
             );
         }
+        if self.method.device == crate::gpu::DeviceKind::Cpu
+            && self.method.precision != crate::gpu::Precision::F64
+        {
+            return Err(
+                "--precision f32 is the GPU device's; the CPU engine runs in f64 (use --device gpu)"
+                    .into(),
+            );
+        }
         Ok(())
     }
 
