@@ -111,6 +111,48 @@ fn storage(dev: &Device, label: &str, bytes: usize) -> wgpu::Buffer {
     })
 }
 
+/// The bindings' layout (`step.wgsl`'s and `reverse.wgsl`'s, in binding order) and one
+/// pipeline per entry of [`PASSES`].
+fn pipelines(
+    d: &wgpu::Device,
+    precision: Precision,
+) -> (wgpu::BindGroupLayout, Vec<wgpu::ComputePipeline>) {
+    let module = d.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: Some("step.wgsl"),
+        source: wgpu::ShaderSource::Wgsl(precision.shader().into()),
+    });
+    let read_only = [
+        true, true, false, true, true, false, false, false, false, false, false, true, false,
+        false, false, false,
+    ];
+    let entries: Vec<_> = (0..read_only.len())
+        .map(|b| layout_entry(b as u32, read_only[b]))
+        .collect();
+    let bgl = d.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+        label: Some("step"),
+        entries: &entries,
+    });
+    let layout = d.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+        label: Some("step"),
+        bind_group_layouts: &[Some(&bgl)],
+        immediate_size: 0,
+    });
+    let pipelines = PASSES
+        .iter()
+        .map(|entry| {
+            d.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(entry),
+                layout: Some(&layout),
+                module: &module,
+                entry_point: Some(entry),
+                compilation_options: Default::default(),
+                cache: None,
+            })
+        })
+        .collect();
+    (bgl, pipelines)
+}
+
 fn layout_entry(binding: u32, read_only: bool) -> wgpu::BindGroupLayoutEntry {
     wgpu::BindGroupLayoutEntry {
         binding,
@@ -166,39 +208,7 @@ impl GpuEuler {
         let n = model.num_particles();
         let node_count = model.grid.node_count();
         let d = &dev.device;
-        let module = d.create_shader_module(wgpu::ShaderModuleDescriptor {
-            label: Some("step.wgsl"),
-            source: wgpu::ShaderSource::Wgsl(precision.shader().into()),
-        });
-        let read_only = [
-            true, true, false, true, true, false, false, false, false, false, false, true, false,
-            false, false, false,
-        ];
-        let entries: Vec<_> = (0..read_only.len())
-            .map(|b| layout_entry(b as u32, read_only[b]))
-            .collect();
-        let bgl = d.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some("step"),
-            entries: &entries,
-        });
-        let layout = d.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
-            label: Some("step"),
-            bind_group_layouts: &[Some(&bgl)],
-            immediate_size: 0,
-        });
-        let pipelines = PASSES
-            .iter()
-            .map(|entry| {
-                d.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-                    label: Some(entry),
-                    layout: Some(&layout),
-                    module: &module,
-                    entry_point: Some(entry),
-                    compilation_options: Default::default(),
-                    cache: None,
-                })
-            })
-            .collect();
+        let (bgl, pipelines) = pipelines(d, precision);
         let f64s = |k: usize| k * precision.bytes();
         let dev_ref = &*dev;
         let storage = |label: &str, bytes: usize| storage(dev_ref, label, bytes);

@@ -105,26 +105,21 @@ fn rev_advance(@builtin(global_invocation_id) id: vec3<u32>) {
 fn rev_grid(@builtin(global_invocation_id) id: vec3<u32>) {
     let i = id.x;
     if (i >= node_count()) { return; }
-    let n = nodes();
-    let node = vec3<i32>(i32(i / (n.y * n.z)), i32((i / n.z) % n.y), i32(i % n.z));
-    let sup = i32(support());
-    let dx = fparams[3];
+    let node = node_of(i);
+    let sup = u32(support());
     let inv_d = fparams[5];
     var gvi = vec3<f64>(0.0lf);
-    for (var a = 0; a < sup; a++) {
-        for (var b = 0; b < sup; b++) {
-            for (var c = 0; c < sup; c++) {
-                let cell = node - vec3<i32>(a, b, c);
-                if (any(cell < vec3<i32>(0))) { continue; }
-                let bin = node_index(vec3<u32>(cell));
-                for (var s = starts[bin]; s < starts[bin + 1u]; s++) {
+    for (var a = 0u; a < sup; a++) {
+        for (var b = 0u; b < sup; b++) {
+            for (var c = 0u; c < sup; c++) {
+                let o = vec3<u32>(a, b, c);
+                let bin = reaching(node, vec3<i32>(o));
+                for (var s = bin.x; s < bin.y; s++) {
                     let p = list[s];
                     let pl = place(load3(24u * p));
-                    let w = weight(pl.fx.x, u32(a)) * weight(pl.fx.y, u32(b)) * weight(pl.fx.z, u32(c));
-                    let d = (vec3<f64>(f64(a), f64(b), f64(c)) - pl.fx) * dx;
                     let r = 21u * p;
                     let g_vel = vec3<f64>(radj[r], radj[r + 1u], radj[r + 2u]);
-                    gvi += w * (g_vel + inv_d * (radj_m(r + 3u) * d));
+                    gvi += weight_at(pl, o) * (g_vel + inv_d * (radj_m(r + 3u) * offset_at(pl, o)));
                 }
             }
         }

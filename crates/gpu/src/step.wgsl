@@ -140,6 +140,29 @@ fn dweight(fx: f64, k: u32) -> f64 {
     return 0.5lf * t * t;
 }
 
+// The node's coordinates.
+fn node_of(i: u32) -> vec3<i32> {
+    let n = nodes();
+    return vec3<i32>(i32(i / (n.y * n.z)), i32((i / n.z) % n.y), i32(i % n.z));
+}
+
+// The particles (`list[lo..hi]`) whose stencils reach `node` at offset `o`: the bin of the node
+// `o` before it (empty off the grid).
+fn reaching(node: vec3<i32>, o: vec3<i32>) -> vec2<u32> {
+    let cell = node - o;
+    if (any(cell < vec3<i32>(0))) { return vec2<u32>(0u, 0u); }
+    let bin = node_index(vec3<u32>(cell));
+    return vec2<u32>(starts[bin], starts[bin + 1u]);
+}
+
+// A particle's weight at its stencil's node `o`, and the offset `x_i - x_p`.
+fn weight_at(pl: Place, o: vec3<u32>) -> f64 {
+    return weight(pl.fx.x, o.x) * weight(pl.fx.y, o.y) * weight(pl.fx.z, o.z);
+}
+fn offset_at(pl: Place, o: vec3<u32>) -> vec3<f64> {
+    return (vec3<f64>(o) - pl.fx) * fparams[3];
+}
+
 fn in_grid(base: vec3<i32>) -> bool {
     let hi = vec3<i32>(nodes()) - vec3<i32>(i32(support()));
     return all(base >= vec3<i32>(0)) && all(base <= hi);
@@ -285,28 +308,24 @@ fn stress(@builtin(global_invocation_id) id: vec3<u32>) {
 fn p2g(@builtin(global_invocation_id) id: vec3<u32>) {
     let i = id.x;
     if (i >= node_count()) { return; }
-    let n = nodes();
-    let node = vec3<i32>(i32(i / (n.y * n.z)), i32((i / n.z) % n.y), i32(i % n.z));
-    let sup = i32(support());
-    let dx = fparams[3];
+    let node = node_of(i);
+    let sup = u32(support());
     let retention = fparams[6];
     var mass = 0.0lf;
     var mom = vec3<f64>(0.0lf);
-    for (var a = 0; a < sup; a++) {
-        for (var b = 0; b < sup; b++) {
-            for (var c = 0; c < sup; c++) {
-                let cell = node - vec3<i32>(a, b, c);
-                if (any(cell < vec3<i32>(0))) { continue; }
-                let bin = node_index(vec3<u32>(cell));
-                for (var s = starts[bin]; s < starts[bin + 1u]; s++) {
+    for (var a = 0u; a < sup; a++) {
+        for (var b = 0u; b < sup; b++) {
+            for (var c = 0u; c < sup; c++) {
+                let o = vec3<u32>(a, b, c);
+                let bin = reaching(node, vec3<i32>(o));
+                for (var s = bin.x; s < bin.y; s++) {
                     let p = list[s];
                     let pl = place(load3(24u * p));
-                    let w = weight(pl.fx.x, u32(a)) * weight(pl.fx.y, u32(b)) * weight(pl.fx.z, u32(c));
-                    let d = (vec3<f64>(f64(a), f64(b), f64(c)) - pl.fx) * dx;
+                    let w = weight_at(pl, o);
                     let m = pm[2u * p];
                     let value = (retention * m) * load3(24u * p + 3u);
                     mass += w * m;
-                    mom += w * (value + work_m(18u * p + 9u) * d);
+                    mom += w * (value + work_m(18u * p + 9u) * offset_at(pl, o));
                 }
             }
         }
@@ -372,16 +391,16 @@ fn g2p(@builtin(global_invocation_id) id: vec3<u32>) {
     let x = load3(o);
     let pl = place(x);
     let sup = u32(support());
-    let dx = fparams[3];
     let base = vec3<u32>(pl.base);
     var vel = vec3<f64>(0.0lf);
     var b_mat = mat3x3<f64>(vec3<f64>(0.0lf), vec3<f64>(0.0lf), vec3<f64>(0.0lf));
     for (var a = 0u; a < sup; a++) {
         for (var b = 0u; b < sup; b++) {
             for (var c = 0u; c < sup; c++) {
-                let w = weight(pl.fx.x, a) * weight(pl.fx.y, b) * weight(pl.fx.z, c);
-                let d = (vec3<f64>(f64(a), f64(b), f64(c)) - pl.fx) * dx;
-                let i = node_index(base + vec3<u32>(a, b, c));
+                let k = vec3<u32>(a, b, c);
+                let w = weight_at(pl, k);
+                let d = offset_at(pl, k);
+                let i = node_index(base + k);
                 let vi = vec3<f64>(grid[GRID_STRIDE * i + 1u], grid[GRID_STRIDE * i + 2u], grid[GRID_STRIDE * i + 3u]);
                 vel += w * vi;
                 b_mat += mat3x3<f64>(w * d.x * vi, w * d.y * vi, w * d.z * vi);
