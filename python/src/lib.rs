@@ -55,7 +55,10 @@ fn py_err(e: MorphError) -> PyErr {
         MorphError::Mesh(_) => MeshError::new_err(message),
         // An optimization that could not work (a non-finite objective, no segment moved)
         // is the simulation's failure to do what was asked, as the CLI's exit 1 says.
-        MorphError::Sim(_) | MorphError::Optimization(_) => SimulationError::new_err(message),
+        // So is a device that cannot run it (no GPU adapter for `device = "gpu"`).
+        MorphError::Sim(_) | MorphError::Optimization(_) | MorphError::Device(_) => {
+            SimulationError::new_err(message)
+        }
         MorphError::Output(_) | MorphError::Resume(_) => OutputError::new_err(message),
         MorphError::Interrupted { .. } => Cancelled::new_err("cancelled"),
     }
