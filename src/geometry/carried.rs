@@ -165,6 +165,21 @@ impl CarriedSurface {
         particles: &[Vector3<f64>],
         spacing: f64,
     ) -> std::io::Result<CarriedSurface> {
+        let place = super::Similarity::identity();
+        CarriedSurface::bind_placed(source, fallback, place, to_sim, particles, spacing)
+    }
+
+    /// [`CarriedSurface::bind`] for a mesh whose file is in coordinates of its own, `place`
+    /// mapping them to world units (a target, as the run placed it): its vertices are
+    /// written in world units.
+    pub fn bind_placed(
+        source: &Path,
+        fallback: &TriMesh,
+        place: super::Similarity,
+        to_sim: super::Similarity,
+        particles: &[Vector3<f64>],
+        spacing: f64,
+    ) -> std::io::Result<CarriedSurface> {
         let is_obj = source
             .extension()
             .is_some_and(|e| e.eq_ignore_ascii_case("obj"));
@@ -176,6 +191,9 @@ impl CarriedSurface {
         } else {
             from_mesh(fallback)
         };
+        if place != super::Similarity::identity() {
+            surface.place(place);
+        }
         surface.to_sim = to_sim;
         surface.neighbours = super::fidelity::edge_neighbours(&surface.triangles);
         surface.rest_normals =
@@ -188,6 +206,21 @@ impl CarriedSurface {
         surface.offsets = offsets;
         surface.bind = bind;
         Ok(surface)
+    }
+
+    /// Moves the rest vertices by `place` (a similarity: the normals keep their directions),
+    /// and their lines with them.
+    fn place(&mut self, place: super::Similarity) {
+        for v in &mut self.rest {
+            *v = place.apply(v);
+        }
+        for line in &self.lines {
+            if let Line::Vertex(i, tail) = line {
+                let v = self.rest[*i];
+                self.vertex_text[*i] =
+                    format!("v {} {} {}{tail}", v.x as f32, v.y as f32, v.z as f32);
+            }
+        }
     }
 
     pub fn vertex_count(&self) -> usize {

@@ -16,6 +16,9 @@
 //!                        primvars:rest (the first frame's points)
 //!   /Morph/carried       Mesh: the source's topology, primvars:st (faceVarying), points and
 //!                        velocities per frame, primvars:rest
+//!   /Morph/target_carried  Mesh (--surface all): the last target's topology, the same
+//!                        attributes; `primvars:weight` (constant, per frame) on it and on
+//!                        /Morph/carried: the target's share of a cross-fade, and 1 minus it
 //!   /Morph/rebuilt       Mesh: topology and points per frame
 //!   /Morph/volume        Volume (--volume): field:density -> /Morph/volume/density, an
 //!                        OpenVDBAsset whose filePath is each frame's volumes/frame_NNNN.vdb
@@ -76,6 +79,8 @@ pub struct UsdSequence<'a> {
     pub fps: f64,
     pub points: Vec<PathBuf>,
     pub carried: Option<Vec<PathBuf>>,
+    /// The last target's carried surface and its weight on each frame (`--surface all`).
+    pub target_carried: Option<(Vec<PathBuf>, Vec<f64>)>,
     pub rebuilt: Option<Vec<PathBuf>>,
     /// Each frame's OpenVDB file (`--volume`), with its grid `density`.
     pub volumes: Option<Vec<PathBuf>>,
@@ -387,8 +392,19 @@ fn build(seq: &UsdSequence) -> std::io::Result<Layer> {
         .expect("just made")
         .add(FieldKey::Kind, Value::Token("component".into()));
     add_particles(&mut layer, &root, seq)?;
+    let weights = seq.target_carried.as_ref().map(|(_, w)| w);
     if let Some(files) = &seq.carried {
-        add_carried(&mut layer, &root, seq, files)?;
+        let source_weights = weights.map(|w| w.iter().map(|w| 1.0 - w).collect());
+        add_carried(&mut layer, &root, seq, ("carried", files), source_weights)?;
+    }
+    if let Some((files, w)) = &seq.target_carried {
+        add_carried(
+            &mut layer,
+            &root,
+            seq,
+            ("target_carried", files),
+            Some(w.clone()),
+        )?;
     }
     // The rebuilt surface: its topology changes from frame to frame.
     if let Some(files) = &seq.rebuilt {
@@ -447,18 +463,26 @@ fn add_particles(layer: &mut Layer, root: &sdf::Path, seq: &UsdSequence) -> std:
     Ok(())
 }
 
-/// The carried surface: the source's topology and UVs, points and velocities per frame.
+/// A carried surface (the prim `name`): its topology and UVs, points and velocities per
+/// frame, and its weight in a cross-fade on each frame when given.
 fn add_carried(
     layer: &mut Layer,
     root: &sdf::Path,
     seq: &UsdSequence,
-    files: &[PathBuf],
+    (name, files): (&str, &[PathBuf]),
+    weights: Option<Vec<f64>>,
 ) -> std::io::Result<()> {
     let (n, at) = (seq.points.len(), |p: &PathBuf| seq.dir.join(p));
     // The topology and UVs once, from the first frame; each frame's positions.
     let first = &read_obj(&at(&files[0]))?;
     let frames = per_frame(n, |k| read_obj(&at(&files[k])).map(|f| f.positions))?;
-    let carried = layer.prim(root, "carried", "Mesh");
+    let carried = layer.prim(root, name, "Mesh");
+    if let Some(w) = weights {
+        let w = layer.samples(w.iter().map(|&w| Value::Float(w as f32)).collect());
+        layer
+            .attribute(&carried, "primvars:weight", "float", w)
+            .add("interpolation", Value::Token("constant".into()));
+    }
     layer.uniform_token(&carried, "subdivisionScheme", "none");
     layer.uniform_token(&carried, "orientation", "rightHanded");
     layer.attribute(&carried, "faceVertexCounts", "int[]", ints(&first.counts));

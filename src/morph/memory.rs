@@ -527,18 +527,11 @@ pub fn usd_bytes(
     frames: u64,
     source_vertices: u64,
 ) -> u64 {
-    use super::settings::Surfaces;
     if settings.outputs.usd == crate::io::usd::UsdFormat::None {
         return 0;
     }
-    let carried = matches!(
-        settings.outputs.surfaces,
-        Surfaces::Carried | Surfaces::Both
-    );
-    let rebuilt = matches!(
-        settings.outputs.surfaces,
-        Surfaces::Rebuilt | Surfaces::Both
-    );
+    let carried = settings.outputs.surfaces.carried();
+    let rebuilt = settings.outputs.surfaces.rebuilt();
     let rebuilt_vertices =
         (REBUILT_VERTICES_PER_AREA * (particles as f64).powf(2.0 / 3.0)).ceil() as u64;
     let per_frame = particles * USD_PARTICLE_BYTES

@@ -404,3 +404,113 @@ fn the_surfaces_do_not_fold_or_crease_under_compression() {
         assert!((again - ours).abs() <= 2e-4, "{path:?}: {again} vs {ours}");
     }
 }
+
+/// The `v` lines of an OBJ file, as written.
+fn obj_vertices(path: &std::path::Path) -> Vec<nalgebra::Vector3<f64>> {
+    std::fs::read_to_string(path)
+        .unwrap()
+        .lines()
+        .filter_map(|l| l.strip_prefix("v "))
+        .map(|l| {
+            let c: Vec<f64> = l
+                .split_whitespace()
+                .take(3)
+                .map(|v| v.parse().unwrap())
+                .collect();
+            nalgebra::Vector3::new(c[0], c[1], c[2])
+        })
+        .collect()
+}
+
+/// `--surface all`: the last target's own mesh carried backward. Its last frame is the target as
+/// the run placed it (to f32's rounding of the file's numbers), every frame keeps its
+/// topology, its folds on the frames it is seen in (weight above zero) are no more than the
+/// target's own, and its weights rise from 0 to 1 in the manifest and the USD file.
+#[test]
+fn the_target_carried_backward_ends_on_the_placed_target() {
+    use morph::geometry::fidelity::{edge_neighbours, fold_share};
+    let scratch = scratch_in("surfaces", "target-carried");
+    let out: &std::path::Path = scratch.as_ref();
+    let target = common::cli::root().join("assets/two-lobes.obj");
+    ok(&morph(&[
+        "assets/sphere.obj",
+        target.to_str().unwrap(),
+        "--preset",
+        "draft",
+        "--frames",
+        "13",
+        "--resolution",
+        "20",
+        "--surface",
+        "all",
+        "--usd",
+        "usda",
+        "-o",
+        out.to_str().unwrap(),
+    ]));
+    let m = manifest(out);
+    let frames = m["frames"].as_array().unwrap();
+    let weights: Vec<f64> = frames
+        .iter()
+        .map(|f| f["target_weight"].as_f64().unwrap())
+        .collect();
+    assert_eq!(weights[0], 0.0);
+    assert_eq!(*weights.last().unwrap(), 1.0);
+    assert!(weights.windows(2).all(|w| w[1] >= w[0]), "{weights:?}");
+    // The last frame: the target file's vertices, placed.
+    let place = &m["target"];
+    let scale = place["scale"].as_f64().unwrap();
+    let t: Vec<f64> = place["translation"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|v| v.as_f64().unwrap())
+        .collect();
+    let translation = nalgebra::Vector3::new(t[0], t[1], t[2]);
+    let placed: Vec<_> = obj_vertices(&target)
+        .iter()
+        .map(|v| scale * v + translation)
+        .collect();
+    let last = out.join(frames.last().unwrap()["target_carried"].as_str().unwrap());
+    let written = obj_vertices(&last);
+    assert_eq!(written.len(), placed.len());
+    let size = placed.iter().fold(0.0f64, |s, v| s.max(v.norm()));
+    let worst = written
+        .iter()
+        .zip(&placed)
+        .map(|(a, b)| (a - b).norm())
+        .fold(0.0, f64::max);
+    assert!(
+        worst <= 1e-5 * size,
+        "last frame {worst} from the placed target (size {size})"
+    );
+    // Folds: no more than the target's own where the target's mesh is seen.
+    let folds = |path: &std::path::Path| {
+        let mesh = morph::geometry::load_mesh(path).unwrap().mesh;
+        let tris: Vec<[usize; 3]> = mesh
+            .triangles
+            .iter()
+            .map(|t| t.map(|i| i as usize))
+            .collect();
+        (
+            fold_share(&mesh.vertices, &tris, &edge_neighbours(&tris)),
+            tris.len(),
+        )
+    };
+    let (own, faces) = folds(&target);
+    for (f, w) in frames.iter().zip(&weights) {
+        let (share, n) = folds(&out.join(f["target_carried"].as_str().unwrap()));
+        assert_eq!(n, faces, "the topology holds");
+        if *w > 0.0 {
+            assert!(
+                share <= own + 1e-12,
+                "frame {}: folds {share} against the target's {own}",
+                f["index"]
+            );
+        }
+    }
+    // The USD file: the target's mesh, and the weights on both carried meshes.
+    let usda = std::fs::read_to_string(out.join("morph.usda")).unwrap();
+    assert!(usda.contains("def Mesh \"target_carried\""));
+    assert_eq!(usda.matches("float primvars:weight.timeSamples").count(), 2);
+}

@@ -42,6 +42,13 @@ pub(super) struct FrameEntry {
         rename = "carried_mesh"
     )]
     pub(super) carried: Option<String>,
+    /// The last target's carried surface (`--surface all`) and its weight on this frame: 0
+    /// until the shape change begins, 1 from the last target's arrival, a smoothstep between
+    /// (the share of the target's mesh in a render's cross-fade from the source's).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub(super) target_carried: Option<String>,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub(super) target_weight: Option<f64>,
     #[serde(flatten)]
     pub(super) stats: Option<FrameStats>,
 }

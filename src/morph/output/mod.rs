@@ -18,6 +18,7 @@
 mod liken;
 mod manifest;
 mod run;
+pub use run::target_weight;
 pub mod sinks;
 mod writer;
 
@@ -134,6 +135,7 @@ const STAGING_NAMES: &[&str] = &[
     "frames",
     "meshes",
     "carried",
+    "target_carried",
     "volumes",
     checkpoint::FOLDER,
     super::scene_file::RESOLVED,

@@ -41,7 +41,9 @@ pub(super) fn write_run(
         .as_ref()
         .map(|p| checkpoint::describe(p, settings.method.passes, prep.settings.method.segments));
     let source = Path::new(&identity.inputs[0].path);
-    let sinks = sinks::for_folder(prep, dir, source)?;
+    let targets = 1 + prep.geometry.placement.keyframes_to_world.len();
+    let target = Path::new(&identity.inputs[targets].path);
+    let sinks = sinks::for_folder(prep, dir, (source, target))?;
     let (result, written, sinks) =
         run_writing_frames(prep, (dir, lock), run_id, resume, sinks, caller)?;
     refuse_unmoved(prep, &result)?;
@@ -294,6 +296,21 @@ fn write_previews(
         .map_err(|e| out_err("preview", &preview_png, e))
 }
 
+/// The last target's weight on frame `frame` (1 = the rest shape): 0 until the shape change
+/// begins, 1 from the last target's arrival, a smoothstep between.
+pub fn target_weight(prep: &Prepared, frame: usize) -> f64 {
+    let shot = &prep.settings.shot;
+    let (begin, arrive) = (
+        shot.begin as f64,
+        *shot.at.last().unwrap_or(&shot.begin) as f64,
+    );
+    if arrive <= begin {
+        return if frame as f64 >= arrive { 1.0 } else { 0.0 };
+    }
+    let t = ((frame as f64 - begin) / (arrive - begin)).clamp(0.0, 1.0);
+    t * t * (3.0 - 2.0 * t)
+}
+
 /// The manifest's list of frames: each one's files and measurements.
 fn frame_entries(prep: &Prepared, stats: Vec<FrameStats>) -> Vec<FrameEntry> {
     let n_frames = prep.frame_count();
@@ -311,6 +328,12 @@ fn frame_entries(prep: &Prepared, stats: Vec<FrameStats>) -> Vec<FrameEntry> {
                 points: format!("frames/{name}.ply"),
                 mesh: surfaces.rebuilt().then(|| format!("meshes/{name}.obj")),
                 carried: surfaces.carried().then(|| format!("carried/{name}.obj")),
+                target_carried: surfaces
+                    .target_carried()
+                    .then(|| format!("target_carried/{name}.obj")),
+                target_weight: surfaces
+                    .target_carried()
+                    .then(|| target_weight(prep, i + 1)),
                 stats: stats.next(),
             }
         })

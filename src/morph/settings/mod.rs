@@ -157,23 +157,32 @@ pub enum Surfaces {
     /// changes (sphere -> torus) and the carried one cannot follow.
     #[default]
     Both,
+    /// Both, and the last target's own mesh carried backward from the last frame
+    /// (`target_carried/`): a shot can end on the target asset itself.
+    All,
 }
 
 impl Surfaces {
     /// Every value, in declaration order (the command line lists them by their serde names).
-    pub const ALL: [Surfaces; 4] = [
+    pub const ALL: [Surfaces; 5] = [
         Surfaces::None,
         Surfaces::Carried,
         Surfaces::Rebuilt,
         Surfaces::Both,
+        Surfaces::All,
     ];
 
     pub fn carried(self) -> bool {
-        matches!(self, Surfaces::Carried | Surfaces::Both)
+        matches!(self, Surfaces::Carried | Surfaces::Both | Surfaces::All)
     }
 
     pub fn rebuilt(self) -> bool {
-        matches!(self, Surfaces::Rebuilt | Surfaces::Both)
+        matches!(self, Surfaces::Rebuilt | Surfaces::Both | Surfaces::All)
+    }
+
+    /// The last target's mesh carried backward (`target_carried/`).
+    pub fn target_carried(self) -> bool {
+        self == Surfaces::All
     }
 }
 

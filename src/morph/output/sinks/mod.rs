@@ -9,6 +9,7 @@ mod carried;
 mod gif;
 mod points;
 mod rebuilt;
+mod target_carried;
 mod usd;
 mod volume;
 
@@ -16,6 +17,7 @@ pub use carried::CarriedObj;
 pub use gif::PreviewGif;
 pub use points::PointsPly;
 pub use rebuilt::{RebuiltObj, RebuiltStats};
+pub use target_carried::TargetCarriedObj;
 pub use usd::UsdSequence;
 pub use volume::VolumeVdb;
 
@@ -114,13 +116,13 @@ pub(crate) fn out_err(what: &str, path: &Path, e: impl std::fmt::Display) -> Mor
 }
 
 /// The sinks a morph's folder gets from its settings, in the order they run: the PLY points,
-/// the carried surface, the rebuilt surface, the volume, the USD file and the animated
-/// preview. `source`
-/// is the source mesh's file (the carried surface is bound to it).
+/// the carried surface, the rebuilt surface, the volume, the target's carried surface, the
+/// USD file and the animated preview. `source` is the source mesh's file (the carried surface
+/// is bound to it), `target` the last target's (the target's carried surface is).
 pub fn for_folder(
     prep: &Prepared,
     dir: &Path,
-    source: &Path,
+    (source, target_file): (&Path, &Path),
 ) -> Result<Vec<Box<dyn FrameSink + Send>>, MorphError> {
     let settings = &prep.settings;
     let to_world = prep.geometry.placement.sim_to_world();
@@ -185,6 +187,19 @@ pub fn for_folder(
         }));
     }
     let start = settings.shot.start_frame;
+    if settings.outputs.surfaces.target_carried() {
+        let mesh = crate::geometry::load_mesh(target_file)?.mesh;
+        sinks.push(Box::new(TargetCarriedObj {
+            dir: dir.to_path_buf(),
+            target: (target_file.to_path_buf(), mesh),
+            place: prep.geometry.placement.target_to_world,
+            to_sim: prep.geometry.placement.world_to_sim,
+            spacing,
+            start,
+            count,
+            fold_shares: Vec::new(),
+        }));
+    }
     if settings.outputs.usd != crate::io::usd::UsdFormat::None {
         sinks.push(Box::new(UsdSequence {
             dir: dir.to_path_buf(),
@@ -193,6 +208,11 @@ pub fn for_folder(
             count,
             fps,
             carried: settings.outputs.surfaces.carried(),
+            target_weights: settings.outputs.surfaces.target_carried().then(|| {
+                (1..=count)
+                    .map(|f| crate::morph::output::target_weight(prep, f))
+                    .collect()
+            }),
             rebuilt: settings.outputs.surfaces.rebuilt(),
             volume: settings.outputs.volume,
             width: spacing * to_world.scale,

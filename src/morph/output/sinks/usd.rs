@@ -15,8 +15,9 @@ pub struct UsdSequence {
     pub start: usize,
     pub count: usize,
     pub fps: f64,
-    /// Which surfaces the run writes.
+    /// Which surfaces the run writes (the target's carried one with its weight per frame).
     pub carried: bool,
+    pub target_weights: Option<Vec<f64>>,
     pub rebuilt: bool,
     /// Whether the run writes a volume per frame (`--volume`).
     pub volume: bool,
@@ -47,6 +48,10 @@ impl FrameSink for UsdSequence {
                 fps: self.fps,
                 points: files("frames", "ply"),
                 carried: self.carried.then(|| files("carried", "obj")),
+                target_carried: self
+                    .target_weights
+                    .clone()
+                    .map(|w| (files("target_carried", "obj"), w)),
                 rebuilt: self.rebuilt.then(|| files("meshes", "obj")),
                 volumes: self.volume.then(|| files("volumes", "vdb")),
                 width: self.width,
