@@ -223,6 +223,11 @@ impl CarriedSurface {
         }
     }
 
+    /// Each triangle's edge neighbours (for the fold share).
+    pub fn face_neighbours(&self) -> &[Vec<usize>] {
+        &self.neighbours
+    }
+
     pub fn vertex_count(&self) -> usize {
         self.rest.len()
     }

@@ -205,6 +205,20 @@ fn turned_share(
     neighbours: &[Vec<usize>],
     degrees: f64,
 ) -> f64 {
+    let turned = turned_faces(vertices, triangles, neighbours, degrees);
+    let counted = turned.iter().filter(|t| t.is_some()).count();
+    let count = turned.iter().filter(|t| **t == Some(true)).count();
+    count as f64 / counted.max(1) as f64
+}
+
+/// Per face: whether its normal turns more than `degrees` from the mean unit normal of the
+/// faces sharing an edge with it (`None`: no area, or no neighbour with one).
+pub fn turned_faces(
+    vertices: &[Vector3<f64>],
+    triangles: &[[usize; 3]],
+    neighbours: &[Vec<usize>],
+    degrees: f64,
+) -> Vec<Option<bool>> {
     let normals: Vec<Option<Vector3<f64>>> = triangles
         .iter()
         .map(|t| {
@@ -213,19 +227,16 @@ fn turned_share(
         })
         .collect();
     let cos_turn = degrees.to_radians().cos();
-    let (mut counted, mut turned) = (0usize, 0usize);
-    for (f, near) in neighbours.iter().enumerate() {
-        let Some(n) = normals[f] else { continue };
-        let mean: Vector3<f64> = near.iter().filter_map(|&g| normals[g]).sum();
-        let Some(mean) = mean.try_normalize(0.0) else {
-            continue;
-        };
-        counted += 1;
-        if n.dot(&mean) < cos_turn {
-            turned += 1;
-        }
-    }
-    turned as f64 / counted.max(1) as f64
+    neighbours
+        .iter()
+        .enumerate()
+        .map(|(f, near)| {
+            let n = normals[f]?;
+            let mean: Vector3<f64> = near.iter().filter_map(|&g| normals[g]).sum();
+            let mean = mean.try_normalize(0.0)?;
+            Some(n.dot(&mean) < cos_turn)
+        })
+        .collect()
 }
 
 #[cfg(test)]

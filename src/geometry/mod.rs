@@ -9,6 +9,7 @@ pub mod collider_solid;
 pub mod error;
 pub mod features;
 pub mod fidelity;
+pub mod fit;
 pub mod likeness;
 pub mod mesh;
 pub mod neighbourhood;

@@ -374,6 +374,33 @@ impl FillField {
         (i * self.dims[1] + j) * self.dims[2] + k
     }
 
+    /// The fill at `x`, trilinear between the lattice's nodes (0 outside it).
+    pub fn sample(&self, x: &Vector3<f64>) -> f64 {
+        let g = (x - self.origin) / self.h;
+        let mut base = [0usize; 3];
+        let mut t = [0.0; 3];
+        for a in 0..3 {
+            let f = g[a].floor();
+            if !(f >= 0.0 && (f as usize) + 1 < self.dims[a]) {
+                return 0.0;
+            }
+            base[a] = f as usize;
+            t[a] = g[a] - f;
+        }
+        let mut sum = 0.0;
+        for corner in 0..8 {
+            let o = [corner >> 2 & 1, corner >> 1 & 1, corner & 1];
+            let w: f64 = (0..3)
+                .map(|a| if o[a] == 1 { t[a] } else { 1.0 - t[a] })
+                .product();
+            sum += w * self.values[self.node(base[0] + o[0], base[1] + o[1], base[2] + o[2])];
+        }
+        sum
+    }
+
+    /// The fill's surface level (the rebuilt surface is this level set).
+    pub const LEVEL: f64 = ISO;
+
     fn position(&self, id: usize) -> Vector3<f64> {
         let k = id % self.dims[2];
         let j = (id / self.dims[2]) % self.dims[1];

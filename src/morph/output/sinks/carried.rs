@@ -11,6 +11,16 @@ use nalgebra::Vector3;
 use std::path::PathBuf;
 use std::sync::Arc;
 
+/// What fits the carried surface to the body's boundary on each frame: the fill field the
+/// rebuilt surface is made from, and the share of the way to it each frame goes.
+pub struct CarriedFit {
+    pub method: crate::morph::settings::RebuiltMethod,
+    pub rest_volume: f64,
+    pub edge_weights: Arc<[f64]>,
+    /// Per frame, from 0 (frame 1: the source itself) to 1.
+    pub strength: Vec<f64>,
+}
+
 pub struct CarriedObj {
     /// The `carried` folder.
     pub dir: PathBuf,
@@ -23,6 +33,8 @@ pub struct CarriedObj {
     /// The source and the target surfaces (world units), which the first and the last
     /// frames' surfaces are measured against.
     pub references: Option<Arc<(Reference, Reference)>>,
+    /// The fit to the body's boundary (none: the binding's motion alone).
+    pub fit: Option<CarriedFit>,
 }
 
 impl FrameSink for CarriedObj {
@@ -33,7 +45,10 @@ impl FrameSink for CarriedObj {
     fn frame(&mut self, frame: &SinkFrame, record: &mut FrameRecord) -> Result<(), MorphError> {
         let clock = std::time::Instant::now();
         let state = frame.state;
-        let on_frame = self.surface.carry(&self.rest, &state.x, &state.f);
+        let mut on_frame = self.surface.carry(&self.rest, &state.x, &state.f);
+        if let Some(fit) = &self.fit {
+            self.fit_frame(fit, frame, &mut on_frame)?;
+        }
         let path = self.dir.join(format!("{}.obj", frame.name()));
         self.surface
             .write_obj(&path, &on_frame)
@@ -55,6 +70,44 @@ impl FrameSink for CarriedObj {
             });
         stats.seconds = clock.elapsed().as_secs_f64();
         record.carried = Some(stats);
+        Ok(())
+    }
+}
+
+impl CarriedObj {
+    /// Moves the frame's carried vertices toward the body's boundary (the fill field's level
+    /// set, as the rebuilt surface is), by the frame's strength, and turns its normals.
+    fn fit_frame(
+        &self,
+        fit: &CarriedFit,
+        frame: &SinkFrame,
+        on_frame: &mut crate::geometry::carried::CarriedFrame,
+    ) -> Result<(), MorphError> {
+        let strength = fit.strength.get(frame.index).copied().unwrap_or(1.0);
+        if strength <= 0.0 {
+            return Ok(());
+        }
+        let field = super::rebuilt::fill_field_of(
+            fit.method,
+            frame,
+            fit.rest_volume,
+            &fit.edge_weights,
+            self.spacing,
+        )
+        .map_err(|e| MorphError::Output(e.to_string()))?;
+        let to_sim = self.to_world.inverse();
+        let mut sim: Vec<Vector3<f64>> =
+            on_frame.positions.iter().map(|v| to_sim.apply(v)).collect();
+        let reach = crate::geometry::fit::REACH_SPACINGS * self.spacing;
+        let mesh = (&self.surface.triangles[..], self.surface.face_neighbours());
+        crate::geometry::fit::fit_to_field(&mut sim, mesh, &field, reach, strength);
+        on_frame.positions = sim.iter().map(|v| self.to_world.apply(v)).collect();
+        if !on_frame.normals.is_empty() {
+            on_frame.normals = crate::geometry::mesh::area_weighted_normals(
+                &on_frame.positions,
+                self.surface.triangles.iter().copied(),
+            );
+        }
         Ok(())
     }
 }

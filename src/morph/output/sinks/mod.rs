@@ -13,7 +13,7 @@ mod target_carried;
 mod usd;
 mod volume;
 
-pub use carried::CarriedObj;
+pub use carried::{CarriedFit, CarriedObj};
 pub use gif::PreviewGif;
 pub use points::PointsPly;
 pub use rebuilt::{RebuiltObj, RebuiltStats};
@@ -249,6 +249,15 @@ fn carried_sink(
             reason: e.to_string(),
         })
     })?;
+    let count = prep.frame_count();
+    let fit = Some(CarriedFit {
+        method: prep.settings.outputs.rebuilt_method,
+        rest_volume: prep.geometry.source.volume,
+        edge_weights: prep.geometry.source_edge_weights.as_slice().into(),
+        strength: (1..=count)
+            .map(|f| crate::morph::output::target_weight(prep, f))
+            .collect(),
+    });
     Ok(Box::new(CarriedObj {
         dir: folder(dir, "carried")?,
         surface,
@@ -256,6 +265,7 @@ fn carried_sink(
         spacing,
         to_world: prep.geometry.placement.sim_to_world(),
         references,
+        fit,
     }))
 }
 
