@@ -501,7 +501,11 @@ fn the_target_carried_backward_ends_on_the_placed_target() {
     for (f, w) in frames.iter().zip(&weights) {
         let (share, n) = folds(&out.join(f["target_carried"].as_str().unwrap()));
         assert_eq!(n, faces, "the topology holds");
+        let reported = f["target_carried_fold_share"]
+            .as_f64()
+            .expect("the manifest's");
         if *w > 0.0 {
+            assert!(reported <= own + 1e-12, "frame {}: {reported}", f["index"]);
             assert!(
                 share <= own + 1e-12,
                 "frame {}: folds {share} against the target's {own}",

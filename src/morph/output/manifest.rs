@@ -49,6 +49,10 @@ pub(super) struct FrameEntry {
     pub(super) target_carried: Option<String>,
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub(super) target_weight: Option<f64>,
+    /// The target's carried surface's fold share on this frame (measured once the sequence
+    /// was complete).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub(super) target_carried_fold_share: Option<f64>,
     #[serde(flatten)]
     pub(super) stats: Option<FrameStats>,
 }

@@ -55,7 +55,7 @@ pub(super) fn write_run(
     let optimize_s = clock.elapsed().as_secs_f64() - setup_s;
 
     // Every frame is on disk: the whole-sequence formats write now.
-    let finish_s = finish(sinks)?;
+    let (finish_s, finish_measures) = finish(sinks)?;
     let fill = write_mass_grid(prep, dir, &result.final_state)?;
     let quality = Some(prep.quality(&result.final_state));
     let previews_clock = Instant::now();
@@ -106,7 +106,7 @@ pub(super) fn write_run(
             device: prep.engine.device_name().unwrap_or("cpu").into(),
             peak_resident_mb: crate::morph::usage::peak_mb(),
         },
-        frames: frame_entries(prep, written.stats),
+        frames: frame_entries(prep, written.stats, &finish_measures),
         final_mass: "final_mass.mgrid".into(),
         warnings: [&prep.geometry.warnings[..], &run_warnings].concat(),
         memory: Some(memory),
@@ -156,15 +156,31 @@ fn write_manifest(
         .map_err(|e| out_err("manifest", &manifest_path, e))
 }
 
-/// Tells each sink the sequence is complete; returns the seconds each took, by name.
-fn finish(mut sinks: Sinks) -> Result<HashMap<&'static str, f64>, MorphError> {
-    let mut seconds = HashMap::new();
+/// What the sinks measured in `finish`: per frame, a figure by name.
+type FinishMeasures = Vec<(&'static str, Vec<f64>)>;
+
+/// The target's carried surface's fold share, as its sink names it.
+const TARGET_CARRIED_FOLDS: &str = "target_carried_fold_share";
+
+/// Frame `i`'s figure `name` of `measures`, if a sink measured it.
+fn measured(measures: &FinishMeasures, name: &str, i: usize) -> Option<f64> {
+    let (_, per_frame) = measures.iter().find(|(n, _)| *n == name)?;
+    per_frame.get(i).copied()
+}
+
+/// Tells each sink the sequence is complete; returns the seconds each took, by name, and what
+/// they measured on each frame.
+fn finish(mut sinks: Sinks) -> Result<(HashMap<&'static str, f64>, FinishMeasures), MorphError> {
+    let (mut seconds, mut measures) = (HashMap::new(), Vec::new());
     for sink in &mut sinks {
         let clock = Instant::now();
         sink.finish()?;
         seconds.insert(sink.name(), clock.elapsed().as_secs_f64());
+        if let Some((name, per_frame)) = sink.measured_in_finish() {
+            measures.push((name, per_frame.to_vec()));
+        }
     }
-    Ok(seconds)
+    Ok((seconds, measures))
 }
 
 /// The motion measures of the whole sequence (against the final target) and each target's
@@ -312,7 +328,11 @@ pub fn target_weight(prep: &Prepared, frame: usize) -> f64 {
 }
 
 /// The manifest's list of frames: each one's files and measurements.
-fn frame_entries(prep: &Prepared, stats: Vec<FrameStats>) -> Vec<FrameEntry> {
+fn frame_entries(
+    prep: &Prepared,
+    stats: Vec<FrameStats>,
+    measures: &FinishMeasures,
+) -> Vec<FrameEntry> {
     let n_frames = prep.frame_count();
     let surfaces = prep.settings.outputs.surfaces;
     let mut stats = stats.into_iter();
@@ -334,6 +354,7 @@ fn frame_entries(prep: &Prepared, stats: Vec<FrameStats>) -> Vec<FrameEntry> {
                 target_weight: surfaces
                     .target_carried()
                     .then(|| target_weight(prep, i + 1)),
+                target_carried_fold_share: measured(measures, TARGET_CARRIED_FOLDS, i),
                 stats: stats.next(),
             }
         })

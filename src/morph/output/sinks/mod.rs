@@ -42,6 +42,11 @@ pub trait FrameSink {
     fn finish(&mut self) -> Result<(), MorphError> {
         Ok(())
     }
+    /// What `finish` measured on each frame, one figure a frame (the manifest's frames take
+    /// it under `name`).
+    fn measured_in_finish(&self) -> Option<(&'static str, &[f64])> {
+        None
+    }
 }
 
 /// What a sink sees of one frame.

@@ -48,6 +48,10 @@ impl FrameSink for TargetCarriedObj {
         Ok(())
     }
 
+    fn measured_in_finish(&self) -> Option<(&'static str, &[f64])> {
+        Some(("target_carried_fold_share", &self.fold_shares))
+    }
+
     fn finish(&mut self) -> Result<(), MorphError> {
         let out = super::folder(&self.dir, "target_carried")?;
         let last = self.positions(self.count - 1)?;
