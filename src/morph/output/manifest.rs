@@ -292,6 +292,16 @@ pub struct RunIdentity {
 }
 
 impl RunIdentity {
+    /// The source's file and the last target's (the one the shot ends on).
+    pub(super) fn source_and_last_target(
+        &self,
+        prep: &crate::morph::Prepared,
+    ) -> (&std::path::Path, &std::path::Path) {
+        let targets = 1 + prep.geometry.placement.keyframes_to_world.len();
+        let path = |k: usize| std::path::Path::new(&self.inputs[k].path);
+        (path(0), path(targets))
+    }
+
     pub(super) fn new(
         settings: &MorphSettings,
         source: &Path,

@@ -40,10 +40,7 @@ pub(super) fn write_run(
     let resumed_from = resume
         .as_ref()
         .map(|p| checkpoint::describe(p, settings.method.passes, prep.settings.method.segments));
-    let source = Path::new(&identity.inputs[0].path);
-    let targets = 1 + prep.geometry.placement.keyframes_to_world.len();
-    let target = Path::new(&identity.inputs[targets].path);
-    let sinks = sinks::for_folder(prep, dir, (source, target))?;
+    let sinks = sinks::for_folder(prep, dir, identity.source_and_last_target(prep))?;
     let (result, written, sinks) =
         run_writing_frames(prep, (dir, lock), run_id, resume, sinks, caller)?;
     refuse_unmoved(prep, &result)?;

@@ -193,17 +193,7 @@ pub fn for_folder(
     }
     let start = settings.shot.start_frame;
     if settings.outputs.surfaces.target_carried() {
-        let mesh = crate::geometry::load_mesh(target_file)?.mesh;
-        sinks.push(Box::new(TargetCarriedObj {
-            dir: dir.to_path_buf(),
-            target: (target_file.to_path_buf(), mesh),
-            place: prep.geometry.placement.target_to_world,
-            to_sim: prep.geometry.placement.world_to_sim,
-            spacing,
-            start,
-            count,
-            fold_shares: Vec::new(),
-        }));
+        sinks.push(target_carried_sink(prep, dir, target_file)?);
     }
     if settings.outputs.usd != crate::io::usd::UsdFormat::None {
         sinks.push(Box::new(UsdSequence {
@@ -231,6 +221,28 @@ pub fn for_folder(
         radius: 0.5 * spacing * to_world.scale,
     }));
     Ok(sinks)
+}
+
+/// The target's carried surface's sink (`target` the last target's file).
+fn target_carried_sink(
+    prep: &Prepared,
+    dir: &Path,
+    target: &Path,
+) -> Result<Box<dyn FrameSink + Send>, MorphError> {
+    let placement = &prep.geometry.placement;
+    Ok(Box::new(TargetCarriedObj {
+        dir: dir.to_path_buf(),
+        target: (
+            target.to_path_buf(),
+            crate::geometry::load_mesh(target)?.mesh,
+        ),
+        place: placement.target_to_world,
+        to_sim: placement.world_to_sim,
+        spacing: prep.model().grid.dx / prep.settings.body.particles_per_cell as f64,
+        start: prep.settings.shot.start_frame,
+        count: prep.frame_count(),
+        fold_shares: Vec::new(),
+    }))
 }
 
 /// The carried surface's sink: the source mesh (`source` its file) bound to the particles.
