@@ -16,12 +16,20 @@ pub const SMOOTHING_ROUNDS: usize = 2;
 /// halved, round after round, and dropped after the last.
 pub const GUARD_ROUNDS: usize = 6;
 
-/// `vertices` (sim units, the mesh `triangles` with their edge neighbours `faces`) moved by
-/// `strength` (0 to 1) of their way to the body's boundary in `field`, looking up to `reach`
-/// along each vertex normal; no face folds that did not before.
+/// The mesh a fit moves: its triangles, each triangle's edge neighbours, and each vertex's
+/// ([`vertex_neighbours`]); the topology is fixed, so they are found once.
+pub struct FitMesh<'a> {
+    pub triangles: &'a [[usize; 3]],
+    pub faces: &'a [Vec<usize>],
+    pub rings: &'a [Vec<usize>],
+}
+
+/// `vertices` (sim units, of `mesh`) moved by `strength` (0 to 1) of their way to the body's
+/// boundary in `field`, looking up to `reach` along each vertex normal; no face folds that did
+/// not before.
 pub fn fit_to_field(
     vertices: &mut [Vector3<f64>],
-    (triangles, faces): (&[[usize; 3]], &[Vec<usize>]),
+    mesh: &FitMesh,
     field: &FillField,
     reach: f64,
     strength: f64,
@@ -29,6 +37,7 @@ pub fn fit_to_field(
     if strength <= 0.0 || vertices.is_empty() {
         return;
     }
+    let (triangles, faces, neighbours) = (mesh.triangles, mesh.faces, mesh.rings);
     let normals = super::mesh::area_weighted_normals(vertices, triangles.iter().copied());
     let step = 0.25 * field.h;
     let mut moves: Vec<Vector3<f64>> = vertices
@@ -36,7 +45,6 @@ pub fn fit_to_field(
         .zip(&normals)
         .map(|(x, n)| crossing(field, x, n, reach, step).map_or(Vector3::zeros(), |t| t * n))
         .collect();
-    let neighbours = vertex_neighbours(vertices.len(), triangles);
     for _ in 0..SMOOTHING_ROUNDS {
         moves = (0..vertices.len())
             .map(|i| {
@@ -94,7 +102,8 @@ fn turned(vertices: &[Vector3<f64>], triangles: &[[usize; 3]], faces: &[Vec<usiz
 }
 
 /// The distance along unit normal `n` from `x` to the nearest crossing of the field's level,
-/// within `reach` either way (`None`: no crossing there, or no normal).
+/// within `reach` either way (`None`: no crossing there, or no normal). Each sample is taken
+/// once: the two directions keep their last one.
 fn crossing(
     field: &FillField,
     x: &Vector3<f64>,
@@ -107,16 +116,16 @@ fn crossing(
     }
     let level = |t: f64| field.sample(&(x + t * n)) - FillField::LEVEL;
     let at0 = level(0.0);
+    let mut last = [at0, at0];
     let mut t = 0.0;
     while t < reach {
         let next = t + step;
-        for sign in [1.0, -1.0] {
-            let (a, b) = (level(sign * t), level(sign * next));
-            let (fa, fb) = if t == 0.0 { (at0, b) } else { (a, b) };
+        for (k, sign) in [1.0, -1.0].into_iter().enumerate() {
+            let (fa, fb) = (last[k], level(sign * next));
             if (fa > 0.0) != (fb > 0.0) {
-                let s = fa / (fa - fb);
-                return Some(sign * (t + s * step));
+                return Some(sign * (t + fa / (fa - fb) * step));
             }
+            last[k] = fb;
         }
         t = next;
     }
@@ -124,7 +133,7 @@ fn crossing(
 }
 
 /// Each vertex's neighbours along the triangles' edges.
-fn vertex_neighbours(n: usize, triangles: &[[usize; 3]]) -> Vec<Vec<usize>> {
+pub fn vertex_neighbours(n: usize, triangles: &[[usize; 3]]) -> Vec<Vec<usize>> {
     let mut out = vec![Vec::new(); n];
     for t in triangles {
         for k in 0..3 {

@@ -594,43 +594,54 @@ impl GpuEuler {
     }
 }
 
-/// The state as the state buffer holds it (x, v, C, F per particle, matrices column-major).
-fn pack(s: &State) -> Vec<f64> {
-    let mut out = Vec::with_capacity(STATE_STRIDE * s.len());
-    for p in 0..s.len() {
-        out.extend_from_slice(s.x[p].as_slice());
-        out.extend_from_slice(s.v[p].as_slice());
-        out.extend_from_slice(s.c[p].as_slice());
-        out.extend_from_slice(s.f[p].as_slice());
+/// A state's (or its adjoint's) four fields, as the state buffer lays them out.
+type Fields<'a> = (
+    &'a [Vector3<f64>],
+    &'a [Vector3<f64>],
+    &'a [Matrix3<f64>],
+    &'a [Matrix3<f64>],
+);
+type FieldsMut<'a> = (
+    &'a mut [Vector3<f64>],
+    &'a mut [Vector3<f64>],
+    &'a mut [Matrix3<f64>],
+    &'a mut [Matrix3<f64>],
+);
+
+/// The fields as the state buffer holds them (x, v, C, F per particle, matrices
+/// column-major).
+fn pack_fields((x, v, c, f): Fields) -> Vec<f64> {
+    let mut out = Vec::with_capacity(STATE_STRIDE * x.len());
+    for p in 0..x.len() {
+        out.extend_from_slice(x[p].as_slice());
+        out.extend_from_slice(v[p].as_slice());
+        out.extend_from_slice(c[p].as_slice());
+        out.extend_from_slice(f[p].as_slice());
     }
     out
+}
+
+fn unpack_fields(buf: &[f64], (x, v, c, f): FieldsMut) {
+    for (p, row) in buf.chunks(STATE_STRIDE).enumerate() {
+        x[p] = Vector3::from_column_slice(&row[0..3]);
+        v[p] = Vector3::from_column_slice(&row[3..6]);
+        c[p] = Matrix3::from_column_slice(&row[6..15]);
+        f[p] = Matrix3::from_column_slice(&row[15..24]);
+    }
+}
+
+fn pack(s: &State) -> Vec<f64> {
+    pack_fields((&s.x, &s.v, &s.c, &s.f))
 }
 
 pub(crate) fn unpack(buf: &[f64], s: &mut State) {
-    for (p, row) in buf.chunks(STATE_STRIDE).enumerate() {
-        s.x[p] = Vector3::from_column_slice(&row[0..3]);
-        s.v[p] = Vector3::from_column_slice(&row[3..6]);
-        s.c[p] = Matrix3::from_column_slice(&row[6..15]);
-        s.f[p] = Matrix3::from_column_slice(&row[15..24]);
-    }
+    unpack_fields(buf, (&mut s.x, &mut s.v, &mut s.c, &mut s.f));
 }
 
 fn pack_grad(g: &StateGrad) -> Vec<f64> {
-    let mut out = Vec::with_capacity(STATE_STRIDE * g.x.len());
-    for p in 0..g.x.len() {
-        out.extend_from_slice(g.x[p].as_slice());
-        out.extend_from_slice(g.v[p].as_slice());
-        out.extend_from_slice(g.c[p].as_slice());
-        out.extend_from_slice(g.f[p].as_slice());
-    }
-    out
+    pack_fields((&g.x, &g.v, &g.c, &g.f))
 }
 
 fn unpack_grad(buf: &[f64], g: &mut StateGrad) {
-    for (p, row) in buf.chunks(STATE_STRIDE).enumerate() {
-        g.x[p] = Vector3::from_column_slice(&row[0..3]);
-        g.v[p] = Vector3::from_column_slice(&row[3..6]);
-        g.c[p] = Matrix3::from_column_slice(&row[6..15]);
-        g.f[p] = Matrix3::from_column_slice(&row[15..24]);
-    }
+    unpack_fields(buf, (&mut g.x, &mut g.v, &mut g.c, &mut g.f));
 }

@@ -19,6 +19,8 @@ pub struct CarriedFit {
     pub edge_weights: Arc<[f64]>,
     /// Per frame, from 0 (frame 1: the source itself) to 1.
     pub strength: Vec<f64>,
+    /// Each carried vertex's neighbours (`geometry::fit::vertex_neighbours`), found once.
+    pub rings: Vec<Vec<usize>>,
 }
 
 pub struct CarriedObj {
@@ -99,8 +101,12 @@ impl CarriedObj {
         let mut sim: Vec<Vector3<f64>> =
             on_frame.positions.iter().map(|v| to_sim.apply(v)).collect();
         let reach = crate::geometry::fit::REACH_SPACINGS * self.spacing;
-        let mesh = (&self.surface.triangles[..], self.surface.face_neighbours());
-        crate::geometry::fit::fit_to_field(&mut sim, mesh, &field, reach, strength);
+        let mesh = crate::geometry::fit::FitMesh {
+            triangles: &self.surface.triangles,
+            faces: self.surface.face_neighbours(),
+            rings: &fit.rings,
+        };
+        crate::geometry::fit::fit_to_field(&mut sim, &mesh, &field, reach, strength);
         on_frame.positions = sim.iter().map(|v| self.to_world.apply(v)).collect();
         if !on_frame.normals.is_empty() {
             on_frame.normals = crate::geometry::mesh::area_weighted_normals(

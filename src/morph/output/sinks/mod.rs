@@ -274,6 +274,7 @@ fn carried_sink(
         strength: (1..=count)
             .map(|f| crate::morph::output::target_weight(prep, f))
             .collect(),
+        rings: crate::geometry::fit::vertex_neighbours(surface.vertex_count(), &surface.triangles),
     });
     Ok(Box::new(CarriedObj {
         dir: folder(dir, "carried")?,
