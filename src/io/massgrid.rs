@@ -106,8 +106,12 @@ impl MassGrid {
             .checked_add(h)
             .filter(|&b| b <= bytes.len())
             .ok_or_else(|| format!("'{name}': truncated header"))?;
-        let header: MassGridHeader = serde_json::from_slice(&bytes[12..body])
-            .map_err(|e| format!("'{name}': bad header: {e}"))?;
+        let header: MassGridHeader = serde_json::from_slice(&bytes[12..body]).map_err(|e| {
+            format!(
+                "'{name}': bad header: {}",
+                crate::files::short_message(&e.to_string())
+            )
+        })?;
         if header.dtype != "f64le" {
             return Err(format!(
                 "'{name}': unsupported dtype '{}' (morph reads f64le)",

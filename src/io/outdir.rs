@@ -66,7 +66,10 @@ pub fn check_owned(dir: &Path, marker: &str) -> Result<Owned, String> {
                     "its {marker} was written by {tool} {version}, which did not list the folder's files, so nothing proves the folder holds only morph's; delete it yourself if it is"
                 )
             }
-            _ => format!("its {marker} is not one morph wrote: {e}"),
+            _ => format!(
+                "its {marker} is not one morph wrote: {}",
+                crate::files::short_message(&e.to_string())
+            ),
         }
     })?;
     let plain = |f: &str| {

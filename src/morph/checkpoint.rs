@@ -158,8 +158,10 @@ pub fn write_json<T: Serialize>(path: &Path, run_id: &str, value: &T) -> std::io
 pub fn read_json<T: serde::de::DeserializeOwned>(path: &Path, run_id: &str) -> Result<T, String> {
     let bytes =
         crate::files::read(path, crate::files::MANIFEST_BYTES).map_err(|e| e.to_string())?;
+    // A parser quotes what it failed on whole (a damaged field can be megabytes): keep it short.
+    let parse_error = |e: serde_json::Error| crate::files::short_message(&e.to_string());
     let sealed: Sealed<Box<serde_json::value::RawValue>> =
-        serde_json::from_slice(&bytes).map_err(|e| e.to_string())?;
+        serde_json::from_slice(&bytes).map_err(parse_error)?;
     if sealed.format != FORMAT {
         return Err(format!(
             "format {} (this morph reads {FORMAT})",
@@ -176,7 +178,7 @@ pub fn read_json<T: serde::de::DeserializeOwned>(path: &Path, run_id: &str) -> R
     if sealed.run_id != run_id {
         return Err("it belongs to another run".into());
     }
-    serde_json::from_str(sealed.body.get()).map_err(|e| e.to_string())
+    serde_json::from_str(sealed.body.get()).map_err(parse_error)
 }
 
 fn flatten_state(s: &State) -> Vec<f64> {
@@ -365,4 +367,32 @@ pub fn describe(p: &RunProgress, passes: usize, segments: usize) -> String {
         p.pass + 1,
         p.segments_done
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A field made a long string (as a damaged or edited file can have it) is refused in a
+    /// short message: the parser's own message quotes the whole string.
+    #[test]
+    fn a_long_string_in_a_sealed_file_gives_a_short_refusal() {
+        let dir = std::env::temp_dir().join(format!("morph-sealed-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("sealed.json");
+        let run_id = "ab".repeat(32);
+        write_json(&path, &run_id, &vec![1.0f64, 2.0]).unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        let long = format!("\"{}dims\"", "2".repeat(60_000));
+        let damaged = text.replacen(
+            &format!("\"format\":{FORMAT}"),
+            &format!("\"format\":{long}"),
+            1,
+        );
+        assert_ne!(damaged, text);
+        std::fs::write(&path, damaged).unwrap();
+        let e = read_json::<Vec<f64>>(&path, &run_id).unwrap_err();
+        assert!(e.len() < 300, "{} bytes: {}", e.len(), &e[..200]);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }

@@ -452,6 +452,7 @@ fn open_folder(dir: &Path, inputs: &[StudyInput]) -> Result<Vec<StudyRow>, Study
         let file: StudyFile = match serde_json::from_slice(&bytes) {
             Ok(f) => f,
             Err(e) => {
+                let e = crate::files::short_message(&e.to_string());
                 return bad(format!(
                     "'{}' is not a study this morph can continue ({e}; studies before morph 0.3.0 did not record their meshes); choose another -o",
                     json.display()

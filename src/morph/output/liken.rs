@@ -24,8 +24,12 @@ pub fn written_likeness(dir: &Path, surface: WrittenSurface) -> Result<Likeness,
     let bad = |reason: String| MorphError::Output(format!("'{}': {reason}", dir.display()));
     let bytes = crate::files::read(&manifest_path, crate::files::MANIFEST_BYTES)
         .map_err(|e| bad(format!("cannot read its manifest.json: {e}")))?;
-    let manifest: Manifest = serde_json::from_slice(&bytes)
-        .map_err(|e| bad(format!("manifest.json is not a morph manifest: {e}")))?;
+    let manifest: Manifest = serde_json::from_slice(&bytes).map_err(|e| {
+        bad(format!(
+            "manifest.json is not a morph manifest: {}",
+            crate::files::short_message(&e.to_string())
+        ))
+    })?;
     let last = manifest
         .frames
         .last()
