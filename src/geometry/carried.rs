@@ -149,6 +149,10 @@ pub struct CarriedStats {
     /// ([`crate::geometry::fidelity`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fidelity: Option<super::fidelity::Fidelity>,
+    /// The last frame's silhouettes and tips against the target
+    /// ([`crate::geometry::likeness`]): how far it reaches the target's extremities.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub likeness: Option<super::likeness::Likeness>,
     /// Seconds spent carrying, writing and measuring it (the frame writer's thread).
     #[serde(default)]
     pub seconds: f64,
@@ -330,6 +334,7 @@ impl CarriedSurface {
                 &self.neighbours,
             ),
             fidelity: None,
+            likeness: None,
             seconds: 0.0,
         }
     }

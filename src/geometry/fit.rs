@@ -26,13 +26,16 @@ pub struct FitMesh<'a> {
 
 /// `vertices` (sim units, of `mesh`) moved by `strength` (0 to 1) of their way to the body's
 /// boundary in `field`, looking up to `reach` along each vertex normal; no face folds that did
-/// not before.
+/// not before. With `volume` (a closed mesh), the boundary is taken one even distance farther
+/// out, the one that makes the fitted mesh enclose `volume`: the field's level lies a thin
+/// layer inside the body, and the rebuilt surface is put back to the body's volume the same way.
 pub fn fit_to_field(
     vertices: &mut [Vector3<f64>],
     mesh: &FitMesh,
     field: &FillField,
     reach: f64,
     strength: f64,
+    volume: Option<f64>,
 ) {
     if strength <= 0.0 || vertices.is_empty() {
         return;
@@ -53,6 +56,16 @@ pub fn fit_to_field(
                 (moves[i] + sum) / (1 + ring.len()) as f64
             })
             .collect();
+    }
+    if let Some(volume) = volume {
+        let fitted: Vec<Vector3<f64>> = vertices.iter().zip(&moves).map(|(x, d)| x + d).collect();
+        let (current, area) = volume_and_area(&fitted, triangles);
+        if current > 0.0 && area > 0.0 && volume > 0.0 {
+            let out = (volume - current) / area;
+            for (d, n) in moves.iter_mut().zip(&normals) {
+                *d += out * n;
+            }
+        }
     }
     let unfitted = vertices.to_vec();
     let folded_before = turned(&unfitted, triangles, faces);
@@ -90,6 +103,17 @@ pub fn fit_to_field(
     {
         *x = x0 + *s * d;
     }
+}
+
+/// The volume a closed mesh encloses and its area.
+fn volume_and_area(vertices: &[Vector3<f64>], triangles: &[[usize; 3]]) -> (f64, f64) {
+    triangles.iter().fold((0.0, 0.0), |(v, a), t| {
+        let [p, q, r] = t.map(|i| vertices[i]);
+        (
+            v + p.dot(&q.cross(&r)) / 6.0,
+            a + 0.5 * (q - p).cross(&(r - p)).norm(),
+        )
+    })
 }
 
 /// Per face: whether it folds ([`super::fidelity::FOLD_DEGREES`]).
@@ -147,4 +171,76 @@ pub fn vertex_neighbours(n: usize, triangles: &[[usize; 3]]) -> Vec<Vec<usize>> 
         }
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::fidelity::{edge_neighbours, fold_share};
+
+    /// A sphere's mesh fitted to a body stretched to an ellipsoid twice as long (3 x 0.7 x 0.7
+    /// its radius): it reaches the body's ends, keeps the body's volume, and no face folds
+    /// (the source folds none).
+    #[test]
+    fn a_stretched_body_is_reached_without_folds_and_at_its_volume() {
+        let spacing: f64 = 0.05;
+        let (a, b): (f64, f64) = (1.5, 0.55);
+        let mut particles = Vec::new();
+        let n = (a / spacing).ceil() as i64;
+        for i in -n..=n {
+            for j in -n..=n {
+                for k in -n..=n {
+                    let p = Vector3::new(i as f64, j as f64, k as f64) * spacing;
+                    if (p.x / a).powi(2) + (p.y / b).powi(2) + (p.z / b).powi(2) <= 1.0 {
+                        particles.push(p);
+                    }
+                }
+            }
+        }
+        let volumes = vec![spacing.powi(3); particles.len()];
+        let field = crate::geometry::surface::fill_field(&particles, &volumes, spacing).unwrap();
+        // The sphere carried to the stretched shape by the particles' mean stretch, short of
+        // the ends, as a binding leaves it.
+        let sphere = crate::geometry::assets::uv_sphere(1.0, 24, 48, |_, _| 1.0);
+        let triangles: Vec<[usize; 3]> = sphere
+            .triangles
+            .iter()
+            .map(|t| t.map(|v| v as usize))
+            .collect();
+        let mut vertices: Vec<Vector3<f64>> = (sphere.vertices.iter())
+            .map(|v| Vector3::new(0.85 * a * v.x, 0.85 * b * v.y, 0.85 * b * v.z))
+            .collect();
+        let faces = edge_neighbours(&triangles);
+        let rings = vertex_neighbours(vertices.len(), &triangles);
+        let mesh = FitMesh {
+            triangles: &triangles,
+            faces: &faces,
+            rings: &rings,
+        };
+        let body = 4.0 / 3.0 * std::f64::consts::PI * a * b * b;
+        assert_eq!(fold_share(&vertices, &triangles, &faces), 0.0);
+        fit_to_field(
+            &mut vertices,
+            &mesh,
+            &field,
+            REACH_SPACINGS * spacing * 4.0,
+            1.0,
+            Some(body),
+        );
+        assert_eq!(
+            fold_share(&vertices, &triangles, &faces),
+            0.0,
+            "a face folds"
+        );
+        let (volume, _) = volume_and_area(&vertices, &triangles);
+        assert!(
+            (volume / body - 1.0).abs() < 0.03,
+            "volume {volume} against {body}"
+        );
+        let reach = vertices.iter().map(|v| v.x).fold(f64::MIN, f64::max);
+        assert!(
+            (reach - a).abs() < 1.5 * spacing,
+            "the end at {reach}, the body's at {a}"
+        );
+    }
 }

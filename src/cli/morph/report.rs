@@ -209,6 +209,14 @@ fn surfaces_line(s: &morph::output::SurfaceSummary) -> Option<String> {
         against("rebuilt frame 1 from the source", &s.rebuilt_first),
         against("rebuilt last frame from the target", &s.rebuilt_last),
         against("carried last frame from the target", &s.carried_last),
+        s.carried_likeness.map(|l| {
+            let (worst, direction) = l.worst_tips();
+            format!(
+                "carried tips {:.1}% at the top, {:.1}% at worst ({direction})",
+                100.0 * l.top_tips(),
+                100.0 * worst
+            )
+        }),
         worst(
             "carried folds",
             s.max_carried_fold_share,

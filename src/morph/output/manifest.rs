@@ -118,6 +118,9 @@ pub struct SurfaceSummary {
     /// ([`crate::geometry::likeness`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub likeness: Option<Likeness>,
+    /// The same of the last frame's carried surface.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub carried_likeness: Option<Likeness>,
     /// The source's own fold share (the carried surface on the first frame) and the largest
     /// over the frames.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -247,6 +250,7 @@ impl FramesSummary {
             rebuilt_last: last.rebuilt.and_then(|r| r.fidelity),
             carried_last: last.carried.and_then(|c| c.fidelity),
             likeness: last.rebuilt.and_then(|r| r.likeness),
+            carried_likeness: last.carried.and_then(|c| c.likeness),
             source_fold_share: first.carried.map(|c| c.fold_share),
             max_carried_fold_share: s.carried.map(|c| c.fold_share),
             rebuilt_first_crease_share: first.rebuilt.and_then(|r| r.crease_share),

@@ -247,6 +247,7 @@ fn write_frames(
             time: job.time,
             world: &job.world,
             state: &job.state,
+            fill: Default::default(),
         };
         let mut record = FrameRecord::default();
         // Checked here too: a frame queued before the folder was taken is not written into it.

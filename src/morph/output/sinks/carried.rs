@@ -6,6 +6,8 @@ use super::{FrameRecord, FrameSink, SinkFrame, out_err};
 use crate::geometry::Similarity;
 use crate::geometry::carried::CarriedSurface;
 use crate::geometry::fidelity::{Reference, fidelity};
+use crate::geometry::likeness::likeness;
+use crate::geometry::mesh::TriMesh;
 use crate::morph::MorphError;
 use nalgebra::Vector3;
 use std::path::PathBuf;
@@ -21,6 +23,11 @@ pub struct CarriedFit {
     pub strength: Vec<f64>,
     /// Each carried vertex's neighbours (`geometry::fit::vertex_neighbours`), found once.
     pub rings: Vec<Vec<usize>>,
+    /// The source mesh's volume (simulation units), which a closed surface's fit is brought
+    /// back to as the rebuilt surface is (the fill field's level lies a thin layer inside).
+    pub body_volume: f64,
+    /// Whether the source mesh is closed (an open one has no volume to keep).
+    pub closed: bool,
 }
 
 pub struct CarriedObj {
@@ -35,6 +42,8 @@ pub struct CarriedObj {
     /// The source and the target surfaces (world units), which the first and the last
     /// frames' surfaces are measured against.
     pub references: Option<Arc<(Reference, Reference)>>,
+    /// The target as the run placed it (world units), which the last frame is likened to.
+    pub target: Arc<TriMesh>,
     /// The fit to the body's boundary (none: the binding's motion alone).
     pub fit: Option<CarriedFit>,
 }
@@ -70,6 +79,15 @@ impl FrameSink for CarriedObj {
                     world_spacing,
                 )
             });
+        if frame.index + 1 == frame.count {
+            let world = TriMesh {
+                vertices: on_frame.positions.clone(),
+                triangles: (self.surface.triangles.iter())
+                    .map(|t| t.map(|v| v as u32))
+                    .collect(),
+            };
+            stats.likeness = likeness(&world, &self.target);
+        }
         stats.seconds = clock.elapsed().as_secs_f64();
         record.carried = Some(stats);
         Ok(())
@@ -89,14 +107,8 @@ impl CarriedObj {
         if strength <= 0.0 {
             return Ok(());
         }
-        let field = super::rebuilt::fill_field_of(
-            fit.method,
-            frame,
-            fit.rest_volume,
-            &fit.edge_weights,
-            self.spacing,
-        )
-        .map_err(|e| MorphError::Output(e.to_string()))?;
+        let field =
+            frame.fill_field(fit.method, fit.rest_volume, &fit.edge_weights, self.spacing)?;
         let to_sim = self.to_world.inverse();
         let mut sim: Vec<Vector3<f64>> =
             on_frame.positions.iter().map(|v| to_sim.apply(v)).collect();
@@ -106,7 +118,10 @@ impl CarriedObj {
             faces: self.surface.face_neighbours(),
             rings: &fit.rings,
         };
-        crate::geometry::fit::fit_to_field(&mut sim, &mesh, &field, reach, strength);
+        let j = &frame.world.j;
+        let mean_j = j.iter().map(|j| j.max(0.0)).sum::<f64>() / j.len().max(1) as f64;
+        let volume = fit.closed.then_some(fit.body_volume * mean_j);
+        crate::geometry::fit::fit_to_field(&mut sim, &mesh, field, reach, strength, volume);
         on_frame.positions = sim.iter().map(|v| self.to_world.apply(v)).collect();
         if !on_frame.normals.is_empty() {
             on_frame.normals = crate::geometry::mesh::area_weighted_normals(

@@ -25,6 +25,7 @@ use crate::engine::mpm::State;
 use crate::geometry::carried::{CarriedStats, CarriedSurface};
 use crate::geometry::features::SourcePlanes;
 use crate::geometry::fidelity::Reference;
+use crate::geometry::surface::FillField;
 use crate::morph::settings::RebuiltMethod;
 use crate::morph::{Frame, MorphError, Prepared, WorldFrame};
 use std::path::{Path, PathBuf};
@@ -49,6 +50,17 @@ pub trait FrameSink {
     }
 }
 
+/// Whether the carried surface's triangles close a volume.
+fn is_closed(surface: &CarriedSurface) -> bool {
+    let mesh = crate::geometry::mesh::TriMesh {
+        vertices: surface.rest().to_vec(),
+        triangles: (surface.triangles.iter())
+            .map(|t| t.map(|v| v as u32))
+            .collect(),
+    };
+    mesh.topology().is_closed()
+}
+
 /// What a sink sees of one frame.
 pub struct SinkFrame<'a> {
     /// 0-based frame number, of `count`.
@@ -62,6 +74,29 @@ pub struct SinkFrame<'a> {
     pub world: &'a WorldFrame,
     /// The simulation state (simulation units).
     pub state: &'a State,
+    /// The frame's fill field, made once for the sinks that need it (the rebuilt surface and
+    /// the carried surface's fit): see [`SinkFrame::fill_field`].
+    pub fill: std::cell::OnceCell<Result<FillField, String>>,
+}
+
+impl SinkFrame<'_> {
+    /// The fill field the rebuilt surface of `method` is made from (simulation units), made
+    /// on the first call of the frame. Every sink of a run asks with the run's settings.
+    pub fn fill_field(
+        &self,
+        method: RebuiltMethod,
+        rest_volume: f64,
+        edge_weights: &[f64],
+        spacing: f64,
+    ) -> Result<&FillField, MorphError> {
+        self.fill
+            .get_or_init(|| {
+                rebuilt::fill_field_of(method, self, rest_volume, edge_weights, spacing)
+                    .map_err(|e| e.to_string())
+            })
+            .as_ref()
+            .map_err(|e| MorphError::Output(e.clone()))
+    }
 }
 
 impl<'a> From<&'a Frame<'a>> for SinkFrame<'a> {
@@ -73,6 +108,7 @@ impl<'a> From<&'a Frame<'a>> for SinkFrame<'a> {
             time: frame.time,
             world: &frame.world,
             state: frame.state,
+            fill: Default::default(),
         }
     }
 }
@@ -159,6 +195,7 @@ pub fn for_folder(
             dir,
             (source, &loaded.mesh),
             references.clone(),
+            target.clone(),
         )?);
     }
     if settings.outputs.surfaces.rebuilt() {
@@ -251,6 +288,7 @@ fn carried_sink(
     dir: &Path,
     (source, mesh): (&Path, &crate::geometry::TriMesh),
     references: Option<Arc<(Reference, Reference)>>,
+    target: Arc<crate::geometry::TriMesh>,
 ) -> Result<Box<dyn FrameSink + Send>, MorphError> {
     let spacing = prep.model().grid.dx / prep.settings.body.particles_per_cell as f64;
     let surface = CarriedSurface::bind(
@@ -275,6 +313,9 @@ fn carried_sink(
             .map(|f| crate::morph::output::target_weight(prep, f))
             .collect(),
         rings: crate::geometry::fit::vertex_neighbours(surface.vertex_count(), &surface.triangles),
+        body_volume: prep.geometry.source_solid.volume
+            / prep.geometry.placement.sim_to_world().scale.powi(3),
+        closed: is_closed(&surface),
     });
     Ok(Box::new(CarriedObj {
         dir: folder(dir, "carried")?,
@@ -283,6 +324,7 @@ fn carried_sink(
         spacing,
         to_world: prep.geometry.placement.sim_to_world(),
         references,
+        target,
         fit,
     }))
 }

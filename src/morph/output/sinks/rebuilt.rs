@@ -101,14 +101,9 @@ impl FrameSink for RebuiltObj {
         let j = &frame.world.j;
         let raw = match self.method {
             RebuiltMethod::Splashsurf => extract_splashsurf_surface(&frame.state.x, self.spacing),
-            method => fill_field_of(
-                method,
-                frame,
-                self.rest_volume,
-                &self.edge_weights,
-                self.spacing,
-            )
-            .map(|field| field.march()),
+            method => Ok(frame
+                .fill_field(method, self.rest_volume, &self.edge_weights, self.spacing)?
+                .march()),
         }
         .map_err(|e| MorphError::Output(e.to_string()))?;
         let (mut surface, cleanup) = clean(&raw, self.spacing);
