@@ -127,6 +127,18 @@ def test_bad_settings_raise_the_cli_message(tmp_path):
     assert str(raised.value) == expected
 
 
+def test_a_setting_has_the_same_name_in_python_the_scene_file_and_set(tmp_path):
+    # `iterations` (the command line's name) and `optimizer={"iterations": ...}` (the scene
+    # file's) are one setting: both are read, and a bad value says what `--set` says.
+    cli = subprocess.run([str(MORPH), str(ASSETS / "sphere.obj"), str(ASSETS / "cube.obj"), "-o",
+                          str(tmp_path / "out"), "--set", "iterations=0"], capture_output=True, text=True)
+    assert cli.returncode == 2
+    for settings in ({"iterations": 0}, {"optimizer": {"iterations": 0}}):
+        with pytest.raises(morph.SettingsError) as raised:
+            morph.run(ASSETS / "sphere.obj", ASSETS / "cube.obj", **settings)
+        assert str(raised.value) == cli.stderr.strip().removeprefix("morph: error: ")
+
+
 def test_a_bad_mesh_raises_the_cli_message(tmp_path):
     bad = tmp_path / "bad.obj"
     bad.write_text("v 0 0 0\nv 1 0 0\nf 1 2 3\n")

@@ -38,7 +38,8 @@ struct MorphCommand {
 
 pub fn run(args: &FarmTemplateArgs) -> ExitCode {
     let parsed = MorphCommand::try_parse_from(
-        std::iter::once("morph".to_string()).chain(args.morph.iter().cloned()),
+        std::iter::once("morph".to_string())
+            .chain(super::morph::knob_options_as_set(args.morph.clone())),
     )
     .map_err(|e| {
         let text = e.render().to_string();

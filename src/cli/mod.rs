@@ -37,14 +37,14 @@ use std::process::ExitCode;
     allow_negative_numbers = true
 )]
 struct Cli {
-    /// Worker threads [range 1-1024, at most the machine's cores are used; default: all
-    /// cores]. Results are identical for any count.
-    #[arg(long, global = true)]
-    threads: Option<usize>,
     #[command(subcommand)]
     command: Option<Command>,
     #[command(flatten)]
     morph: morph::MorphArgs,
+    /// Worker threads [range 1-1024, at most the machine's cores are used; default: all
+    /// cores]. Results are identical for any count.
+    #[arg(long, global = true, help_heading = morph::RUN)]
+    threads: Option<usize>,
 }
 
 #[derive(Subcommand, Debug)]
@@ -141,7 +141,12 @@ pub fn main() -> ExitCode {
         libc::signal(libc::SIGPIPE, libc::SIG_DFL);
     }
     let json = std::env::args_os().any(|a| a == "--json");
-    let cli = match Cli::try_parse() {
+    let args = main_job_args(std::env::args_os().collect());
+    if args.len() == 3 && args[1] == "help" && args[2] == "method" {
+        say!("{}", ::morph::settings::knobs::help_text());
+        return ExitCode::SUCCESS;
+    }
+    let cli = match Cli::try_parse_from(args) {
         Ok(cli) => cli,
         Err(e) => return parse_error(e, json),
     };
@@ -185,6 +190,37 @@ pub fn main() -> ExitCode {
         Err(e) => return fail(json, 1, &format!("cannot start worker threads: {e}")),
     };
     pool.install(|| dispatch(&cli))
+}
+
+/// The command line with the main job's knob options read as `--set` (a subcommand's
+/// arguments, and any that are not text, are left as they are).
+fn main_job_args(args: Vec<std::ffi::OsString>) -> Vec<std::ffi::OsString> {
+    use clap::CommandFactory;
+    let command = Cli::command();
+    let mut rest = args.iter().skip(1);
+    let first = loop {
+        match rest.next().and_then(|a| a.to_str()) {
+            Some("--threads") => {
+                rest.next();
+            }
+            Some(a) if a.starts_with("--threads=") => {}
+            other => break other,
+        }
+    };
+    let subcommand = first.is_some_and(|a| {
+        a == "help"
+            || command
+                .get_subcommands()
+                .any(|c| c.get_name() == a || c.get_all_aliases().any(|n| n == a))
+    });
+    let text: Option<Vec<String>> = args.iter().map(|a| a.to_str().map(String::from)).collect();
+    match text {
+        Some(text) if !subcommand => morph::knob_options_as_set(text)
+            .into_iter()
+            .map(Into::into)
+            .collect(),
+        _ => args,
+    }
 }
 
 fn dispatch(cli: &Cli) -> ExitCode {

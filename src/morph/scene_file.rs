@@ -49,71 +49,15 @@ impl SceneFile {
             .is_some_and(|e| e.eq_ignore_ascii_case("json"));
         let mut table = table_of(text, &shown, json)?;
         let (source, targets) = take_inputs(&mut table, path.parent(), &shown)?;
-        if let Some(toml::Value::Table(m)) = part_mut(&mut table, "body").get_mut("material") {
-            young_poisson_to_lame(m).map_err(|e| format!("scene file '{shown}': {e}"))?;
-        }
-        let given = |table: &toml::Table, key: &str| {
-            let part = settings::part_of(key).unwrap_or("shot");
-            table
-                .get(part)
-                .and_then(toml::Value::as_table)
-                .is_some_and(|t| t.contains_key(key))
-        };
-        // The file's frame rate rule is the command line's: a frame every n steps (or a set
-        // dt) without fps replaces the rate.
-        let table_had_frames = given(&table, "frames");
-        let no_fps = !given(&table, "fps") && (given(&table, "frame_every") || given(&table, "dt"));
-        let seconds = part_mut(&mut table, "shot").remove("seconds");
-        let preset = match (preset, table.get("preset")) {
+        let preset = match (preset, table.remove("preset")) {
             (Some(p), _) => p,
-            (None, Some(v)) => v.clone().try_into().map_err(|e| {
+            (None, Some(v)) => v.try_into().map_err(|e: toml::de::Error| {
                 format!("scene file '{shown}': preset: {}", one_line(&e.to_string()))
             })?,
             (None, None) => Preset::default(),
         };
-        table.remove("preset");
-        let mut merged = toml::Table::try_from(MorphSettings::preset(preset))
-            .expect("settings serialize to TOML");
-        // A resolution the file gives replaces its preset's particle budget (as on the command
-        // line); a budget it gives wins over any resolution.
-        if given(&table, "resolution") && !given(&table, "particles") {
-            part_mut(&mut merged, "body").remove("particles");
-        }
-        // A grid or particles per cell it gives are what it asks for: the thin parts' rule
-        // does not change them (unless the file sets it too).
-        let sized = given(&table, "resolution") || given(&table, "particles_per_cell");
-        if sized && !given(&table, "thin_across") {
-            part_mut(&mut merged, "body").insert("thin_across".into(), toml::Value::Float(0.0));
-        }
-        merge(&mut merged, table);
-        let mut settings: MorphSettings = toml::Value::Table(merged)
-            .try_into()
-            .map_err(|e| format!("scene file '{shown}': {}", one_line(&e.to_string())))?;
-        if no_fps {
-            settings.shot.fps = None;
-        }
-        if let Some(v) = seconds {
-            if table_had_frames {
-                return Err(format!(
-                    "scene file '{shown}': give `frames` or `seconds`, not both"
-                ));
-            }
-            let seconds = match v {
-                toml::Value::Float(f) => f,
-                toml::Value::Integer(i) => i as f64,
-                other => {
-                    return Err(format!(
-                        "scene file '{shown}': `seconds` must be a number, got {other}"
-                    ));
-                }
-            };
-            settings.shot.frames = Some(settings.frames_for(seconds).map_err(|e| {
-                format!(
-                    "scene file '{shown}': {}",
-                    e.replace("--seconds", "seconds")
-                )
-            })?);
-        }
+        let settings = layer(MorphSettings::preset(preset), table)
+            .map_err(|e| format!("scene file '{shown}': {e}"))?;
         Ok(SceneFile {
             path: path.to_path_buf(),
             source,
@@ -218,10 +162,121 @@ fn line_of(text: &str, key: &str, json: bool) -> Option<usize> {
         .map(|i| i + 1)
 }
 
+/// `base` with the keys of `table` (nested by part, checked) applied, by the rules the command
+/// line follows too: a resolution replaces a particle budget, a grid given turns the thin
+/// parts' rule off, a frame every n steps (or a set dt) without fps replaces the frame rate,
+/// `seconds` stands for `frames`, segments without frames replace a frame count, an optimizer
+/// without a step size takes its own default step.
+fn layer(base: MorphSettings, mut table: toml::Table) -> Result<MorphSettings, String> {
+    if let Some(toml::Value::Table(m)) = part_mut(&mut table, "body").get_mut("material") {
+        young_poisson_to_lame(m)?;
+    }
+    let given = |table: &toml::Table, key: &str| {
+        let part = settings::part_of(key).unwrap_or("shot");
+        table
+            .get(part)
+            .and_then(toml::Value::as_table)
+            .is_some_and(|t| t.contains_key(key))
+    };
+    let had_frames = given(&table, "frames");
+    let no_fps = !given(&table, "fps") && (given(&table, "frame_every") || given(&table, "dt"));
+    let no_frames = given(&table, "segments") && !had_frames;
+    let optimizer = (table.get("method"))
+        .and_then(|m| m.get("optimizer"))
+        .and_then(toml::Value::as_table);
+    let own_step =
+        optimizer.is_some_and(|o| o.contains_key("kind") && !o.contains_key("learning_rate"));
+    let seconds = part_mut(&mut table, "shot").remove("seconds");
+    let mut merged = toml::Table::try_from(&base).expect("settings serialize to TOML");
+    // A resolution given replaces the base's particle budget; a budget given wins over any
+    // resolution.
+    if given(&table, "resolution") && !given(&table, "particles") {
+        part_mut(&mut merged, "body").remove("particles");
+    }
+    // A grid or particles per cell given are what is asked for: the thin parts' rule does
+    // not change them (unless it is given too).
+    let sized = given(&table, "resolution") || given(&table, "particles_per_cell");
+    if sized && !given(&table, "thin_across") {
+        part_mut(&mut merged, "body").insert("thin_across".into(), toml::Value::Float(0.0));
+    }
+    merge(&mut merged, table);
+    let mut settings: MorphSettings = toml::Value::Table(merged)
+        .try_into()
+        .map_err(|e: toml::de::Error| one_line(&e.to_string()))?;
+    if no_fps {
+        settings.shot.fps = None;
+    }
+    if no_frames {
+        settings.shot.frames = None;
+    }
+    if own_step {
+        settings.method.optimizer.learning_rate =
+            settings.method.optimizer.kind.default_learning_rate();
+    }
+    if let Some(v) = seconds {
+        if had_frames {
+            return Err("give `frames` or `seconds`, not both".into());
+        }
+        let seconds = match v {
+            toml::Value::Float(f) => f,
+            toml::Value::Integer(i) => i as f64,
+            other => return Err(format!("`seconds` must be a number, got {other}")),
+        };
+        settings.shot.frames =
+            Some((settings.frames_for(seconds)).map_err(|e| e.replace("--seconds", "seconds"))?);
+    }
+    Ok(settings)
+}
+
+/// `base` with settings given by name, `KEY=VALUE` each (`morph --set`): a key as a scene file
+/// writes it (`path_weight`, `method.path_weight`, `optimizer.iterations`, or an alias such as
+/// `iterations`; `-` may stand for `_`), a value as TOML writes it (`2`, `0.5`, `true`,
+/// `[24, 48]`) or a bare word (`line-search`). A key the settings lack is refused naming the
+/// keys there are.
+pub fn with_keys(base: MorphSettings, pairs: &[String]) -> Result<MorphSettings, String> {
+    let mut table = toml::Table::new();
+    for pair in pairs {
+        let (key, text) = pair
+            .split_once('=')
+            .ok_or_else(|| format!("--set {pair}: give KEY=VALUE"))?;
+        let path: Vec<String> = key.trim().split('.').map(|k| k.replace('-', "_")).collect();
+        if path.iter().any(String::is_empty) {
+            return Err(format!("--set {pair}: `{key}` is not a key"));
+        }
+        let value = toml::from_str::<toml::Table>(&format!("v = {text}"))
+            .ok()
+            .and_then(|mut t| t.remove("v"))
+            .unwrap_or_else(|| toml::Value::String(text.trim().to_string()));
+        let (last, tables) = path.split_last().expect("not empty");
+        let mut at = &mut table;
+        for name in tables {
+            at = match at
+                .entry(name.clone())
+                .or_insert_with(|| toml::Value::Table(toml::Table::new()))
+            {
+                toml::Value::Table(t) => t,
+                _ => return Err(format!("--set {pair}: `{name}` is given a value and keys")),
+            };
+        }
+        if at.insert(last.clone(), value).is_some() {
+            return Err(format!("--set: `{key}` is given twice"));
+        }
+    }
+    nest(&mut table).map_err(|e| format!("--set: {e}"))?;
+    if let Some(key) = unknown_key(&table) {
+        return Err(format!(
+            "--set: unknown key `{key}`; the keys: {} (`morph help method` says what each does)",
+            settings::knobs::names().join(", ")
+        ));
+    }
+    layer(base, table).map_err(|e| format!("--set: {e}"))
+}
+
 /// Moves each setting the file gives flat into its part's table (`frames = 97` becomes
 /// `[shot] frames = 97`; `seconds` is the shot's), so that a key may be given either way. A
 /// key given both ways is refused.
 fn nest(table: &mut toml::Table) -> Result<(), String> {
+    unalias(table)?;
     let flat: Vec<String> = (table.keys())
         .filter(|k| settings::part_of(k).is_some() || *k == "seconds")
         .cloned()
@@ -237,6 +292,41 @@ fn nest(table: &mut toml::Table) -> Result<(), String> {
         if part_mut(table, part).insert(key.clone(), value).is_some() {
             return Err(format!(
                 "`{key}` is given twice: on its own and in [{part}]"
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// The command line's names for settings that live deeper (`iterations` for
+/// `optimizer.iterations`, `steps` for `steps_per_segment`, `optimizer = "adam"` for
+/// `optimizer.kind`), given flat, moved to where the settings hold them.
+fn unalias(table: &mut toml::Table) -> Result<(), String> {
+    if let Some(kind) = table.get("optimizer").filter(|v| v.is_str()).cloned() {
+        table.insert(
+            "optimizer".into(),
+            toml::Value::Table([("kind".to_string(), kind)].into_iter().collect()),
+        );
+    }
+    for (alias, path) in settings::knobs::ALIASES {
+        let Some(value) = table.remove(*alias) else {
+            continue;
+        };
+        let (last, tables) = path.split_last().expect("not empty");
+        let mut at = &mut *table;
+        for name in tables {
+            at = match at
+                .entry(*name)
+                .or_insert_with(|| toml::Value::Table(toml::Table::new()))
+            {
+                toml::Value::Table(t) => t,
+                _ => return Err(format!("`{name}` must be a table of settings")),
+            };
+        }
+        if at.insert(last.to_string(), value).is_some() {
+            return Err(format!(
+                "`{alias}` is given twice: as it is and as `{}`",
+                path.join(".")
             ));
         }
     }
@@ -649,5 +739,98 @@ mod tests {
         assert_eq!(back.settings, s);
         assert_eq!(back.source, Some(PathBuf::from("/m/a.obj")));
         assert_eq!(back.targets.len(), 2);
+    }
+
+    /// A value other than `default` (a knob's, as a scene file writes it) within its kind.
+    fn another(default: &str, range: &str) -> String {
+        if let Ok(i) = default.parse::<i64>() {
+            return (i + 1).to_string();
+        }
+        if let Ok(f) = default.parse::<f64>() {
+            return if f == 0.0 {
+                "0.25".into()
+            } else {
+                format!("{:?}", f * 0.5)
+            };
+        }
+        if default == "none" {
+            // The unset knobs: a time step, or a count.
+            return if range.starts_with('>') {
+                "0.001".into()
+            } else {
+                "3".into()
+            };
+        }
+        // An enumeration: its first other value.
+        let other = range
+            .split(", ")
+            .find(|v| *v != default)
+            .expect("two values");
+        format!("\"{other}\"")
+    }
+
+    /// Every knob set by `--set` (by its key, its part's path and any alias), by a scene file
+    /// and by the resolved `OUT/scene.toml` gives the same settings, and changes that knob.
+    #[test]
+    fn every_knob_round_trips_through_set_the_scene_file_and_the_resolved_scene() {
+        use crate::morph::settings::knobs::{ALIASES, knobs, value_of};
+        let base = MorphSettings::preset(Preset::Default);
+        for k in knobs() {
+            let default = value_of(&base, k.part, k.key);
+            let value = another(&default, &k.range);
+            let bare = value.trim_matches('"');
+            let by_key = with_keys(base.clone(), &[format!("{}={bare}", k.key)]).unwrap();
+            assert_eq!(
+                value_of(&by_key, k.part, k.key),
+                bare,
+                "--set {}={bare}",
+                k.key
+            );
+            let by_part = format!("{}.{}={value}", k.part, k.key.replace('_', "-"));
+            assert_eq!(
+                with_keys(base.clone(), &[by_part.clone()]).unwrap(),
+                by_key,
+                "--set {by_part}"
+            );
+            for (alias, path) in ALIASES {
+                if path.join(".") == k.key {
+                    let a = with_keys(base.clone(), &[format!("{alias}={bare}")]).unwrap();
+                    assert_eq!(a, by_key, "alias {alias}");
+                    let scene = format!("{alias} = {value}\n");
+                    let read = SceneFile::parse(&scene, Path::new("s.toml"), None).unwrap();
+                    assert_eq!(read.settings, by_key, "scene file alias {alias}");
+                }
+            }
+            let (table, key) = match k.key.rsplit_once('.') {
+                Some((inner, key)) => (format!("{}.{inner}", k.part), key),
+                None => (k.part.to_string(), k.key),
+            };
+            let scene = format!("[{table}]\n{key} = {value}\n");
+            let read = SceneFile::parse(&scene, Path::new("s.toml"), None).unwrap();
+            assert_eq!(read.settings, by_key, "scene file {scene}");
+            let resolved =
+                SceneFile::resolved(&by_key, Path::new("/m/a.obj"), &["/m/b.obj".into()]);
+            let back = SceneFile::parse(&resolved, Path::new("/o/scene.toml"), None).unwrap();
+            assert_eq!(back.settings, by_key, "OUT/scene.toml of {}", k.key);
+        }
+    }
+
+    #[test]
+    fn a_bad_set_is_one_line_naming_the_keys() {
+        let base = MorphSettings::default();
+        for (pair, says) in [
+            ("bogus=1", "unknown key `bogus`; the keys: "),
+            ("iterations", "give KEY=VALUE"),
+            ("iterations=many", "in `method.optimizer.iterations`"),
+            ("optimizer.bogus=1", "unknown key `method.optimizer.bogus`"),
+        ] {
+            let e = with_keys(base.clone(), &[pair.to_string()]).unwrap_err();
+            assert!(e.contains(says) && !e.contains('\n'), "{pair}: {e}");
+        }
+        let e = with_keys(
+            base,
+            &["iterations=3".into(), "optimizer.iterations=4".into()],
+        );
+        assert!(e.unwrap_err().contains("given twice"));
     }
 }

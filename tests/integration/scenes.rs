@@ -317,3 +317,121 @@ fn bad_scene_values_fail_with_one_line() {
         assert!(!dir.join(format!("{name}-out.partial")).exists(), "{name}");
     }
 }
+
+/// `--set KEY=VALUE` sets a knob as the scene file's key and the option of earlier versions
+/// do: the same settings and the same bits; `OUT/scene.toml` holds it; a bad key or value is
+/// one line, exit 2, and no folder.
+#[test]
+fn a_knob_set_on_the_command_line_is_the_scene_files_and_the_old_options() {
+    let dir = scratch("set");
+    std::fs::create_dir_all(&dir).unwrap();
+    let (a, b) = (
+        root().join("assets/sphere.obj"),
+        root().join("assets/cube.obj"),
+    );
+    let run = |name: &str, extra: &[&str]| {
+        let out = dir.join(name);
+        let mut args = vec![
+            a.to_str().unwrap(),
+            b.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+        ];
+        args.extend(QUICK);
+        args.extend(["--surface", "none", "--usd", "none"]);
+        args.extend(extra);
+        (morph(&args), out)
+    };
+    let (r, set) = run(
+        "set",
+        &[
+            "--set",
+            "segments=2",
+            "--set",
+            "iterations=2",
+            "--set",
+            "method.path-weight=0.5",
+            "--set",
+            "optimizer=line-search",
+        ],
+    );
+    ok(&r);
+    let (r, old) = run(
+        "old",
+        &[
+            "--segments",
+            "2",
+            "--iterations=2",
+            "--path-weight",
+            "0.5",
+            "--optimizer",
+            "line-search",
+        ],
+    );
+    ok(&r);
+    let scene = dir.join("knobs.toml");
+    std::fs::write(
+        &scene,
+        "segments = 2\n[method]\npath_weight = 0.5\n[method.optimizer]\nkind = \"line-search\"\niterations = 2\n",
+    )
+    .unwrap();
+    let (r, file) = run("file", &["--scene", scene.to_str().unwrap()]);
+    ok(&r);
+    let settings = |out: &Path| manifest(out)["settings"].clone();
+    assert_eq!(settings(&set), settings(&old));
+    assert_eq!(settings(&set), settings(&file));
+    let s = settings(&set);
+    assert_eq!(s["method"]["optimizer"]["iterations"], 2);
+    assert_eq!(s["method"]["optimizer"]["kind"], "line-search");
+    assert_eq!(s["method"]["path_weight"], 0.5);
+    let mgrid = |out: &Path| std::fs::read(out.join("final_mass.mgrid")).unwrap();
+    assert_eq!(mgrid(&set), mgrid(&old));
+    let resolved: toml::Table = std::fs::read_to_string(set.join("scene.toml"))
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert_eq!(resolved["method"]["path_weight"].as_float(), Some(0.5));
+    for (pair, says) in [
+        ("bogus=1", "unknown key `bogus`"),
+        ("iterations=x", "method.optimizer.iterations"),
+    ] {
+        let (r, out) = run("bad", &["--set", pair]);
+        let err = String::from_utf8_lossy(&r.stderr);
+        assert_eq!(r.status.code(), Some(2), "{err}");
+        assert_eq!(err.lines().count(), 1, "{err}");
+        assert!(
+            err.starts_with("morph: error: --set") && err.contains(says),
+            "{err}"
+        );
+        assert!(!out.exists());
+    }
+    let help = morph(&["help", "method"]);
+    ok(&help);
+    let text = String::from_utf8_lossy(&help.stdout);
+    for key in [
+        "path_weight",
+        "optimizer.iterations",
+        "lookahead",
+        "rebuilt_method",
+    ] {
+        assert!(text.contains(key), "`morph help method` lacks {key}");
+    }
+}
+
+/// `morph --help`: at most 30 options under at most 6 headings (counted in `-h`, one line an
+/// option).
+#[test]
+fn the_help_lists_at_most_30_options_under_6_headings() {
+    let r = morph(&["-h"]);
+    ok(&r);
+    let text = String::from_utf8_lossy(&r.stdout);
+    let options = (text.lines())
+        .filter(|l| l.starts_with("  -") || l.starts_with("      --"))
+        .count();
+    let headings: Vec<&str> = (text.lines())
+        .filter(|l| l.ends_with(':') && !l.starts_with(' '))
+        .filter(|l| !["Usage:", "Commands:", "Arguments:"].contains(l))
+        .collect();
+    assert!((20..=30).contains(&options), "{options} options");
+    assert!(headings.len() <= 6, "{headings:?}");
+}

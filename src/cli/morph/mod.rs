@@ -4,17 +4,12 @@
 
 use super::{choice, defaults, help, name};
 use clap::Args;
-use morph::basis::ControlResolution;
-use morph::engine::integrator::IntegratorKind;
 use morph::engine::material::MaterialModel;
-use morph::engine::mpm::ControlForm;
 use morph::geometry::TargetFit;
-use morph::gpu::{DeviceKind, Precision};
-use morph::loss::MassLossKind;
+use morph::gpu::DeviceKind;
 use morph::memory::MemoryLimit;
 use morph::scene_file::SceneFile;
-use morph::segment::Optimizer;
-use morph::settings::{Inbetween, RebuiltMethod, Surfaces, UsdFormat, limits};
+use morph::settings::{Surfaces, UsdFormat, limits};
 use morph::{CheckedSettings, MorphSettings, Preset};
 use std::path::PathBuf;
 
@@ -51,10 +46,8 @@ OUTPUT (folder -o, written in the locked OUT.partial and put in place when compl
 PRESETS (resolution or particle budget, segments x steps, passes, iterations per segment,
 look-ahead; measured quality and time from docs/morph.md, 2 cores):
 {presets}
-  Any of --resolution --particles --segments --steps --passes --iterations --levels
-  --refine-iterations --lookahead --path-weight --waypoint-weight --control-smoothing
-  --carry-controls --inbetween --progress-timing overrides its preset value (--resolution
-  replaces a budget).
+  --resolution, --particles and any knob (--set KEY=VALUE; `morph help method` lists them)
+  override the preset's value (--resolution replaces a budget).
 
 EXIT CODES:
   0    success (every written file checked finite)
@@ -121,166 +114,181 @@ enum ProgressShown {
     Openjd,
 }
 
-/// The main job: `morph SOURCE TARGET [options]`.
+/// The main job: `morph SOURCE TARGET [options]`. The options are an artist's, under five
+/// headings; the method's knobs are `--set KEY=VALUE` (`morph help method`).
 #[derive(Args, Debug)]
 pub struct MorphArgs {
     /// Mesh to start from, then the mesh(es) to become in order (OBJ or PLY; at most 1000
     /// targets): `morph A B`, or `morph A B C --at 48,96` to pass through B on the way to C.
     #[arg(value_name = "SOURCE TARGET...")]
     meshes: Vec<PathBuf>,
-    /// A scene file (TOML, or JSON): the meshes and any settings, by the settings' names
-    /// (docs/scenes.md); options given here override it.
-    #[arg(long)]
-    scene: Option<PathBuf>,
-    /// Output folder (a new folder, an empty one, or an earlier morph output with --overwrite).
-    #[arg(short, long, default_value = "morph-out")]
-    output: PathBuf,
-    /// Replace the output folder if morph provably wrote it (its manifest.json is morph's and
-    /// lists every file there; nothing else is ever replaced); also starts over from an
-    /// interrupted run's OUT.partial, once the new inputs have loaded.
-    #[arg(long)]
-    overwrite: bool,
-    /// Continue an interrupted run (same inputs and settings) from OUT.partial; starts afresh
-    /// when there is nothing to continue, and does nothing when OUT is already complete. With
-    /// --overwrite, a run of other inputs or settings is started over instead of refused.
-    #[arg(long)]
-    resume: bool,
-    #[arg(long, value_parser = choice(&Preset::ALL), help = format!("Effort preset; the options below override its values [default {}]", name(&Preset::default())))]
-    preset: Option<Preset>,
-    #[arg(long, help = help("Grid cells across the domain's longest side", Some(limits::RESOLUTION), by_preset(|s| s.body.particles.map_or(s.body.resolution.to_string(), |_| "from the budget".into()))))]
-    resolution: Option<usize>,
-    #[arg(long, conflicts_with = "resolution", help = help("Particle budget: picks the resolution so the source gets about this many particles, whatever the shapes' proportions", Some(limits::PARTICLES), by_preset(|s| s.body.particles.map_or("off".to_string(), |n| n.to_string()))))]
-    particles: Option<usize>,
-    #[arg(long, help = help("Segments in the chain", Some(limits::SEGMENTS), by_preset(|s| s.method.segments)))]
-    segments: Option<usize>,
-    #[arg(long, help = help("Simulation steps per segment (dt 1/120 s at the reference resolution)", Some(limits::STEPS), defaults().method.steps_per_segment))]
-    steps: Option<usize>,
-    #[arg(long, help = format!("Steps between control layers in a segment [range 1 to --steps; default {}]", defaults().method.control_stride))]
-    control_stride: Option<usize>,
-    #[arg(long, help = help("Passes over the chain (later passes refine the earlier controls)", Some(limits::PASSES), by_preset(|s| s.method.passes)))]
-    passes: Option<usize>,
-    #[arg(long, help = help("Optimizer evaluations per segment (Adam) or per control layer (line search)", Some(limits::ITERATIONS), by_preset(|s| s.method.optimizer.iterations)))]
-    iterations: Option<usize>,
-    #[arg(long, help = help("Coarse-to-fine levels: n > 1 solves the morph on grids 2^(n-1), ..., 2 times coarser first, each level starting from the one below (docs/morph.md)", Some(limits::LEVELS), by_preset(|s| s.method.levels)))]
-    levels: Option<usize>,
-    #[arg(long, help = help("Optimizer evaluations per segment on the finest level when --levels > 1 (the coarser levels take --iterations)", Some(limits::ITERATIONS), "the same as --iterations"))]
-    refine_iterations: Option<usize>,
-    /// Optimizer [default adam].
-    #[arg(long, value_parser = choice(&Optimizer::ALL))]
-    optimizer: Option<Optimizer>,
-    #[arg(long, help = help("Step size (Adam: per control entry; line search: initial normalized step), > 0", None, format!("{} (line search {})", Optimizer::Adam.default_learning_rate(), Optimizer::LineSearch.default_learning_rate())))]
-    learning_rate: Option<f64>,
-    #[arg(long, value_parser = choice(&MassLossKind::ALL), help = format!("Mass loss on the grid [default {}]", name(&defaults().method.loss)))]
-    loss: Option<MassLossKind>,
-    #[arg(long, help = help("Weight of the kinetic energy left at the end of each segment after the final target's arrival (the held shape comes to rest), >= 0", None, defaults().method.arrival_weight))]
-    arrival_weight: Option<f64>,
-    #[arg(long, help = help("Drag per second added once the final target is reached, eased in over six frames (the held shape comes to rest), >= 0 (0: off)", None, defaults().method.settle_drag))]
-    settle_drag: Option<f64>,
-    #[arg(long, help = help("Weight of the volume cost (sum 1/2 (ln J)^2 per particle, and the whole body's) averaged over every step, >= 0 (keeps the body at its volume)", None, defaults().method.volume_weight))]
-    volume_weight: Option<f64>,
-    #[arg(long, help = help("Weight of the scheduled path: the mass loss at every frame inside a segment against where the easing curve puts the body then, >= 0 (0: each segment's end alone)", None, by_preset(|s| s.method.path_weight)))]
-    path_weight: Option<f64>,
-    #[arg(long, help = help("Look-ahead: optimize each segment together with the next N, scored at each of their ends, and keep its own controls (the body answers its controls a segment late; docs/morph.md)", Some(limits::LOOKAHEAD), by_preset(|s| s.method.lookahead)))]
-    lookahead: Option<usize>,
-    #[arg(long, help = help("Weight of the controls' continuity in time: each control layer against the one before it, across segment boundaries too, scaled by the material's shear modulus over the presets' material's, >= 0 (0: off)", None, by_preset(|s| s.method.control_smoothing)))]
-    control_smoothing: Option<f64>,
-    #[arg(long, help = help("Weight of each earlier segment end inside a look-ahead window, against that segment's target (the window's end weighs 1), >= 0", None, by_preset(|s| s.method.waypoint_weight)))]
-    waypoint_weight: Option<f64>,
-    #[arg(long, help = help("Where a look-ahead window's new segment starts: this share of the last control layer before it, 0..=1 (0: zeros; with --control-smoothing only)", None, by_preset(|s| s.method.carry_controls)))]
-    carry_controls: Option<f64>,
-    #[arg(long, help = help("Weight of the mass loss on a grid twice as fine as the simulation's, >= 0 (sees holes and clumps within a cell)", None, defaults().method.fine_weight))]
-    fine_weight: Option<f64>,
-    #[arg(long, help = help("Weight of the reach cost: where the body should have the final target's shape, each part of the target's surface farther than 0.75 spacings from every particle pulls the nearest one, >= 0 (0: off; 10 reaches horns and ears: docs/morph.md, \"Reach\")", None, by_preset(|s| s.method.reach_weight)))]
-    reach_weight: Option<f64>,
-    #[arg(long, value_parser = choice(&TargetFit::ALL), help = format!("How each target is placed (on-ground needs a scene's ground) [default {}]", name(&defaults().body.target_fit)))]
-    target_fit: Option<TargetFit>,
-    #[arg(long, help = help("Particles per cell along each axis (k^3 per cell; at `default` raised to 3 or 4 where the shapes have thin parts, docs/morph.md; giving it or --resolution keeps it as given)", Some(limits::PARTICLES_PER_CELL), defaults().body.particles_per_cell))]
-    particles_per_cell: Option<usize>,
-    #[arg(long, help = help("Random particle offsets, in particle spacings, 0 to 1", None, defaults().body.jitter))]
-    jitter: Option<f64>,
-    #[arg(long, value_parser = choice(&MaterialModel::ALL), help = format!("Constitutive model of the body [default {}]", name(&defaults().body.material.model)))]
-    material: Option<MaterialModel>,
-    #[arg(long, help = format!("Young's modulus of the body in Pa, > 0 (stiffer: more substeps) [default {:.0}]", default_young_poisson().0))]
-    youngs_modulus: Option<f64>,
-    #[arg(long, help = format!("Poisson's ratio of the body, 0 to 0.49 [default {:.2}]", default_young_poisson().1))]
-    poisson_ratio: Option<f64>,
-    #[arg(long, help = help("Density of the body in kg per cubic simulation unit, > 0", None, defaults().body.material.density))]
-    density: Option<f64>,
-    /// Simulation time step in seconds, one per step; refused above the material's stability
-    /// bound (the error gives it) [default: steps of 1/120 s, each split into the substeps
-    /// the material and grid need].
-    #[arg(long)]
-    dt: Option<f64>,
-    #[arg(long, value_parser = choice(&IntegratorKind::ALL), help = format!("Time integrator: euler (one transfer round trip a step) or rk4 (four, less numerical damping) [default {}]", name(&defaults().method.integrator)))]
-    integrator: Option<IntegratorKind>,
-    #[arg(long, value_parser = choice(&DeviceKind::ALL), help = format!("Where the engine runs: cpu, gpu (the Euler step in f64 through Vulkan, Metal or DX12; an error says what is missing) or auto (a GPU, not a software driver, where one opens and runs the scene, else the CPU) [default {}]", name(&defaults().method.device)))]
-    device: Option<DeviceKind>,
-    #[arg(long, value_parser = choice(&Precision::ALL), help = format!("The GPU device's precision: f64 (the CPU engine's, where the adapter has 64-bit floats) or f32 (consumer GPUs run f64 at 1/32-1/64 of the rate) [default {}]", name(&defaults().method.precision)))]
-    precision: Option<Precision>,
-    #[arg(long, value_parser = choice(&ControlForm::ALL), help = format!("How a control acts on a particle's deformation: plastic (a volume-preserving change of its rest shape: J stays the volume ratio) or additive (the reference paper's F + Fc, for comparison) [default {}]", name(&defaults().method.control)))]
-    control: Option<ControlForm>,
-    #[arg(long, value_parser = choice(&ControlResolution::ALL), help = format!("Where the optimizer's free control values live: grid (one per grid node, interpolated to the particles: smooth controls keep the body's particles in order) or particle (one per particle, the reference) [default {}]", name(&defaults().method.control_resolution)))]
-    control_resolution: Option<ControlResolution>,
-    #[arg(long, help = format!("Seed for the jitter [default {}]", defaults().body.seed))]
-    seed: Option<u64>,
-    #[arg(long, help = help("Export every n-th step as a frame, instead of --fps", Some(limits::FRAME_EVERY), defaults().shot.frame_every))]
-    frame_every: Option<usize>,
-    #[arg(long, help = help("Number of the first frame (the rest shape) in file names and USD time codes, e.g. a shot's 1001; --at still counts from 1", Some(limits::START_FRAME), defaults().shot.start_frame))]
-    start_frame: Option<usize>,
-    /// Frames per second of the sequence: frames exactly 1/FPS s apart, each the fewest equal
-    /// steps of at most 1/120 s (24: 5 steps of 1/120 s; 25: 5 of 1/125 s) [default 24;
-    /// --frame-every or --dt replace it].
-    #[arg(long, conflicts_with_all = ["frame_every", "dt"])]
-    fps: Option<f64>,
-    #[arg(long, conflicts_with = "segments", help = help("Frames in the sequence, the rest shape first: the chain is cut into segments of --steps steps to fit (the last one shorter)", Some(limits::FRAMES), "--segments segments"))]
+    #[arg(long, help_heading = SHOT, conflicts_with = "seconds", help = help("Frames in the sequence, the rest shape first: the chain is cut into segments to fit (the last one shorter)", Some(limits::FRAMES), "the preset's segments"))]
     frames: Option<usize>,
     /// The shot's length in seconds instead of --frames: the frames that fill it at the frame
     /// rate, the rest shape first (4 s at 24 fps: 97 frames).
-    #[arg(long, conflicts_with_all = ["segments", "frames"])]
+    #[arg(long, help_heading = SHOT)]
     seconds: Option<f64>,
+    /// Frames per second of the sequence: frames exactly 1/FPS s apart, each the fewest equal
+    /// steps of at most 1/120 s (24: 5 steps of 1/120 s; 25: 5 of 1/125 s) [default 24].
+    #[arg(long, help_heading = SHOT)]
+    fps: Option<f64>,
     /// The frame (1 = the rest shape) by which each target is reached, comma-separated in
     /// target order (--arrive for one target). The shape eases there along a smoothstep in
     /// time, then holds and settles; 1 aims at the target from the start [default: the last
     /// target at 80% of the frames, earlier ones evenly before it].
-    #[arg(long, visible_alias = "arrive", value_delimiter = ',')]
+    #[arg(long, help_heading = SHOT, visible_alias = "arrive", value_delimiter = ',')]
     at: Vec<usize>,
-    #[arg(long, help = help("The frame the shape change begins on (1 = the rest shape). Before it the body runs without controls: it holds still, or falls and lands under the scene's gravity; the easing curve toward the first keyframe starts here, and the motion measures count from here", None, defaults().shot.begin))]
+    #[arg(long, help_heading = SHOT, help = help("The frame the shape change begins on (1 = the rest shape). Before it the body runs without controls: it holds still, or falls and lands under the scene's gravity", None, defaults().shot.begin))]
     begin: Option<usize>,
-    #[arg(long, value_parser = choice(&Surfaces::ALL), help = format!("Surfaces per frame: carried (the source mesh itself, with its UVs and groups, following the body; carried/), rebuilt (a closed surface made from the particles, which follows any change of topology; meshes/), both, all (both, and the last target's own mesh carried backward from the last frame, with its UVs: target_carried/; the shot ends on the target asset), or none [default {}]", name(&defaults().outputs.surfaces)))]
+    #[arg(long, help_heading = SHOT, help = help("Number of the first frame (the rest shape) in file names and USD time codes, e.g. a shot's 1001; --at still counts from 1", Some(limits::START_FRAME), defaults().shot.start_frame))]
+    start_frame: Option<usize>,
+    #[arg(long, help_heading = QUALITY, value_parser = choice(&Preset::ALL), help = format!("Effort preset: draft, default or final (below: what each costs) [default {}]", name(&Preset::default())))]
+    preset: Option<Preset>,
+    #[arg(long, help_heading = QUALITY, help = help("Grid cells across the domain's longest side", Some(limits::RESOLUTION), by_preset(|s| s.body.particles.map_or(s.body.resolution.to_string(), |_| "from the budget".into()))))]
+    resolution: Option<usize>,
+    #[arg(long, help_heading = QUALITY, conflicts_with = "resolution", help = help("Particle budget: picks the resolution so the source gets about this many particles, whatever the shapes' proportions", Some(limits::PARTICLES), by_preset(|s| s.body.particles.map_or("off".to_string(), |n| n.to_string()))))]
+    particles: Option<usize>,
+    /// A method knob, KEY=VALUE (repeatable): `--set iterations=20 --set path_weight=0.5`.
+    /// `morph help method` lists every knob with its default and range; a scene file's
+    /// [method] table takes the same keys.
+    #[arg(long = "set", help_heading = QUALITY, value_name = "KEY=VALUE")]
+    set: Vec<String>,
+    /// A scene file (TOML, or JSON): the meshes and any settings, by the settings' names
+    /// (docs/scenes.md); options given here override it.
+    #[arg(long, help_heading = SCENE)]
+    scene: Option<PathBuf>,
+    #[arg(long, help_heading = SCENE, value_parser = choice(&MaterialModel::ALL), help = format!("Constitutive model of the body [default {}]", name(&defaults().body.material.model)))]
+    material: Option<MaterialModel>,
+    #[arg(long, help_heading = SCENE, help = format!("Young's modulus of the body in Pa, > 0 (stiffer: more substeps) [default {:.0}]", default_young_poisson().0))]
+    youngs_modulus: Option<f64>,
+    #[arg(long, help_heading = SCENE, help = format!("Poisson's ratio of the body, 0 to 0.49 [default {:.2}]", default_young_poisson().1))]
+    poisson_ratio: Option<f64>,
+    #[arg(long, help_heading = SCENE, help = help("Density of the body in kg per cubic simulation unit, > 0", None, defaults().body.material.density))]
+    density: Option<f64>,
+    #[arg(long, help_heading = SCENE, value_parser = choice(&TargetFit::ALL), help = format!("How each target is placed (on-ground needs a scene's ground) [default {}]", name(&defaults().body.target_fit)))]
+    target_fit: Option<TargetFit>,
+    /// Output folder (a new folder, an empty one, or an earlier morph output with --overwrite).
+    #[arg(short, long, help_heading = OUTPUT, default_value = "morph-out")]
+    output: PathBuf,
+    /// Replace the output folder if morph provably wrote it (its manifest.json is morph's and
+    /// lists every file there; nothing else is ever replaced); also starts over from an
+    /// interrupted run's OUT.partial, once the new inputs have loaded.
+    #[arg(long, help_heading = OUTPUT)]
+    overwrite: bool,
+    /// Continue an interrupted run (same inputs and settings) from OUT.partial; starts afresh
+    /// when there is nothing to continue, and does nothing when OUT is already complete. With
+    /// --overwrite, a run of other inputs or settings is started over instead of refused.
+    #[arg(long, help_heading = OUTPUT)]
+    resume: bool,
+    #[arg(long, help_heading = OUTPUT, value_parser = choice(&Surfaces::ALL), help = format!("Surfaces per frame: carried (the source mesh itself, with its UVs and groups, following the body; carried/), rebuilt (a closed surface made from the particles, which follows any change of topology; meshes/), both, all (both, and the last target's own mesh carried backward from the last frame, with its UVs: target_carried/), or none [default {}]", name(&defaults().outputs.surfaces)))]
     surface: Option<Surfaces>,
-    #[arg(long, value_parser = choice(&RebuiltMethod::ALL), help = format!("How the rebuilt surface is made: sharp (deformed, with its vertices moved onto the source's planes the particles carry: sharp edges and corners), deformed (each particle's kernel follows its deformation; smooth, rounds edges), lattice (0.2.0's narrow round kernels; shows the particles as bumps) or splashsurf (the fluid surfacer's pipeline, recommended settings; positions only) [default {}]", name(&defaults().outputs.rebuilt_method)))]
-    rebuilt_method: Option<RebuiltMethod>,
-    #[arg(long, value_parser = choice(&Inbetween::ALL), help = format!("What a segment aims at between two keyframes: crossfade (their nodal masses faded into each other) or shape (their signed distances blended: a boundary that sweeps from one to the other) [{}]", by_preset(|s| name(&s.method.inbetween))))]
-    inbetween: Option<Inbetween>,
-    #[arg(long, help = help("How far the schedule is re-timed so the shape in-between's own progress (its IoU gain toward the next keyframe) follows the easing curve, 0..=1 (0: the easing weight as it is)", None, by_preset(|s| s.method.progress_timing)))]
-    progress_timing: Option<f64>,
-    #[arg(long, value_parser = choice(&UsdFormat::ALL), help = format!("The USD file of the whole sequence: usdc (binary, morph.usdc), usda (text, morph.usda; about five times larger) or none [default {}]", name(&defaults().outputs.usd)))]
+    #[arg(long, help_heading = OUTPUT, value_parser = choice(&UsdFormat::ALL), help = format!("The USD file of the whole sequence: usdc (binary, morph.usdc), usda (text, morph.usda; about five times larger) or none [default {}]", name(&defaults().outputs.usd)))]
     usd: Option<UsdFormat>,
-    /// Write each frame's fill field (the field the rebuilt surface is made from; 1 inside the
-    /// body, 1/2 on its surface) as an OpenVDB float grid `density` in world units,
-    /// volumes/frame_0001.vdb ..., and a Volume prim in the USD file that reads them.
-    #[arg(long)]
+    /// Write each frame's fill field (1 inside the body, 1/2 on its surface) as an OpenVDB
+    /// float grid `density` in world units, volumes/frame_0001.vdb ..., and a Volume prim in
+    /// the USD file that reads them.
+    #[arg(long, help_heading = OUTPUT)]
     volume: bool,
-    /// Points only: the same as --surface none.
-    #[arg(long, conflicts_with = "surface")]
-    no_surfaces: bool,
+    #[arg(long, help_heading = RUN, value_parser = choice(&DeviceKind::ALL), help = format!("Where the engine runs: cpu, gpu (the Euler step through Vulkan, Metal or DX12; an error says what is missing) or auto (a GPU, not a software driver, where one runs the scene, else the CPU) [default {}]", name(&defaults().method.device)))]
+    device: Option<DeviceKind>,
     /// Print one JSON object per event on stdout (for farm logs) instead of progress bars;
     /// a failure ends the stream with an `error` event.
-    #[arg(long)]
+    #[arg(long, help_heading = RUN)]
     json: bool,
     /// Print nothing but errors.
-    #[arg(long, short)]
+    #[arg(long, short, help_heading = RUN)]
     quiet: bool,
     /// How progress is shown: bar (a progress bar on a terminal) or openjd (Open Job
     /// Description's lines on stdout for a render farm: `openjd_progress: <percent>`,
     /// `openjd_status: <message>`, and `openjd_fail: <message>` when the run fails).
-    #[arg(long, value_enum, default_value_t = ProgressShown::Bar, conflicts_with = "json")]
+    #[arg(long, help_heading = RUN, value_enum, default_value_t = ProgressShown::Bar, conflicts_with = "json")]
     progress: ProgressShown,
     /// Cap on the run's memory, e.g. 200M or 4G, at most the machine's (or its container's)
     /// memory: segments then keep checkpoints and recompute instead of holding every step
     /// (same results, more time). auto: a quarter of the memory this process may use.
-    #[arg(long, default_value = "auto", value_parser = parse_memory_limit)]
+    #[arg(long, help_heading = RUN, default_value = "auto", value_parser = parse_memory_limit)]
     memory_limit: MemoryLimit,
+}
+
+/// The option headings of `morph --help`.
+const SHOT: &str = "Shot";
+const QUALITY: &str = "Quality";
+const SCENE: &str = "Physics and scene";
+const OUTPUT: &str = "Output";
+pub(super) const RUN: &str = "Run and farm";
+
+/// Options of earlier versions that are method knobs now, and the knob each sets: given on
+/// the command line they are read as `--set KEY=VALUE` (scripts and farm templates keep
+/// working; `morph --help` shows `--set`).
+const KNOB_OPTIONS: &[&str] = &[
+    "segments",
+    "steps",
+    "control-stride",
+    "passes",
+    "iterations",
+    "levels",
+    "refine-iterations",
+    "optimizer",
+    "learning-rate",
+    "loss",
+    "arrival-weight",
+    "settle-drag",
+    "volume-weight",
+    "path-weight",
+    "lookahead",
+    "control-smoothing",
+    "waypoint-weight",
+    "carry-controls",
+    "fine-weight",
+    "reach-weight",
+    "particles-per-cell",
+    "jitter",
+    "dt",
+    "integrator",
+    "precision",
+    "control",
+    "control-resolution",
+    "seed",
+    "frame-every",
+    "rebuilt-method",
+    "inbetween",
+    "progress-timing",
+];
+
+/// The main job's arguments with each knob option (`--iterations 4`, `--iterations=4`) as
+/// `--set iterations=4`, and `--no-surfaces` as `--set surfaces=none`.
+pub fn knob_options_as_set(args: Vec<String>) -> Vec<String> {
+    let mut out = Vec::with_capacity(args.len());
+    let mut it = args.into_iter().peekable();
+    while let Some(arg) = it.next() {
+        if arg == "--" {
+            out.push(arg);
+            out.extend(it);
+            break;
+        }
+        if arg == "--no-surfaces" {
+            out.extend(["--set".to_string(), "surfaces=none".to_string()]);
+            continue;
+        }
+        let Some(flag) = arg.strip_prefix("--") else {
+            out.push(arg);
+            continue;
+        };
+        let (name, inline) = match flag.split_once('=') {
+            Some((n, v)) => (n, Some(v.to_string())),
+            None => (flag, None),
+        };
+        if !KNOB_OPTIONS.contains(&name) {
+            out.push(arg);
+            continue;
+        }
+        let value = inline.or_else(|| it.next()).unwrap_or_default();
+        out.extend([
+            "--set".to_string(),
+            format!("{}={value}", name.replace('-', "_")),
+        ]);
+    }
+    out
 }
 
 fn parse_memory_limit(s: &str) -> Result<MemoryLimit, String> {
@@ -354,19 +362,22 @@ impl MorphArgs {
         Ok((self.settings(settings)?.checked()?, source, targets))
     }
 
-    /// `base` (the preset's, or the scene file's) with the options given on the command line.
+    /// `base` (the preset's, or the scene file's) with the knobs set (`--set`), then the
+    /// options given on the command line.
     fn settings(&self, base: MorphSettings) -> Result<MorphSettings, String> {
-        let mut s = base;
-        self.apply_counts(&mut s);
-        self.apply_method(&mut s);
-        self.apply_physics(&mut s)?;
-        self.apply_shot(&mut s)?;
-        self.apply_choices(&mut s);
-        Ok(s)
-    }
-
-    /// The particles, the grid and the chain's counts.
-    fn apply_counts(&self, s: &mut MorphSettings) {
+        let sets = |key: &str| {
+            (self.set.iter()).any(|p| {
+                p.split('=').next().map(|k| k.trim().replace('-', "_")) == Some(key.into())
+            })
+        };
+        // What an option decides, a knob must not decide too.
+        if self.fps.is_some() && sets("frame_every") {
+            return Err("--fps and `frame_every` cannot be combined: a frame every n steps replaces the frame rate".into());
+        }
+        if (self.frames.is_some() || self.seconds.is_some()) && sets("segments") {
+            return Err("--frames (or --seconds) and `segments` cannot be combined: the frames decide the segments".into());
+        }
+        let mut s = morph::scene_file::with_keys(base, &self.set)?;
         // A resolution replaces the preset's particle budget; a budget replaces both.
         if let Some(r) = self.resolution {
             s.body.resolution = r;
@@ -376,90 +387,20 @@ impl MorphArgs {
         if self.particles.is_some() {
             s.body.particles = self.particles;
         }
-        set(&mut s.method.segments, self.segments);
-        set(&mut s.method.steps_per_segment, self.steps);
-        set(&mut s.method.control_stride, self.control_stride);
-        set(&mut s.method.passes, self.passes);
-        set(&mut s.method.optimizer.iterations, self.iterations);
-        set(&mut s.method.levels, self.levels);
-        if self.refine_iterations.is_some() {
-            s.method.refine_iterations = self.refine_iterations;
-        }
-        if let Some(k) = self.particles_per_cell {
-            s.body.particles_per_cell = k;
-            s.body.thin_across = 0.0;
-        }
         set(&mut s.shot.start_frame, self.start_frame);
-        if let Some(n) = self.frame_every {
-            // A frame every n steps replaces the frame rate.
-            s.shot.frame_every = n;
-            s.shot.fps = None;
-        }
+        self.apply_physics(&mut s)?;
+        self.apply_shot(&mut s)?;
+        self.apply_outputs(&mut s);
+        Ok(s)
     }
 
-    /// The optimizer and the objective's weights.
-    fn apply_method(&self, s: &mut MorphSettings) {
-        if let Some(o) = self.optimizer {
-            s.method.optimizer.kind = o;
-            s.method.optimizer.learning_rate = o.default_learning_rate();
-        }
-        if let Some(lr) = self.learning_rate {
-            s.method.optimizer.learning_rate = lr;
-        }
-        if let Some(w) = self.path_weight {
-            s.method.path_weight = w;
-        }
-        if let Some(w) = self.control_smoothing {
-            s.method.control_smoothing = w;
-        }
-        if let Some(w) = self.waypoint_weight {
-            s.method.waypoint_weight = w;
-        }
-        if let Some(c) = self.carry_controls {
-            s.method.carry_controls = c;
-        }
-        if let Some(n) = self.lookahead {
-            s.method.lookahead = n;
-        }
-        if let Some(w) = self.fine_weight {
-            s.method.fine_weight = w;
-        }
-        if let Some(w) = self.reach_weight {
-            s.method.reach_weight = w;
-        }
-        if let Some(w) = self.volume_weight {
-            s.method.volume_weight = w;
-        }
-        if let Some(w) = self.arrival_weight {
-            s.method.arrival_weight = w;
-        }
-        if let Some(d) = self.settle_drag {
-            s.method.settle_drag = d;
-        }
-        if let Some(j) = self.jitter {
-            s.body.jitter = j;
-        }
-    }
-
-    /// The material, the control and the integrator.
+    /// The material and the device.
     fn apply_physics(&self, s: &mut MorphSettings) -> Result<(), String> {
         if let Some(m) = self.material {
             s.body.material.model = m;
         }
-        if let Some(c) = self.control {
-            s.method.control = c;
-        }
-        if let Some(r) = self.control_resolution {
-            s.method.control_resolution = r;
-        }
-        if let Some(i) = self.integrator {
-            s.method.integrator = i;
-        }
         if let Some(d) = self.device {
             s.method.device = d;
-        }
-        if let Some(p) = self.precision {
-            s.method.precision = p;
         }
         if self.youngs_modulus.is_some() || self.poisson_ratio.is_some() {
             let (e0, nu0) = default_young_poisson();
@@ -481,16 +422,14 @@ impl MorphArgs {
         if let Some(d) = self.density {
             s.body.material.density = d;
         }
+        if let Some(fit) = self.target_fit {
+            s.body.target_fit = fit;
+        }
         Ok(())
     }
 
-    /// The shot's timing, keyframes and seed.
+    /// The shot's timing and keyframes.
     fn apply_shot(&self, s: &mut MorphSettings) -> Result<(), String> {
-        if self.dt.is_some() {
-            // A set dt is the step: frames come every --frame-every of them.
-            s.method.dt = self.dt;
-            s.shot.fps = None;
-        }
         if self.fps.is_some() {
             s.shot.fps = self.fps;
         }
@@ -500,44 +439,19 @@ impl MorphArgs {
         if let Some(seconds) = self.seconds {
             s.shot.frames = Some(s.frames_for(seconds)?);
         }
-        if self.segments.is_some() {
-            // --segments replaces a scene's frame count, as --frames replaces its segments.
-            s.shot.frames = None;
-        }
         if !self.at.is_empty() {
             s.shot.at = self.at.clone();
         }
         if let Some(b) = self.begin {
             s.shot.begin = b;
         }
-        if let Some(seed) = self.seed {
-            s.body.seed = seed;
-        }
         Ok(())
     }
 
-    /// The loss, the target's fit, the in-between and the outputs.
-    fn apply_choices(&self, s: &mut MorphSettings) {
-        if let Some(loss) = self.loss {
-            s.method.loss = loss;
-        }
-        if let Some(fit) = self.target_fit {
-            s.body.target_fit = fit;
-        }
-        if let Some(m) = self.inbetween {
-            s.method.inbetween = m;
-        }
-        if let Some(t) = self.progress_timing {
-            s.method.progress_timing = t;
-        }
-        if let Some(m) = self.rebuilt_method {
-            s.outputs.rebuilt_method = m;
-        }
+    /// The outputs.
+    fn apply_outputs(&self, s: &mut MorphSettings) {
         if let Some(surfaces) = self.surface {
             s.outputs.surfaces = surfaces;
-        }
-        if self.no_surfaces {
-            s.outputs.surfaces = Surfaces::None;
         }
         if let Some(usd) = self.usd {
             s.outputs.usd = usd;

@@ -10,6 +10,7 @@ pub use crate::io::usd::UsdFormat;
 use crate::loss::MassLossKind;
 use serde::{Deserialize, Serialize};
 
+pub mod knobs;
 mod parts;
 mod validate;
 mod world;

@@ -21,7 +21,7 @@ impl MorphSettings {
             && self.method.integrator != IntegratorKind::Euler
         {
             return Err(
-                "--device gpu runs the Euler integrator; use --integrator euler or --device cpu"
+                "--device gpu runs the Euler integrator; use --set integrator=euler or --device cpu"
                     .into(),
             );
         }
@@ -29,7 +29,7 @@ impl MorphSettings {
             && self.method.precision != crate::gpu::Precision::F64
         {
             return Err(
-                "--precision f32 is the GPU device's; the CPU engine runs in f64 (use --device gpu)"
+                "`precision` f32 is the GPU device's; the CPU engine runs in f64 (use --device gpu)"
                     .into(),
             );
         }
@@ -85,14 +85,17 @@ impl MorphSettings {
             if v.is_finite() && v > 0.0 {
                 Ok(())
             } else {
-                Err(format!("--{name} must be a positive number, got {v}"))
+                Err(format!(
+                    "{} must be a positive number, got {v}",
+                    shown(name)
+                ))
             }
         };
         let non_negative = |name: &str, v: f64| {
             if v.is_finite() && v >= 0.0 {
                 Ok(())
             } else {
-                Err(format!("--{name} must be >= 0, got {v}"))
+                Err(format!("{} must be >= 0, got {v}", shown(name)))
             }
         };
         positive("learning-rate", self.method.optimizer.learning_rate)?;
@@ -111,7 +114,7 @@ impl MorphSettings {
             && (0.0..=1.0).contains(&self.method.carry_controls))
         {
             return Err(format!(
-                "--carry-controls must be in 0..=1, got {}",
+                "`carry_controls` must be in 0..=1, got {}",
                 self.method.carry_controls
             ));
         }
@@ -119,20 +122,20 @@ impl MorphSettings {
             && (0.0..=1.0).contains(&self.method.progress_timing))
         {
             return Err(format!(
-                "--progress-timing must be in 0..=1, got {}",
+                "`progress_timing` must be in 0..=1, got {}",
                 self.method.progress_timing
             ));
         }
         if !(self.body.jitter.is_finite() && (0.0..=1.0).contains(&self.body.jitter)) {
             return Err(format!(
-                "--jitter must be between 0 and 1, got {}",
+                "`jitter` must be between 0 and 1, got {}",
                 self.body.jitter
             ));
         }
         if let Some(dt) = self.method.dt {
             positive("dt", dt)?;
             if self.shot.fps.is_some() {
-                return Err("--dt and --fps cannot be combined: --fps chooses the step".into());
+                return Err("`dt` and --fps cannot be combined: --fps chooses the step".into());
             }
         }
         if let Some(fps) = self.shot.fps
@@ -156,7 +159,7 @@ impl MorphSettings {
                 .div_ceil(self.method.steps_per_segment.max(1) as u128);
             if segments > *limits::SEGMENTS.end() as u128 {
                 return Err(format!(
-                    "--frames {n} makes {segments} segments of {} steps, more than {}; raise --steps or lower the frame spacing",
+                    "--frames {n} makes {segments} segments of {} steps, more than {}; raise `steps` (--set steps=N) or lower the frame spacing",
                     self.method.steps_per_segment,
                     limits::SEGMENTS.end()
                 ));
@@ -165,7 +168,7 @@ impl MorphSettings {
         let interval = self.method.dt.unwrap_or(step) * frame_every as f64;
         if 1.0 / interval > limits::MAX_FPS * (1.0 + 1e-9) {
             return Err(format!(
-                "frames {interval:.3e} s apart play at {:.3e} frames per second, more than {}: raise --dt or --frame-every",
+                "frames {interval:.3e} s apart play at {:.3e} frames per second, more than {}: raise `dt` or `frame_every` (--set)",
                 1.0 / interval,
                 limits::MAX_FPS
             ));
@@ -174,7 +177,7 @@ impl MorphSettings {
         if frames < 2 {
             let total: usize = self.timing().segment_steps.iter().sum();
             return Err(format!(
-                "the shot lasts {} steps ({:.3} s) but frames are {frame_every} steps ({interval:.3} s) apart: only the rest shape would be written; lower the frame spacing (--fps, --frame-every) or lengthen the shot (--frames, --seconds, --segments)",
+                "the shot lasts {} steps ({:.3} s) but frames are {frame_every} steps ({interval:.3} s) apart: only the rest shape would be written; lower the frame spacing (--fps, `frame_every`) or lengthen the shot (--frames, --seconds, `segments`)",
                 total,
                 total as f64 * self.method.dt.unwrap_or(step)
             ));
@@ -231,12 +234,28 @@ impl MorphSettings {
     }
 }
 
+/// A setting as a message names it: a method knob by its key (`--set path_weight=...`), an
+/// option of `morph --help` by the option.
+fn shown(name: &str) -> String {
+    let key = name.replace('-', "_");
+    let knob = super::knobs::knobs()
+        .iter()
+        .any(|k| k.key.rsplit('.').next() == Some(key.as_str()))
+        || super::knobs::ALIASES.iter().any(|(a, _)| *a == key);
+    if knob {
+        format!("`{key}`")
+    } else {
+        format!("--{name}")
+    }
+}
+
 fn range(name: &str, v: usize, r: std::ops::RangeInclusive<usize>) -> Result<(), String> {
     if r.contains(&v) {
         Ok(())
     } else {
         Err(format!(
-            "--{name} must be between {} and {}, got {v}",
+            "{} must be between {} and {}, got {v}",
+            shown(name),
             r.start(),
             r.end()
         ))
