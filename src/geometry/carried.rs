@@ -18,7 +18,7 @@
 //! control folds the flow into the rest shape and elasticity takes `F_p` back toward a
 //! rotation, so after a flow `F_p` no longer says how the material around the particle has
 //! changed shape (with the fit the carried surface ends 2-10% nearer the target on average:
-//! docs/geometry.md, "What turns the carried surface"). Where the fit fails (the neighbours
+//! docs/lab/2026-12-08-surfaces-record.md, "What turns the carried surface"). Where the fit fails (the neighbours
 //! parted or mixed: an rms residual toward [`FIT_TRUST_SPACINGS`]) the particle's own
 //! `F_p - I` takes over, faded in.
 //!

@@ -26,7 +26,7 @@ pub const OFF_DEGREES: f64 = 20.0;
 /// A face whose normal turns more than this from its neighbours' mean is a fold.
 pub const FOLD_DEGREES: f64 = 60.0;
 /// A face whose normal turns more than this from its neighbours' mean shows as a crease when
-/// rendered (docs/geometry.md, "Creases mid-shot"): a smooth surface marched at the particle
+/// rendered (docs/lab/2026-12-08-surfaces-record.md, "Creases mid-shot"): a smooth surface marched at the particle
 /// spacing turns by a few degrees from face to face.
 pub const CREASE_DEGREES: f64 = 30.0;
 

@@ -1,6 +1,6 @@
 //! The field's particle surfacer, splashsurf (its library: reconstruction, then the
 //! post-processing its command line runs with these settings), as one of the rebuilt surface's
-//! methods: for comparison with the deformed kernel (docs/geometry.md, "Measured: deformed
+//! methods: for comparison with the deformed kernel (docs/lab/2026-12-08-surfaces-record.md, "Measured: deformed
 //! kernels against splashsurf"), and for users who want a fluid-style surface. It sees
 //! positions only: a particle's deformation is unknown to it.
 //!

@@ -58,7 +58,7 @@ pub struct Quality {
     pub fill: f64,
     /// The fill of the body's material rather than of its particles: a judge point is covered
     /// when it lies in a particle's rest cell carried by the deformation fitted to its rest
-    /// neighbours, normalised by the target lattice's own (docs/morph.md, "Material fill").
+    /// neighbours, normalised by the target lattice's own (docs/lab/2026-12-08-method-record.md, "Material fill").
     /// Where a morph stretches the body, its particle layers part (1.6 spacings apart
     /// along the README job's lobes) and `fill` counts the material between them as missed;
     /// this does not. 0 in reports older than 0.13.0.

@@ -6,6 +6,7 @@
 mod common;
 
 mod determinism;
+mod docs;
 mod end_to_end;
 mod energy;
 mod errors;

@@ -1,4 +1,4 @@
-//! Runs a morph into an output folder (layout in `docs/morph.md`):
+//! Runs a morph into an output folder (layout in `docs/output.md`):
 //!
 //! ```text
 //! OUT/frames/frame_0001.ply ...   binary PLY points: x y z vx vy vz J id (world units)

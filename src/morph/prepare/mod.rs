@@ -249,7 +249,7 @@ pub struct WeightScale {
     /// flow, and a jump in it leaves the body strained by the jump, storing elastic energy
     /// in proportion to the shear modulus (the flow keeps volume), which the body gives back
     /// as a surge of motion. Weighed by the modulus, a jump costs what it would make a
-    /// viewer see (docs/morph.md, "Continuity by stiffness").
+    /// viewer see (docs/lab/2026-12-08-method-record.md, "Continuity by stiffness").
     pub smoothing: f64,
 }
 

@@ -188,7 +188,7 @@ impl Prepared {
             return self.keyframe_masses(to, step, fine);
         }
         // Re-timed so the in-between's own progress follows the easing curve, as far as the
-        // settings ask (docs/morph.md, "Progress timing").
+        // settings ask (docs/lab/2026-12-08-method-record.md, "Progress timing").
         let alpha = self.settings.method.progress_timing;
         let w = match (alpha > 0.0).then(|| self.section_timings()).transpose()? {
             Some(timings) => match &timings[from] {

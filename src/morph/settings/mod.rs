@@ -76,8 +76,8 @@ impl Preset {
     pub const ALL: [Preset; 3] = [Preset::Draft, Preset::Default, Preset::Final];
 
     /// What the preset measured: the quality judge's IoU with the target and fill, and the
-    /// wall time, for sphere -> spot on 2 cores (docs/morph.md; `final`: docs/accuracy.md,
-    /// "What accuracy costs now").
+    /// wall time, for sphere -> spot on 2 cores: docs/accuracy.md's "Presets" table (a test
+    /// holds the two alike).
     pub fn measured(self) -> &'static str {
         match self {
             Preset::Draft => "sphere -> spot: IoU 0.85, fill 0.94, 16 s",
@@ -240,11 +240,11 @@ impl MorphSettings {
         // sphere -> spot and sphere -> stanford-bunny the only lever left that raised the
         // judge; 24 segments at the default's grid judged below `default`).
         let particles = (preset == Preset::Final).then_some(FINAL_PARTICLES);
-        // The motion an animator keeps (docs/morph.md, "Look-ahead"): each segment optimized
+        // The motion an animator keeps (docs/lab/2026-12-08-method-record.md, "Look-ahead"): each segment optimized
         // with the next and scored along the scheduled path. It doubles a segment's cost, so
         // the quick look goes without.
         // The controls' continuity in time and light waypoints take out the pulse a window
-        // leaves at the segments' period (docs/morph.md, "Continuous controls").
+        // leaves at the segments' period (docs/lab/2026-12-08-method-record.md, "Continuous controls").
         let (lookahead, path_weight, control_smoothing, waypoint_weight) = match preset {
             Preset::Draft => (0, 0.0, 0.0, 1.0),
             Preset::Default | Preset::Final => (1, 1.0, 3.0e4, 0.1),
@@ -252,7 +252,7 @@ impl MorphSettings {
         // `default` starts each window's new segment from half the last control layer (the
         // pulse at the segments' period falls to 0.03-0.05 on the five motion morphs) and
         // brakes its held segments harder (they settle at 0.01-0.03 of their peak speed):
-        // docs/morph.md, "The carry and the brake". `final` keeps 0.8's, measured at its
+        // docs/lab/2026-12-08-method-record.md, "The carry and the brake". `final` keeps 0.8's, measured at its
         // budget; `draft`'s quick look keeps its own.
         let (carry_controls, arrival_weight) = match preset {
             Preset::Default => (0.5, 0.1),
@@ -262,7 +262,7 @@ impl MorphSettings {
         // a quarter of the way to its own progress: every motion goal met on the five motion
         // morphs at `default`, bob -> spot's fill 0.781 -> 0.894 there (the README job's
         // 0.923 -> 0.896), and at `final` 0.858 -> 0.920 with spot and stanford-bunny level
-        // (docs/morph.md, "Progress timing"). `draft`'s quick look keeps the cross-fade.
+        // (docs/lab/2026-12-08-method-record.md, "Progress timing"). `draft`'s quick look keeps the cross-fade.
         let (inbetween, progress_timing) = match preset {
             Preset::Default | Preset::Final => (Inbetween::Shape, 0.25),
             Preset::Draft => (Inbetween::Crossfade, 0.0),
