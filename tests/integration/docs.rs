@@ -33,7 +33,9 @@ fn the_helps_preset_figures_are_the_tables() {
     for [preset, iou, fill, wall, memory] in rows {
         let line = text
             .lines()
-            .find(|l| l.trim_start().starts_with(&format!("{preset} ")) && l.contains("sphere -> spot"))
+            .find(|l| {
+                l.trim_start().starts_with(&format!("{preset} ")) && l.contains("sphere -> spot")
+            })
             .unwrap_or_else(|| panic!("no {preset} line in --help"));
         let mut says = format!("IoU {iou}, fill {fill}, {wall}");
         if !memory.is_empty() {

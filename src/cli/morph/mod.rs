@@ -44,7 +44,7 @@ OUTPUT (folder -o, written in the locked OUT.partial and put in place when compl
   with the run id and SHA-256: a damaged checkpoint is refused by name).
 
 PRESETS (resolution or particle budget, segments x steps, passes, iterations per segment,
-look-ahead; measured quality and time from docs/morph.md, 2 cores):
+look-ahead; measured quality and time: docs/accuracy.md, Presets):
 {presets}
   --resolution, --particles and any knob (--set KEY=VALUE; `morph help method` lists them)
   override the preset's value (--resolution replaces a budget).
