@@ -591,7 +591,7 @@ pub fn run_warnings(segments: &[SegmentRecord]) -> Vec<String> {
         .collect();
     if !stalled.is_empty() {
         out.push(format!(
-            "no optimizer step improved segment(s) {} (its steps were too large, or a stiff material rang at every control layer: try a smaller --learning-rate)",
+            "no optimizer step improved segment(s) {} (its steps were too large, or a stiff material rang at every control layer: try a smaller `learning_rate` (--set learning_rate=...))",
             stalled.join(", ")
         ));
     }
@@ -629,16 +629,16 @@ pub fn optimization_failure(
     let lr = settings.method.optimizer.learning_rate;
     let advice = match (2 * undone >= steps.count(), outsized.is_empty()) {
         (true, true) => format!(
-            "most steps raised the objective or blew the simulation up: try a smaller --learning-rate (now {lr:e})"
+            "most steps raised the objective or blew the simulation up: try a smaller `learning_rate` (now {lr:e}; --set learning_rate=...)"
         ),
         (true, false) => format!(
-            "most steps raised the objective or blew the simulation up: {lower}, or try a smaller --learning-rate (now {lr:e})"
+            "most steps raised the objective or blew the simulation up: {lower}, or try a smaller `learning_rate` (now {lr:e}; --set learning_rate=...)"
         ),
         (false, true) => format!(
-            "its steps changed almost nothing: the learning rate {lr:e} is too small for these controls; try a larger --learning-rate"
+            "its steps changed almost nothing: the learning rate {lr:e} is too small for these controls; try a larger `learning_rate` (--set learning_rate=...)"
         ),
         (false, false) => format!(
-            "its steps changed almost nothing: {lower} (it drowns the mass loss), or try a larger --learning-rate (now {lr:e})"
+            "its steps changed almost nothing: {lower} (it drowns the mass loss), or try a larger `learning_rate` (now {lr:e}; --set learning_rate=...)"
         ),
     };
     Some(format!(

@@ -392,7 +392,7 @@ fn command_line_errors() {
         (
             vec!["--levels", "3", "--resolution", "20"],
             2,
-            "--levels 3 solves the morph on a grid of 5 cells first",
+            "`levels` 3 solves the morph on a grid of 5 cells first",
         ),
     ] {
         let mut args = vec!["assets/sphere.obj", "assets/cube.obj", "-o", o];

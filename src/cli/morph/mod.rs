@@ -62,6 +62,7 @@ EXIT CODES:
 EXAMPLES:
   morph assets/sphere.obj assets/two-lobes.obj -o out
   morph sphere.obj bunny.obj -o bunny_morph --preset final --json > log.jsonl
+  morph sphere.obj bunny.obj -o bunny_morph --set iterations=20 --set reach_weight=10  # knobs
   morph sphere.obj cube.obj bunny.obj -o keys --at 48,96 --frames 120  # through a cube
   morph --scene examples/fall-onto-floor.toml -o fall                   # a scene file
   morph sphere.obj bunny.obj -o bunny_morph --preset final --resume   # after an interruption

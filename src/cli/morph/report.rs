@@ -156,7 +156,7 @@ fn sizing_line(z: &morph::sizing::Sizing) -> String {
     );
     if z.wanted_per_cell > z.per_cell {
         line += &format!(
-            "; {} per cell would give them {:.1} across with about {:.0} particles, over the budget of {} (--particles-per-cell {} or --particles {:.0} asks for them)",
+            "; {} per cell would give them {:.1} across with about {:.0} particles, over the budget of {} (--set particles_per_cell={} or --particles {:.0} asks for them)",
             z.wanted_per_cell,
             z.across / z.per_cell as f64 * z.wanted_per_cell as f64,
             z.wanted_particles,

@@ -130,7 +130,7 @@ pub(super) fn substeps(
     };
     match settings.method.dt {
         Some(dt) if dt > limit => Err(MorphError::Settings(format!(
-            "--dt {dt} is above the stable bound {limit:.4e} s of this material on this grid (elastic wave speed {wave_speed:.4} over a cell of {:.4}); use --dt {:.4e} or less, or leave it out to substep automatically",
+            "`dt` {dt} is above the stable bound {limit:.4e} s of this material on this grid (elastic wave speed {wave_speed:.4} over a cell of {:.4}); use --set dt={:.4e} or less, or leave it out to substep automatically",
             scene.grid.dx,
             0.5 * limit
         ))),
@@ -265,7 +265,7 @@ pub(super) fn coarse_level(
     let min = *settings::limits::RESOLUTION.start();
     if coarsest < min {
         return Err(MorphError::Settings(format!(
-            "--levels {} solves the morph on a grid of {coarsest} cells first, below the least resolution {min}: use fewer levels or a finer grid",
+            "`levels` {} solves the morph on a grid of {coarsest} cells first, below the least resolution {min}: use fewer levels or a finer grid",
             settings.method.levels
         )));
     }

@@ -415,7 +415,7 @@ impl MorphSettings {
             let bound = if d > 0.0 { 1e2 * d } else { 1e6 };
             !(v.abs() <= bound)
         })
-        .map(|(name, v, d)| format!("--{name} {v:e} (default {d})"))
+        .map(|(name, v, d)| format!("`{}` {v:e} (default {d})", name.replace('-', "_")))
         .collect()
     }
 

@@ -176,23 +176,23 @@ fn an_optimization_that_cannot_work_fails_saying_what_to_change() {
     let cases: &[(&[&str], &[&str])] = &[
         (
             &["--volume-weight", "1e6"],
-            &["did not move the body", "lower --volume-weight"],
+            &["did not move the body", "lower `volume_weight`"],
         ),
         (
             &["--path-weight", "1e300"],
-            &["gradient is not finite", "lower --path-weight"],
+            &["gradient is not finite", "lower `path_weight`"],
         ),
         (
             &["--fine-weight", "1e300"],
-            &["gradient is not finite", "lower --fine-weight"],
+            &["gradient is not finite", "lower `fine_weight`"],
         ),
         (
             &["--control-smoothing", "1e300"],
-            &["did not move the body", "lower --control-smoothing"],
+            &["did not move the body", "lower `control_smoothing`"],
         ),
         (
             &["--learning-rate", "1e-300"],
-            &["did not move the body", "larger --learning-rate"],
+            &["did not move the body", "larger `learning_rate`"],
         ),
     ];
     for (extra, needles) in cases {
@@ -200,7 +200,7 @@ fn an_optimization_that_cannot_work_fails_saying_what_to_change() {
         args.extend_from_slice(extra);
         let o = run(&dir, &args);
         assert_one_line_error(&o, 1, needles);
-        assert!(!stderr(&o).contains("smaller --learning-rate") || extra[0] != "--learning-rate");
+        assert!(!stderr(&o).contains("smaller `learning_rate`") || extra[0] != "--learning-rate");
         assert!(
             !dir.join("o").exists() && !dir.join("o.partial").exists(),
             "{extra:?}"
