@@ -56,7 +56,7 @@ fn stiff_materials_substep_instead_of_failing() {
 fn a_time_step_above_the_bound_is_refused_with_the_bound() {
     let e = check("dt-above-bound").error.unwrap();
     assert!(
-        e.contains("--dt 0.01") && e.contains("s of this material"),
+        e.contains("`dt` 0.01") && e.contains("s of this material"),
         "{e}"
     );
 }
