@@ -67,6 +67,24 @@ pub fn unsupported(model: &Model) -> Option<String> {
     None
 }
 
+/// Whether each of the step's largest buffers (what it holds, bytes) fits the adapter's limits
+/// for one buffer bound to a shader: the error names the buffer, its size and the limit.
+pub fn fits_on(
+    adapter: &str,
+    buffers: &[(&str, usize)],
+    limits: &wgpu::Limits,
+) -> Result<(), String> {
+    let limit = u64::from(limits.max_storage_buffer_binding_size).min(limits.max_buffer_size);
+    match buffers.iter().find(|(_, bytes)| *bytes as u64 > limit) {
+        Some((what, bytes)) => Err(format!(
+            "the GPU device ({adapter}) binds at most {:.0} MB a buffer, and {what} needs {:.0} MB: use fewer particles, a coarser grid, or --device cpu",
+            limit as f64 / 1e6,
+            *bytes as f64 / 1e6
+        )),
+        None => Ok(()),
+    }
+}
+
 /// Grid effects the step applies, in the list's order (`step.wgsl`'s `RULES`).
 const RULES: usize = 4;
 /// Numbers a node takes in the grid buffer: mass, velocity after the effects and before.
@@ -207,6 +225,15 @@ impl GpuEuler {
         }
         let n = model.num_particles();
         let node_count = model.grid.node_count();
+        let largest = [
+            ("the particles' state", precision.bytes() * STATE_STRIDE * n),
+            (
+                "the particles' reverse",
+                precision.bytes() * RADJ_STRIDE * n,
+            ),
+            ("the grid", precision.bytes() * GRID_STRIDE * node_count),
+        ];
+        fits_on(&dev.name, &largest, &dev.limits).map_err(SimError::InvalidScene)?;
         let d = &dev.device;
         let (bgl, pipelines) = pipelines(d, precision);
         let f64s = |k: usize| k * precision.bytes();
@@ -322,7 +349,7 @@ impl GpuEuler {
                 &self.dev,
                 self.precision,
                 first_step,
-                self.copy_of(&self.state),
+                self.copy_of(&self.state)?,
             );
         }
         for k in 0..n_steps {
@@ -333,7 +360,7 @@ impl GpuEuler {
             self.upload_params(step, mode);
             self.submit(0..RECOMPUTE + 1, state.len());
             if let Some(t) = tape.as_deref_mut() {
-                t.push(self.copy_of(&self.state));
+                t.push(self.copy_of(&self.state)?);
             }
             if let Some(f) = on_step.as_deref_mut() {
                 self.read_state(state)?;
@@ -471,12 +498,22 @@ impl GpuEuler {
     }
 
     /// A device copy of `buf` (a taped state).
-    fn copy_of(&self, buf: &wgpu::Buffer) -> wgpu::Buffer {
+    /// A copy of `buf` on the device (a taped state), or the error saying the device's memory
+    /// is full (a tape is planned in the host's memory; the device may hold less).
+    fn copy_of(&self, buf: &wgpu::Buffer) -> Result<wgpu::Buffer, SimError> {
+        let d = &self.dev.device;
+        let scope = d.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
         let copy = storage(&self.dev, "taped state", buf.size() as usize);
-        let mut enc = self.dev.device.create_command_encoder(&Default::default());
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(SimError::InvalidScene(format!(
+                "the GPU device ({}) has no memory left for the tape ({e}); lower --memory-limit so that segments keep checkpoints and recompute, or use --device cpu",
+                self.dev.name
+            )));
+        }
+        let mut enc = d.create_command_encoder(&Default::default());
         enc.copy_buffer_to_buffer(buf, 0, &copy, 0, buf.size());
         self.dev.queue.submit([enc.finish()]);
-        copy
+        Ok(copy)
     }
 
     /// The nodal masses the last step's P2G made.
@@ -644,4 +681,26 @@ fn pack_grad(g: &StateGrad) -> Vec<f64> {
 
 fn unpack_grad(buf: &[f64], g: &mut StateGrad) {
     unpack_fields(buf, (&mut g.x, &mut g.v, &mut g.c, &mut g.f));
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A buffer past the adapter's binding limit is refused, naming it, its size and the limit.
+    #[test]
+    fn a_buffer_past_the_adapters_limit_is_refused_by_name() {
+        let limits = wgpu::Limits {
+            max_storage_buffer_binding_size: 128 << 20,
+            ..wgpu::Limits::default()
+        };
+        let small = [("the grid", 1 << 20), ("the particles' state", 100 << 20)];
+        assert_eq!(fits_on("a GPU", &small, &limits), Ok(()));
+        let large = [("the grid", 1 << 20), ("the particles' state", 200 << 20)];
+        let e = fits_on("a GPU", &large, &limits).unwrap_err();
+        assert!(
+            e.contains("the particles' state needs 210 MB") && e.contains("134 MB"),
+            "{e}"
+        );
+    }
 }
