@@ -247,19 +247,10 @@ pub fn with_keys(base: MorphSettings, pairs: &[String]) -> Result<MorphSettings,
             .ok()
             .and_then(|mut t| t.remove("v"))
             .unwrap_or_else(|| toml::Value::String(text.trim().to_string()));
-        let (last, tables) = path.split_last().expect("not empty");
-        let mut at = &mut table;
-        for name in tables {
-            at = match at
-                .entry(name.clone())
-                .or_insert_with(|| toml::Value::Table(toml::Table::new()))
-            {
-                toml::Value::Table(t) => t,
-                _ => return Err(format!("--set {pair}: `{name}` is given a value and keys")),
-            };
-        }
-        if at.insert(last.clone(), value).is_some() {
-            return Err(format!("--set: `{key}` is given twice"));
+        match insert_at(&mut table, &path, value) {
+            Ok(false) => {}
+            Ok(true) => return Err(format!("--set: `{key}` is given twice")),
+            Err(name) => return Err(format!("--set {pair}: `{name}` is given a value and keys")),
         }
     }
     nest(&mut table).map_err(|e| format!("--set: {e}"))?;
@@ -312,25 +303,39 @@ fn unalias(table: &mut toml::Table) -> Result<(), String> {
         let Some(value) = table.remove(*alias) else {
             continue;
         };
-        let (last, tables) = path.split_last().expect("not empty");
-        let mut at = &mut *table;
-        for name in tables {
-            at = match at
-                .entry(*name)
-                .or_insert_with(|| toml::Value::Table(toml::Table::new()))
-            {
-                toml::Value::Table(t) => t,
-                _ => return Err(format!("`{name}` must be a table of settings")),
-            };
-        }
-        if at.insert(last.to_string(), value).is_some() {
-            return Err(format!(
-                "`{alias}` is given twice: as it is and as `{}`",
-                path.join(".")
-            ));
+        match insert_at(table, path, value) {
+            Ok(false) => {}
+            Ok(true) => {
+                return Err(format!(
+                    "`{alias}` is given twice: as it is and as `{}`",
+                    path.join(".")
+                ));
+            }
+            Err(name) => return Err(format!("`{name}` must be a table of settings")),
         }
     }
     Ok(())
+}
+
+/// `value` at the dotted `path` of `table`, the tables on the way made where missing: whether
+/// the key was there already, or the name on the way that holds a value, not a table.
+fn insert_at<S: AsRef<str>>(
+    table: &mut toml::Table,
+    path: &[S],
+    value: toml::Value,
+) -> Result<bool, String> {
+    let (last, tables) = path.split_last().expect("a key");
+    let mut at = table;
+    for name in tables.iter().map(AsRef::as_ref) {
+        at = match at
+            .entry(name)
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()))
+        {
+            toml::Value::Table(t) => t,
+            _ => return Err(name.to_string()),
+        };
+    }
+    Ok(at.insert(last.as_ref().to_string(), value).is_some())
 }
 
 /// The table of part `part` (made empty when the file gives none of its keys; [`nest`] has
