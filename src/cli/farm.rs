@@ -37,10 +37,9 @@ struct MorphCommand {
 }
 
 pub fn run(args: &FarmTemplateArgs) -> ExitCode {
-    let parsed = MorphCommand::try_parse_from(
-        std::iter::once("morph".to_string())
-            .chain(super::morph::knob_options_as_set(args.morph.clone())),
-    )
+    let parsed = MorphCommand::try_parse_from(std::iter::once("morph".into()).chain(
+        super::morph::knob_options_as_set(args.morph.iter().map(Into::into).collect()),
+    ))
     .map_err(|e| {
         let text = e.render().to_string();
         let first = text

@@ -193,10 +193,8 @@ pub fn main() -> ExitCode {
 }
 
 /// The command line with the main job's knob options read as `--set` (a subcommand's
-/// arguments, and any that are not text, are left as they are).
+/// arguments are left as they are).
 fn main_job_args(args: Vec<std::ffi::OsString>) -> Vec<std::ffi::OsString> {
-    use clap::CommandFactory;
-    let command = Cli::command();
     let mut rest = args.iter().skip(1);
     let first = loop {
         match rest.next().and_then(|a| a.to_str()) {
@@ -207,19 +205,12 @@ fn main_job_args(args: Vec<std::ffi::OsString>) -> Vec<std::ffi::OsString> {
             other => break other,
         }
     };
-    let subcommand = first.is_some_and(|a| {
-        a == "help"
-            || command
-                .get_subcommands()
-                .any(|c| c.get_name() == a || c.get_all_aliases().any(|n| n == a))
-    });
-    let text: Option<Vec<String>> = args.iter().map(|a| a.to_str().map(String::from)).collect();
-    match text {
-        Some(text) if !subcommand => morph::knob_options_as_set(text)
-            .into_iter()
-            .map(Into::into)
-            .collect(),
-        _ => args,
+    let subcommand =
+        first.is_some_and(|a| a == "help" || <Command as clap::Subcommand>::has_subcommand(a));
+    if subcommand {
+        args
+    } else {
+        morph::knob_options_as_set(args)
     }
 }
 
@@ -307,10 +298,7 @@ where
 
 /// A value's name as the command line spells it: its serde name.
 fn name<T: serde::Serialize>(value: &T) -> String {
-    serde_json::to_value(value)
-        .ok()
-        .and_then(|v| v.as_str().map(str::to_string))
-        .unwrap_or_default()
+    ::morph::settings::knobs::name_of(value)
 }
 
 /// The library's default settings.

@@ -58,8 +58,11 @@ pub fn fit_to_field(
             .collect();
     }
     if let Some(volume) = volume {
-        let fitted: Vec<Vector3<f64>> = vertices.iter().zip(&moves).map(|(x, d)| x + d).collect();
-        let (current, area) = volume_and_area(&fitted, triangles);
+        let fitted = super::mesh::TriMesh::indexed(
+            vertices.iter().zip(&moves).map(|(x, d)| x + d).collect(),
+            triangles,
+        );
+        let (current, area) = (fitted.signed_volume(), fitted.surface_area());
         if current > 0.0 && area > 0.0 && volume > 0.0 {
             let out = (volume - current) / area;
             for (d, n) in moves.iter_mut().zip(&normals) {
@@ -103,17 +106,6 @@ pub fn fit_to_field(
     {
         *x = x0 + *s * d;
     }
-}
-
-/// The volume a closed mesh encloses and its area.
-fn volume_and_area(vertices: &[Vector3<f64>], triangles: &[[usize; 3]]) -> (f64, f64) {
-    triangles.iter().fold((0.0, 0.0), |(v, a), t| {
-        let [p, q, r] = t.map(|i| vertices[i]);
-        (
-            v + p.dot(&q.cross(&r)) / 6.0,
-            a + 0.5 * (q - p).cross(&(r - p)).norm(),
-        )
-    })
 }
 
 /// Per face: whether it folds ([`super::fidelity::FOLD_DEGREES`]).
@@ -232,7 +224,8 @@ mod tests {
             0.0,
             "a face folds"
         );
-        let (volume, _) = volume_and_area(&vertices, &triangles);
+        let volume =
+            crate::geometry::mesh::TriMesh::indexed(vertices.clone(), &triangles).signed_volume();
         assert!(
             (volume / body - 1.0).abs() < 0.03,
             "volume {volume} against {body}"

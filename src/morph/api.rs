@@ -265,6 +265,12 @@ pub struct WorldFrame {
 }
 
 impl WorldFrame {
+    /// The particles' mean volume ratio (an inverted particle counts as none): what a
+    /// surface is put back to, times the body's volume.
+    pub fn mean_j(&self) -> f64 {
+        self.j.iter().map(|j| j.max(0.0)).sum::<f64>() / self.j.len().max(1) as f64
+    }
+
     /// The particles' rms speed (world units per second): the motion measures' `s(f)`.
     pub fn rms_speed(&self) -> f64 {
         let n = self.v.len().max(1) as f64;

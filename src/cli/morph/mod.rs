@@ -11,6 +11,7 @@ use morph::memory::MemoryLimit;
 use morph::scene_file::SceneFile;
 use morph::settings::{Surfaces, UsdFormat, limits};
 use morph::{CheckedSettings, MorphSettings, Preset};
+use std::ffi::OsString;
 use std::path::PathBuf;
 
 pub const LONG_ABOUT: &str = "\
@@ -257,37 +258,37 @@ const KNOB_OPTIONS: &[&str] = &[
 ];
 
 /// The main job's arguments with each knob option (`--iterations 4`, `--iterations=4`) as
-/// `--set iterations=4`, and `--no-surfaces` as `--set surfaces=none`.
-pub fn knob_options_as_set(args: Vec<String>) -> Vec<String> {
-    let mut out = Vec::with_capacity(args.len());
-    let mut it = args.into_iter().peekable();
+/// `--set iterations=4`, and `--no-surfaces` as `--set surfaces=none` (an argument that is
+/// not text is passed as it is).
+pub fn knob_options_as_set(args: Vec<OsString>) -> Vec<OsString> {
+    let mut out: Vec<OsString> = Vec::with_capacity(args.len());
+    let mut it = args.into_iter();
     while let Some(arg) = it.next() {
-        if arg == "--" {
+        let Some(text) = arg.to_str() else {
+            out.push(arg);
+            continue;
+        };
+        if text == "--" {
             out.push(arg);
             out.extend(it);
             break;
         }
-        if arg == "--no-surfaces" {
-            out.extend(["--set".to_string(), "surfaces=none".to_string()]);
+        if text == "--no-surfaces" {
+            out.extend(["--set".into(), "surfaces=none".into()]);
             continue;
         }
-        let Some(flag) = arg.strip_prefix("--") else {
-            out.push(arg);
-            continue;
-        };
+        let flag = text.strip_prefix("--").unwrap_or("");
         let (name, inline) = match flag.split_once('=') {
-            Some((n, v)) => (n, Some(v.to_string())),
+            Some((n, v)) => (n, Some(OsString::from(v))),
             None => (flag, None),
         };
         if !KNOB_OPTIONS.contains(&name) {
             out.push(arg);
             continue;
         }
-        let value = inline.or_else(|| it.next()).unwrap_or_default();
-        out.extend([
-            "--set".to_string(),
-            format!("{}={value}", name.replace('-', "_")),
-        ]);
+        let mut pair = OsString::from(format!("{}=", name.replace('-', "_")));
+        pair.push(inline.or_else(|| it.next()).unwrap_or_default());
+        out.extend(["--set".into(), pair]);
     }
     out
 }
@@ -366,9 +367,11 @@ impl MorphArgs {
     /// `base` (the preset's, or the scene file's) with the knobs set (`--set`), then the
     /// options given on the command line.
     fn settings(&self, base: MorphSettings) -> Result<MorphSettings, String> {
+        // A knob by any of its spellings: `frame_every`, `shot.frame-every`.
         let sets = |key: &str| {
             (self.set.iter()).any(|p| {
-                p.split('=').next().map(|k| k.trim().replace('-', "_")) == Some(key.into())
+                let given = p.split('=').next().unwrap_or("").trim();
+                given.rsplit('.').next().map(|k| k.replace('-', "_")) == Some(key.into())
             })
         };
         // What an option decides, a knob must not decide too.

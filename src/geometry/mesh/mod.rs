@@ -113,6 +113,15 @@ pub struct AreaSample {
 }
 
 impl TriMesh {
+    /// A mesh of `vertices` and triangles given by `usize` indices (a carried surface's).
+    pub fn indexed(vertices: Vec<Vector3<f64>>, triangles: &[[usize; 3]]) -> TriMesh {
+        let triangles = triangles.iter().map(|t| t.map(|v| v as u32)).collect();
+        TriMesh {
+            vertices,
+            triangles,
+        }
+    }
+
     pub fn bounds(&self) -> Aabb {
         Aabb::of_points(&self.vertices)
     }

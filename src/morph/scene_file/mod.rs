@@ -234,6 +234,9 @@ fn layer(base: MorphSettings, mut table: toml::Table) -> Result<MorphSettings, S
 /// `[24, 48]`) or a bare word (`line-search`). A key the settings lack is refused naming the
 /// keys there are.
 pub fn with_keys(base: MorphSettings, pairs: &[String]) -> Result<MorphSettings, String> {
+    if pairs.is_empty() {
+        return Ok(base);
+    }
     let mut table = toml::Table::new();
     for pair in pairs {
         let (key, text) = pair

@@ -34,15 +34,18 @@ fn counts(r: RangeInclusive<usize>) -> String {
     format!("{} to {}", r.start(), r.end())
 }
 
+/// A value's name in files and on the command line (a unit variant's serde name; empty for
+/// anything else).
+pub fn name_of<T: serde::Serialize>(value: &T) -> String {
+    serde_json::to_value(value)
+        .ok()
+        .and_then(|v| v.as_str().map(str::to_string))
+        .unwrap_or_default()
+}
+
 /// A type's values by their names in files.
 fn values<T: serde::Serialize>(all: &[T]) -> String {
-    let names: Vec<String> = all
-        .iter()
-        .map(|v| match serde_json::to_value(v) {
-            Ok(serde_json::Value::String(s)) => s,
-            other => format!("{other:?}"),
-        })
-        .collect();
+    let names: Vec<String> = all.iter().map(name_of).collect();
     names.join(", ")
 }
 
@@ -324,16 +327,9 @@ pub fn default_of(part: &str, key: &str) -> String {
     }
     let parts: Vec<String> = by
         .iter()
-        .map(|(p, v)| format!("{} {v}", value_of_preset(*p)))
+        .map(|(p, v)| format!("{} {v}", name_of(p)))
         .collect();
     parts.join(", ")
-}
-
-fn value_of_preset(p: Preset) -> String {
-    match serde_json::to_value(p) {
-        Ok(serde_json::Value::String(s)) => s,
-        _ => format!("{p:?}"),
-    }
 }
 
 /// `morph help method`: every knob with its default, range and what it does.

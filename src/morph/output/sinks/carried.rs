@@ -80,12 +80,7 @@ impl FrameSink for CarriedObj {
                 )
             });
         if frame.index + 1 == frame.count {
-            let world = TriMesh {
-                vertices: on_frame.positions.clone(),
-                triangles: (self.surface.triangles.iter())
-                    .map(|t| t.map(|v| v as u32))
-                    .collect(),
-            };
+            let world = TriMesh::indexed(on_frame.positions.clone(), &self.surface.triangles);
             stats.likeness = likeness(&world, &self.target);
         }
         stats.seconds = clock.elapsed().as_secs_f64();
@@ -118,9 +113,7 @@ impl CarriedObj {
             faces: self.surface.face_neighbours(),
             rings: &fit.rings,
         };
-        let j = &frame.world.j;
-        let mean_j = j.iter().map(|j| j.max(0.0)).sum::<f64>() / j.len().max(1) as f64;
-        let volume = fit.closed.then_some(fit.body_volume * mean_j);
+        let volume = fit.closed.then_some(fit.body_volume * frame.world.mean_j());
         crate::geometry::fit::fit_to_field(&mut sim, &mesh, field, reach, strength, volume);
         on_frame.positions = sim.iter().map(|v| self.to_world.apply(v)).collect();
         if !on_frame.normals.is_empty() {

@@ -50,14 +50,15 @@ pub trait FrameSink {
     }
 }
 
+/// The source mesh's volume in simulation units, which the surfaces are put back to.
+fn body_volume(prep: &Prepared) -> f64 {
+    let scale = prep.geometry.placement.sim_to_world().scale;
+    prep.geometry.source_solid.volume / scale.powi(3)
+}
+
 /// Whether the carried surface's triangles close a volume.
 fn is_closed(surface: &CarriedSurface) -> bool {
-    let mesh = crate::geometry::mesh::TriMesh {
-        vertices: surface.rest().to_vec(),
-        triangles: (surface.triangles.iter())
-            .map(|t| t.map(|v| v as u32))
-            .collect(),
-    };
+    let mesh = crate::geometry::mesh::TriMesh::indexed(surface.rest().to_vec(), &surface.triangles);
     mesh.topology().is_closed()
 }
 
@@ -212,7 +213,7 @@ pub fn for_folder(
                     let source = prep.geometry.placement.world_to_sim.apply_mesh(&l.mesh);
                     Arc::new(SourcePlanes::new(&source, &prep.initial.x, spacing))
                 }),
-            body_volume: prep.geometry.source_solid.volume / to_world.scale.powi(3),
+            body_volume: body_volume(prep),
             to_world,
             references,
             target,
@@ -313,8 +314,7 @@ fn carried_sink(
             .map(|f| crate::morph::output::target_weight(prep, f))
             .collect(),
         rings: crate::geometry::fit::vertex_neighbours(surface.vertex_count(), &surface.triangles),
-        body_volume: prep.geometry.source_solid.volume
-            / prep.geometry.placement.sim_to_world().scale.powi(3),
+        body_volume: body_volume(prep),
         closed: is_closed(&surface),
     });
     Ok(Box::new(CarriedObj {

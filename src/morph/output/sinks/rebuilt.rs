@@ -98,7 +98,6 @@ impl FrameSink for RebuiltObj {
 
     fn frame(&mut self, frame: &SinkFrame, record: &mut FrameRecord) -> Result<(), MorphError> {
         let clock = std::time::Instant::now();
-        let j = &frame.world.j;
         let raw = match self.method {
             RebuiltMethod::Splashsurf => extract_splashsurf_surface(&frame.state.x, self.spacing),
             method => Ok(frame
@@ -113,8 +112,7 @@ impl FrameSink for RebuiltObj {
         if self.method != RebuiltMethod::Lattice {
             // A wide kernel (and smoothing) rounds the body by a thin layer: put it back
             // evenly, to the body's volume times the particles' mean volume change.
-            let mean_j = j.iter().map(|j| j.max(0.0)).sum::<f64>() / j.len().max(1) as f64;
-            keep_volume(&mut surface, self.body_volume * mean_j);
+            keep_volume(&mut surface, self.body_volume * frame.world.mean_j());
         }
         let path = self.dir.join(format!("{}.obj", frame.name()));
         let world = self.to_world.apply_mesh(&surface);
